@@ -45,7 +45,7 @@ class MissionError(ValueError):
         self.reason = reason
         self.line = line
         where = f"{source}:{line}" if line is not None else source
-        super().__init__(f"{where}: {field_path or '<root>'}: {reason}")
+        super().__init__(f"{where}: {field_path}: {reason}" if field_path else f"{where}: {reason}")
 
 
 @dataclass(frozen=True, slots=True)
