@@ -1,0 +1,1 @@
+"""The asyncio mission runner: per-vehicle pilots, safety monitors, flight logs, embedded stub."""

@@ -1,0 +1,1 @@
+"""The Vehicle port (``port``) and its adapters (``mavsdk_vehicle`` for real MAVLink links)."""

@@ -1,0 +1,333 @@
+"""The Vehicle port over MAVSDK 4 (``mavsdk.asyncio``): one Mavsdk instance per vehicle.
+
+Open with :func:`open_mavsdk_vehicle` as an async context manager. Inside it, one task group runs
+the telemetry pumps (attitude, position, velocity, mode, armed, landed state, health, battery,
+ADS-B traffic); leaving the context cancels them and destroys the Mavsdk instance.
+
+Conversions happen here and only through :mod:`companion.frames`: GLOBAL_POSITION_INT lat/lon
+becomes mission ENU (one frame for every vehicle, whatever their homes); NED yaw becomes an ENU
+heading; an ENU yaw rate becomes PX4's clockwise yawspeed. The vehicle's sim clock is the
+ATTITUDE ``time_boot_ms`` that MAVSDK passes on as ``EulerAngle.timestamp_us``; position
+messages carry no stamp in MAVSDK's API, so a position is paired with the attitude stamp that
+came with it (see ``_maybe_emit``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping, Sequence
+from contextlib import asynccontextmanager
+from typing import TypeVar
+
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, MavsdkConnectionError
+from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
+from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync, MissionRawError
+from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError, VelocityBodyYawspeed
+from mavsdk.asyncio.plugins.telemetry import FlightMode as MavFlightMode
+from mavsdk.asyncio.plugins.telemetry import LandedState as MavLandedState
+from mavsdk.asyncio.plugins.telemetry import TelemetryAsync, TelemetryError
+from mavsdk.asyncio.plugins.transponder import TransponderAsync
+from mavsdk.exceptions import MavsdkError
+
+from companion import frames
+from companion.errors import CommandRefused, ConnectTimeout, LinkError, MissionUploadError, VehicleNotReady
+from companion.vehicle.board import VehicleBoard
+from companion.vehicle.port import (
+    FlightMode,
+    GeoWaypoint,
+    LandedState,
+    PoseSample,
+    TrafficReport,
+    VehicleStatus,
+    VelocityYawRateSetpoint,
+)
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+MAV_CMD_NAV_WAYPOINT = 16
+MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
+MAV_MISSION_TYPE_MISSION = 0
+COMMAND_TIMEOUT_S = 5.0  # wall; MAVSDK itself retries a COMMAND_LONG for ~0.5 s x 3
+MISSION_TRANSFER_TIMEOUT_S = 30.0  # wall; the protocol has its own per-item timeouts
+_RETRYABLE = frozenset({"BUSY", "TIMEOUT", "CONNECTION_ERROR", "UNKNOWN"})
+
+_MODES = {
+    MavFlightMode.READY: FlightMode.READY, MavFlightMode.TAKEOFF: FlightMode.TAKEOFF,
+    MavFlightMode.HOLD: FlightMode.HOLD, MavFlightMode.MISSION: FlightMode.MISSION,
+    MavFlightMode.RETURN_TO_LAUNCH: FlightMode.RETURN_TO_LAUNCH, MavFlightMode.LAND: FlightMode.LAND,
+    MavFlightMode.OFFBOARD: FlightMode.OFFBOARD, MavFlightMode.POSCTL: FlightMode.POSCTL,
+    MavFlightMode.UNKNOWN: FlightMode.UNKNOWN,
+}
+_LANDED = {
+    MavLandedState.ON_GROUND: LandedState.ON_GROUND, MavLandedState.IN_AIR: LandedState.IN_AIR,
+    MavLandedState.TAKING_OFF: LandedState.TAKING_OFF, MavLandedState.LANDING: LandedState.LANDING,
+}
+
+
+def waypoints_to_items(waypoints: Sequence[GeoWaypoint], acceptance_radius_m: float) -> list[MissionItem]:
+    """MISSION_ITEM_INT NAV_WAYPOINTs (lat/lon in 1e-7 degrees, altitude above home)."""
+    return [MissionItem(seq=i, frame=MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=MAV_CMD_NAV_WAYPOINT,
+                        current=1 if i == 0 else 0, autocontinue=1,
+                        param1=0.0, param2=float(acceptance_radius_m), param3=0.0, param4=float("nan"),
+                        x=int(round(w.lat_deg * 1e7)), y=int(round(w.lon_deg * 1e7)), z=float(w.alt_rel_m),
+                        mission_type=MAV_MISSION_TYPE_MISSION)
+            for i, w in enumerate(waypoints)]
+
+
+def items_to_waypoints(items: Sequence[MissionItem]) -> tuple[GeoWaypoint, ...]:
+    return tuple(GeoWaypoint(lat_deg=it.x / 1e7, lon_deg=it.y / 1e7, alt_rel_m=float(it.z))
+                 for it in items if it.command == MAV_CMD_NAV_WAYPOINT)
+
+
+class MavsdkVehicle:
+    """One autopilot over its own Mavsdk instance. Build with :func:`open_mavsdk_vehicle`."""
+
+    def __init__(self, name: str, system_id: int, system, origin: frames.GeoOrigin):
+        self._name = name
+        self._system_id = system_id
+        self._origin = origin
+        self._board = VehicleBoard(name)
+        self._telemetry = TelemetryAsync(system)
+        self._action = ActionAsync(system)
+        self._offboard = OffboardAsync(system)
+        self._mission = MissionRawAsync(system)
+        self._transponder = TransponderAsync(system)
+        # Latest halves of a pose; a sample is emitted once both have been refreshed.
+        self._att: tuple[float, float] | None = None  # (t_sim_s, heading_enu_rad)
+        self._pos: tuple[float, float, float] | None = None  # (x_east_m, y_north_m, alt_rel_m)
+        self._vel: tuple[float, float] = (0.0, 0.0)  # (vx_east, vy_north)
+        self._att_fresh = False
+        self._pos_fresh = False
+
+    # -- port: readers --------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self._name
+
+    @property
+    def system_id(self) -> int:
+        return self._system_id
+
+    @property
+    def board(self) -> VehicleBoard:
+        return self._board
+
+    def latest_pose(self) -> PoseSample | None:
+        return self._board.pose()
+
+    def status(self) -> VehicleStatus:
+        return self._board.status()
+
+    def traffic(self) -> Mapping[str, TrafficReport]:
+        return self._board.traffic()
+
+    async def next_pose(self, after_seq: int, timeout_s: float) -> PoseSample:
+        return await self._board.next_pose(after_seq, timeout_s)
+
+    async def wait_until(self, predicate, timeout_s: float, what: str) -> None:
+        await self._board.wait_until(predicate, timeout_s, what)
+
+    async def wait_ready(self, timeout_s: float) -> None:
+        """Health all OK (gyro/accel/mag, local + global position, home) and a first pose."""
+        try:
+            await self._board.wait_until(lambda s, p: s.health_ok and p is not None, timeout_s,
+                                         "healthy status (MAVSDK health_all_ok) and position")
+        except LinkError:
+            detail = ""
+            try:
+                async with asyncio.timeout(2.0):
+                    h = await self._telemetry.health()
+                bad = [k for k, v in vars(h).items() if v is False]
+                detail = f"; not ok: {', '.join(bad)}" if bad else ""
+            except (TimeoutError, TelemetryError):
+                pass
+            raise VehicleNotReady(f"not healthy within {timeout_s:g} s{detail}", vehicle=self._name) from None
+
+    # -- port: commands -------------------------------------------------------------------
+    async def _command(self, command: str, call: Callable[[], Awaitable[T]],
+                       timeout_s: float = COMMAND_TIMEOUT_S) -> T:
+        try:
+            async with asyncio.timeout(timeout_s):
+                return await call()
+        except TimeoutError:
+            raise CommandRefused(command, "TIMEOUT", vehicle=self._name, retryable=True,
+                                 detail=f"no answer within {timeout_s:g} s") from None
+        except MissionRawError as exc:
+            raise MissionUploadError(f"{command}: {exc.result.name}", vehicle=self._name) from None
+        except (ActionError, OffboardError, TelemetryError) as exc:
+            name = exc.result.name
+            raise CommandRefused(command, name, vehicle=self._name, retryable=name in _RETRYABLE) from None
+        except MavsdkError as exc:
+            raise CommandRefused(command, type(exc).__name__, vehicle=self._name, retryable=False,
+                                 detail=str(exc)) from None
+
+    async def upload_route(self, waypoints: Sequence[GeoWaypoint], acceptance_radius_m: float) -> None:
+        if not waypoints:
+            raise MissionUploadError("empty route", vehicle=self._name)
+        items = waypoints_to_items(waypoints, acceptance_radius_m)
+        await self._command("mission upload", lambda: self._mission.upload_mission(items),
+                            MISSION_TRANSFER_TIMEOUT_S)
+
+    async def download_route(self) -> tuple[GeoWaypoint, ...]:
+        items = await self._command("mission download", self._mission.download_mission,
+                                    MISSION_TRANSFER_TIMEOUT_S)
+        return items_to_waypoints(items)
+
+    async def arm(self) -> None:
+        await self._command("arm", self._action.arm)
+
+    async def takeoff(self, alt_rel_m: float) -> None:
+        # PX4 takes off to MIS_TAKEOFF_ALT; MAVSDK sets it through the param protocol.
+        await self._command("set takeoff altitude", lambda: self._action.set_takeoff_altitude(float(alt_rel_m)))
+        await self._command("takeoff", self._action.takeoff)
+
+    def _body(self, sp: VelocityYawRateSetpoint) -> VelocityBodyYawspeed:
+        yawspeed = frames.enu_yaw_rate_to_ned(sp.yaw_rate_enu_rad_s)
+        return VelocityBodyYawspeed(forward_m_s=float(sp.forward_m_s), right_m_s=0.0,
+                                    down_m_s=float(-sp.climb_m_s), yawspeed_deg_s=math.degrees(yawspeed))
+
+    async def start_offboard(self, first: VelocityYawRateSetpoint) -> None:
+        # PX4 refuses OFFBOARD unless setpoints are already flowing: send one first.
+        await self.send_setpoint(first)
+        await self._command("offboard start", self._offboard.start)
+
+    async def send_setpoint(self, setpoint: VelocityYawRateSetpoint) -> None:
+        body = self._body(setpoint)
+        await self._command("offboard setpoint", lambda: self._offboard.set_velocity_body(body))
+
+    async def hold(self) -> None:
+        if self._board.status().mode is FlightMode.OFFBOARD:
+            # offboard.stop() switches to HOLD and ends MAVSDK's own 20 Hz setpoint resend.
+            try:
+                await self._command("offboard stop", self._offboard.stop)
+                return
+            except CommandRefused:
+                pass
+        await self._command("hold", self._action.hold)
+
+    async def land(self) -> None:
+        await self._command("land", self._action.land)
+
+    # -- pumps ----------------------------------------------------------------------------
+    def start_pumps(self, tg: asyncio.TaskGroup) -> list[asyncio.Task]:
+        pumps = (self._pump_attitude, self._pump_position, self._pump_velocity, self._pump_mode,
+                 self._pump_armed, self._pump_landed, self._pump_health, self._pump_battery,
+                 self._pump_traffic)
+        return [tg.create_task(p(), name=f"{self._name}:{p.__name__}") for p in pumps]
+
+    async def _maybe_emit(self) -> None:
+        if not (self._att_fresh and self._pos_fresh) or self._att is None or self._pos is None:
+            return
+        self._att_fresh = self._pos_fresh = False
+        t_sim, heading = self._att
+        x, y, alt = self._pos
+        await self._board.put_pose(t_sim_s=t_sim, x_east_m=x, y_north_m=y, alt_rel_m=alt,
+                                   vx_east_m_s=self._vel[0], vy_north_m_s=self._vel[1],
+                                   heading_enu_rad=heading)
+
+    async def _pump_attitude(self) -> None:
+        async for a in self._telemetry.subscribe_attitude_euler():
+            t_sim = a.timestamp_us / 1e6
+            self._board.note_clock(t_sim)
+            self._att = (t_sim, frames.ned_yaw_to_enu_heading(math.radians(a.yaw_deg)))
+            self._att_fresh = True
+            await self._maybe_emit()
+
+    async def _pump_position(self) -> None:
+        async for p in self._telemetry.subscribe_position():
+            if not (math.isfinite(p.latitude_deg) and math.isfinite(p.longitude_deg)):
+                continue
+            x, y, _ = frames.geodetic_to_local(self._origin, p.latitude_deg, p.longitude_deg)
+            self._pos = (x, y, float(p.relative_altitude_m))
+            self._pos_fresh = True
+            await self._maybe_emit()
+
+    async def _pump_velocity(self) -> None:
+        async for v in self._telemetry.subscribe_velocity_ned():
+            east, north, _ = frames.ned_to_enu(v.north_m_s, v.east_m_s, v.down_m_s)
+            self._vel = (east, north)
+
+    async def _pump_mode(self) -> None:
+        async for m in self._telemetry.subscribe_flight_mode():
+            await self._board.put_status(mode=_MODES.get(m, FlightMode.OTHER))
+
+    async def _pump_armed(self) -> None:
+        async for armed in self._telemetry.subscribe_armed():
+            await self._board.put_status(armed=bool(armed))
+
+    async def _pump_landed(self) -> None:
+        async for s in self._telemetry.subscribe_landed_state():
+            await self._board.put_status(landed=_LANDED.get(s, LandedState.UNKNOWN))
+
+    async def _pump_health(self) -> None:
+        async for ok in self._telemetry.subscribe_health_all_ok():
+            await self._board.put_status(health_ok=bool(ok))
+
+    async def _pump_battery(self) -> None:
+        async for b in self._telemetry.subscribe_battery():
+            pct = float(b.remaining_percent)
+            await self._board.put_status(battery_pct=pct if math.isfinite(pct) else None)
+
+    async def _pump_traffic(self) -> None:
+        async for a in self._transponder.subscribe_transponder():
+            callsign = str(a.callsign).strip().strip("\x00")
+            if not callsign or not (math.isfinite(a.latitude_deg) and math.isfinite(a.longitude_deg)):
+                continue
+            x, y, _ = frames.geodetic_to_local(self._origin, a.latitude_deg, a.longitude_deg)
+            # ADS-B course is clockwise from north, i.e. a NED yaw.
+            course = frames.ned_yaw_to_enu_heading(math.radians(a.heading_deg))
+            speed = float(a.horizontal_velocity_m_s)
+            t_sim = self._board.latest_clock_s if self._board.latest_clock_s is not None else math.nan
+            await self._board.put_traffic(TrafficReport(
+                callsign=callsign, x_east_m=x, y_north_m=y,
+                vx_east_m_s=speed * math.cos(course), vy_north_m_s=speed * math.sin(course),
+                t_sim_s=t_sim, t_wall_s=time.monotonic(), via=self._name))
+
+
+@asynccontextmanager
+async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frames.GeoOrigin, *,
+                              connect_timeout_s: float = 15.0) -> AsyncIterator[MavsdkVehicle]:
+    """Connect to the autopilot on ``url`` and run its telemetry pumps while the context is open."""
+    sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    try:
+        try:
+            async with asyncio.timeout(connect_timeout_s):
+                await sdk.add_any_connection(url)
+        except MavsdkConnectionError as exc:
+            raise LinkError(f"cannot open connection {url!r}: {exc}", vehicle=name) from None
+        except TimeoutError:
+            raise ConnectTimeout(f"opening {url!r} took longer than {connect_timeout_s:g} s", vehicle=name) from None
+        try:
+            async with asyncio.timeout(connect_timeout_s + 1.0):
+                system = await sdk.first_autopilot(timeout_s=connect_timeout_s)
+        except TimeoutError:
+            system = None
+        if system is None:
+            raise ConnectTimeout(f"no autopilot heartbeat on {url} within {connect_timeout_s:g} s", vehicle=name)
+        got = await system.get_system_id()
+        if got != system_id:
+            raise LinkError(f"the autopilot on {url} has system id {got}, the mission expects {system_id}",
+                            vehicle=name)
+        vehicle = MavsdkVehicle(name, system_id, system, origin)
+        try:
+            async with asyncio.TaskGroup() as tg:
+                pumps = vehicle.start_pumps(tg)
+                try:
+                    yield vehicle
+                finally:
+                    for task in pumps:
+                        task.cancel()
+        except BaseExceptionGroup as group:
+            # The pumps only end by cancellation, so the group holds the caller's own error:
+            # hand it back unwrapped so that ``except CommandRefused`` still works.
+            if len(group.exceptions) == 1:
+                raise group.exceptions[0] from None
+            raise
+    finally:
+        # Joins MAVSDK's threads: keep it off the event loop.
+        await asyncio.to_thread(sdk.destroy)
