@@ -145,11 +145,18 @@ def _fill_disk(occ: np.ndarray, xs: np.ndarray, ys: np.ndarray, centre: tuple[fl
     occ[sy, sx] |= dy[:, None] ** 2 + dx[None, :] ** 2 <= radius_m * radius_m
 
 
+def dilate(geom: BaseGeometry, distance_m: float) -> BaseGeometry:
+    """The points within ``distance_m`` of ``geom``, as a polygon that never falls short of it."""
+    if distance_m <= 0:
+        return geom
+    return shapely.buffer(geom, distance_m * _CIRCUMSCRIBE, quad_segs=_DILATE_QUAD_SEGS)
+
+
 def _fill_within(occ: np.ndarray, xs: np.ndarray, ys: np.ndarray, geom: BaseGeometry, distance_m: float) -> None:
     """Mark the cells whose centre is within ``distance_m`` of ``geom`` (never fewer)."""
     if geom.is_empty:
         return
-    dilated = shapely.buffer(geom, distance_m * _CIRCUMSCRIBE, quad_segs=_DILATE_QUAD_SEGS) if distance_m > 0 else geom
+    dilated = dilate(geom, distance_m)
     x_lo, y_lo, x_hi, y_hi = dilated.bounds
     sx = _index_range(xs, x_lo, x_hi)
     sy = _index_range(ys, y_lo, y_hi)
