@@ -1,0 +1,130 @@
+"""``companion bench``: the four-variant ablation over seeded random scenarios (paper Table IV).
+
+Registered on the main parser by :func:`add_parser`; also runs as ``python -m companion.bench``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+from companion.mission import VARIANTS
+
+DEFAULT_VARIANTS = ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
+    return value
+
+
+def _variant_list(text: str) -> tuple[str, ...]:
+    chosen = tuple(v.strip() for v in text.split(",") if v.strip())
+    unknown = [v for v in chosen if v not in VARIANTS]
+    if unknown or not chosen:
+        raise argparse.ArgumentTypeError(f"unknown variant(s) {', '.join(unknown) or '(none given)'}; "
+                                         f"choose from {', '.join(VARIANTS)}")
+    if len(set(chosen)) != len(chosen):
+        raise argparse.ArgumentTypeError(f"a variant is listed twice: {text}")
+    return chosen
+
+
+def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    parser.add_argument("--scenarios", type=_positive_int, default=120, metavar="N",
+                        help="scenarios 0..N-1 of the seed (default 120, as the paper's Table IV)")
+    parser.add_argument("--seed", type=int, default=2026, help="scenario seed (default 2026)")
+    parser.add_argument("--variants", type=_variant_list, default=DEFAULT_VARIANTS, metavar="V[,V...]",
+                        help=f"comma-separated planner variants (default {','.join(DEFAULT_VARIANTS)})")
+    parser.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                        help="worker processes (default: os.cpu_count(); 1 runs in-process)")
+    parser.add_argument("--out", type=Path, default=None, metavar="DIR",
+                        help="output directory (default bench_s<seed>_n<N>)")
+    parser.add_argument("--scenario-config", type=Path, default=None, metavar="FILE",
+                        help="YAML mapping overriding the generator defaults (companion.scenarios.ScenarioConfig)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=main)
+    return parser
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``bench`` to the main CLI's subparsers."""
+    parser = subparsers.add_parser(
+        "bench", help="four-variant ablation over seeded random scenarios (paper Table IV, Fig. 13)",
+        description=__doc__.splitlines()[0])
+    return configure(parser)
+
+
+def _scenario_config(path: Path | None):
+    from companion.scenarios import ScenarioConfig, ScenarioError
+    if path is None:
+        return ScenarioConfig()
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise SystemExit(f"companion bench: cannot read {path}: {str(exc).splitlines()[0]}") from None
+    if not isinstance(data, dict):
+        raise SystemExit(f"companion bench: {path}: must be a YAML mapping of ScenarioConfig fields")
+    try:
+        return ScenarioConfig.from_mapping(data)
+    except ScenarioError as exc:
+        raise SystemExit(f"companion bench: {path}: {exc}") from None
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run the bench, write every artefact, print the table. Exit 1 when a run was unsafe
+    (collision, separation, geofence) or crashed, 0 otherwise (timeouts are results)."""
+    from companion.bench import execute, figures
+    from companion.bench.table import aggregate, format_table, write_runs_csv
+    from companion.scenarios import config_dict
+
+    config = _scenario_config(args.scenario_config)
+    out = args.out or Path(f"bench_s{args.seed}_n{args.scenarios}")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SystemExit(f"companion bench: cannot create output directory {out}: {exc.strerror}") from None
+    execute.clear_failures(out)
+    workers = args.workers or os.cpu_count() or 1
+    started = time.perf_counter()
+    rows = execute.run_bench(args.seed, args.scenarios, args.variants, workers=workers, out_dir=out,
+                             config=config, progress=None if args.quiet else sys.stderr)
+    wall = time.perf_counter() - started
+
+    summary = aggregate(rows)
+    write_runs_csv(rows, out / "runs.csv")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    command = (f"companion bench --scenarios {args.scenarios} --seed {args.seed} "
+               f"--variants {','.join(args.variants)} --workers {workers} --out {out}")
+    meta = {"command": command,
+            "seed": args.seed, "scenarios": args.scenarios, "variants": list(args.variants),
+            "workers": workers, "wall_s": round(wall, 2), "cpu_count": os.cpu_count(),
+            "python": platform.python_version(), "scenario_config": config_dict(config)}
+    (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+    figures.save(figures.violin_figure(rows), out / "violin.png")
+    figures.save(figures.lines_figure(rows), out / "lines.png")
+    execute.write_failure_index(rows, out)
+
+    print(format_table(summary))
+    print(f"\n{len(rows)} runs ({args.scenarios} scenarios x {len(args.variants)} variants, seed {args.seed}) "
+          f"in {wall:.1f} s wall on {workers} worker(s); results in {out}/")
+    bad = sum(s["unsafe"] + s["reasons"].get("error", 0) for s in summary.values())
+    if bad:
+        print(f"companion bench: {bad} run(s) unsafe or errored; see {out}/failures/index.md", file=sys.stderr)
+    return 1 if bad else 0
+
+
+def run(argv: list[str] | None = None) -> int:
+    parser = configure(argparse.ArgumentParser(prog="companion bench", description=__doc__.splitlines()[0]))
+    return main(parser.parse_args(argv))

@@ -1,0 +1,103 @@
+"""The ablation's figures from runs.csv rows: Fig. 13(a) lines and Fig. 13(b) violins.
+
+matplotlib's object API on the Agg canvas (as companion.plots): no pyplot, no global state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from companion.bench.table import vehicle_names
+
+VARIANT_COLORS = {"astar-bdwa": "tab:red", "astar-bdwa-nosparse": "tab:orange",
+                  "bdwa": "tab:blue", "dwa": "tab:gray"}
+
+
+def _color(variant: str, k: int) -> str:
+    return VARIANT_COLORS.get(variant, f"C{k}")
+
+
+def _variants(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    return list(dict.fromkeys(r["variant"] for r in rows))
+
+
+def violin_figure(rows: Sequence[Mapping[str, Any]], *, title: str | None = None) -> Figure:
+    """Flight-time distributions of successful runs, one violin per variant and UAV, with a
+    box plot inside and the success count under each (Fig. 13b)."""
+    variants = _variants(rows)
+    names = vehicle_names(rows)
+    fig = Figure(figsize=(max(6.0, 1.6 * len(variants) * len(names)), 5.0), dpi=110)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    positions, labels = [], []
+    pos = 0.0
+    for k, variant in enumerate(variants):
+        for j, name in enumerate(names):
+            times = [r[f"{name}_flight_time_s"] for r in rows if r["variant"] == variant and r["success"]]
+            labels.append(f"{variant}\nUAV {name} (n={len(times)})")
+            positions.append(pos)
+            if len(times) >= 2:
+                parts = ax.violinplot([times], positions=[pos], widths=0.8, showextrema=False)
+                for body in parts["bodies"]:
+                    body.set_facecolor(_color(variant, k))
+                    body.set_alpha(0.35 if j else 0.6)
+            if times:
+                ax.boxplot([times], positions=[pos], widths=0.18, showfliers=True, patch_artist=True,
+                           boxprops={"facecolor": "white"}, medianprops={"color": "k"},
+                           flierprops={"markersize": 3})
+            pos += 1.0
+        pos += 0.5
+    ax.set_xticks(positions, labels, fontsize=7)
+    ax.set_ylabel("flight time of successful runs (s)")
+    ax.set_title(title or "Flight-time distributions per variant and UAV (cf. paper Fig. 13b)")
+    ax.grid(True, axis="y", lw=0.3, alpha=0.6)
+    fig.tight_layout()
+    return fig
+
+
+def lines_figure(rows: Sequence[Mapping[str, Any]], *, title: str | None = None) -> Figure:
+    """Flight time per scenario index for each variant, one panel per UAV; failed runs are
+    gaps in the line and crosses on the bottom axis (Fig. 13a)."""
+    variants = _variants(rows)
+    names = vehicle_names(rows)
+    fig = Figure(figsize=(11.0, 3.2 * max(len(names), 1)), dpi=110)
+    FigureCanvasAgg(fig)
+    axes = [fig.add_subplot(len(names), 1, j + 1) for j in range(len(names))]
+    indices = sorted({r["index"] for r in rows})
+    pos = {i: k for k, i in enumerate(indices)}
+    for ax, name in zip(axes, names):
+        for k, variant in enumerate(variants):
+            y = np.full(len(indices), np.nan)
+            failed = []
+            for r in rows:
+                if r["variant"] != variant:
+                    continue
+                if r["success"]:
+                    y[pos[r["index"]]] = r[f"{name}_flight_time_s"]
+                else:
+                    failed.append(r["index"])
+            ok = int(np.count_nonzero(~np.isnan(y)))
+            ax.plot(indices, y, lw=1.0, marker=".", ms=3, color=_color(variant, k),
+                    label=f"{variant} ({ok}/{len(indices)} ok, {len(failed)} failed)")
+            if failed:  # stacked per variant just above the bottom axis
+                ax.plot(failed, [0.03 + 0.04 * k] * len(failed), ls="none", marker="x", ms=5, color=_color(variant, k),
+                        transform=ax.get_xaxis_transform(), clip_on=False)
+        ax.set_ylabel(f"UAV {name} flight time (s)")
+        ax.grid(True, lw=0.3, alpha=0.6)
+        ax.legend(fontsize=7, loc="upper right", ncol=2)
+    axes[-1].set_xlabel("scenario index (x at the bottom: failed run)")
+    axes[0].set_title(title or "Flight time per scenario (cf. paper Fig. 13a)")
+    fig.tight_layout()
+    return fig
+
+
+def save(fig: Figure, path: str | Path) -> Path:
+    path = Path(path)
+    fig.savefig(path)
+    return path

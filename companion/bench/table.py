@@ -1,0 +1,184 @@
+"""Runs as flat rows, runs.csv, and the per-variant summary computed from rows alone.
+
+A row is one (scenario, variant) flight: plain named values (no arrays), so the summary that
+``companion bench`` prints and writes can be recomputed from runs.csv by anyone, and the tests
+check exactly that. Per-vehicle values are columns named ``<vehicle>_<metric>``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import statistics
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+UNSAFE_REASONS = ("collision", "separation", "geofence")
+
+RUN_COLUMNS: tuple[tuple[str, type], ...] = (
+    ("seed", int), ("index", int), ("scenario", str), ("variant", str),
+    ("success", bool), ("success_strict", bool), ("reason", str), ("failure_t_s", float),
+    ("duration_s", float), ("min_separation_m", float), ("los_blocked_fraction", float),
+    ("crossing_occluded", bool), ("planner_ms_per_tick", float), ("wall_s", float), ("error", str),
+)
+VEHICLE_COLUMNS: tuple[tuple[str, type], ...] = (
+    ("arrived", bool), ("flight_time_s", float), ("path_length_m", float), ("lower_bound_s", float),
+    ("ratio", float), ("min_obstacle_clearance_m", float), ("nodes_raw", int), ("nodes_sparse", int),
+)
+
+
+def run_row(seed: int, index: int, scenario: str, variant: str, summary: Mapping[str, Any] | None, *,
+            wall_s: float, reason: str | None = None, error: str | None = None) -> dict[str, Any]:
+    """One CSV row from a run's ``summary_dict()``; without a summary (no_path, error) only
+    the identity, the reason and the error message are filled."""
+    row: dict[str, Any] = {"seed": seed, "index": index, "scenario": scenario, "variant": variant,
+                           "wall_s": round(wall_s, 3), "error": error}
+    if summary is None:
+        row.update(success=False, success_strict=False, reason=reason or "error")
+        return row
+    for key, _ in RUN_COLUMNS:
+        if key in summary:
+            row[key] = summary[key]
+    for name, metrics in summary.get("vehicles", {}).items():
+        for key, _ in VEHICLE_COLUMNS:
+            row[f"{name}_{key}"] = metrics.get(key)
+    return row
+
+
+def vehicle_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
+    """Vehicle names in order of first appearance (from ``<name>_arrived`` columns)."""
+    names: list[str] = []
+    for row in rows:
+        for key in row:
+            if key.endswith("_arrived") and key[:-len("_arrived")] not in names:
+                names.append(key[:-len("_arrived")])
+    return names
+
+
+def columns(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    return [k for k, _ in RUN_COLUMNS] + [f"{n}_{k}" for n in vehicle_names(rows) for k, _ in VEHICLE_COLUMNS]
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return repr(value) if math.isfinite(value) else ""
+    return str(value)
+
+
+def write_runs_csv(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
+    path = Path(path)
+    header = columns(rows)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(header)
+        for row in rows:
+            writer.writerow([_cell(row.get(k)) for k in header])
+    return path
+
+
+def _typed(kind: type, text: str) -> Any:
+    if text == "":
+        return None
+    if kind is bool:
+        if text not in ("True", "False"):
+            raise ValueError(f"not a boolean: {text!r}")
+        return text == "True"
+    return kind(text)
+
+
+def read_runs_csv(path: str | Path) -> list[dict[str, Any]]:
+    """runs.csv back as typed rows (empty cells are None)."""
+    kinds = dict(RUN_COLUMNS)
+    suffix_kinds = dict(VEHICLE_COLUMNS)
+    with Path(path).open(newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        rows = []
+        for raw in reader:
+            row: dict[str, Any] = {}
+            for key, text in raw.items():
+                kind = kinds.get(key)
+                if kind is None:
+                    kind = next((k for s, k in suffix_kinds.items() if key.endswith("_" + s)), str)
+                row[key] = _typed(kind, text)
+            rows.append(row)
+    return rows
+
+
+def _stats(values: Sequence[float]) -> dict[str, Any]:
+    if not values:
+        return {"n": 0, "mean": None, "median": None, "min": None, "max": None}
+    return {"n": len(values), "mean": round(statistics.fmean(values), 3),
+            "median": round(statistics.median(values), 3),
+            "min": round(min(values), 3), "max": round(max(values), 3)}
+
+
+def aggregate(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per-variant summary of rows, in order of first appearance of each variant.
+
+    Flight times and ratios to the lower bound are over successful runs only (the paper's
+    "among the accomplished tasks"). ``common`` repeats them over the scenarios that every
+    variant in ``rows`` completed, the only like-for-like comparison of times.
+    """
+    rows = list(rows)
+    names = vehicle_names(rows)
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    ok_by_variant = {v: {(r["seed"], r["index"]) for r in rows if r["variant"] == v and r["success"]}
+                     for v in variants}
+    common = set.intersection(*ok_by_variant.values()) if variants else set()
+    out: dict[str, dict[str, Any]] = {}
+    for variant in variants:
+        mine = [r for r in rows if r["variant"] == variant]
+        ok = [r for r in mine if r["success"]]
+        ok_common = [r for r in ok if (r["seed"], r["index"]) in common]
+        reasons: dict[str, int] = {}
+        for r in mine:
+            if not r["success"]:
+                reasons[r["reason"] or "unknown"] = reasons.get(r["reason"] or "unknown", 0) + 1
+        ms = [r["planner_ms_per_tick"] for r in mine if r.get("planner_ms_per_tick") is not None]
+        out[variant] = {
+            "runs": len(mine),
+            "successes": len(ok),
+            "success_rate": round(len(ok) / len(mine), 4) if mine else None,
+            "strict_successes": sum(1 for r in mine if r["success_strict"]),
+            "strict_rate": round(sum(1 for r in mine if r["success_strict"]) / len(mine), 4) if mine else None,
+            "collisions": sum(1 for r in mine if r["reason"] == "collision"),
+            "unsafe": sum(1 for r in mine if r["reason"] in UNSAFE_REASONS),
+            "reasons": dict(sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0]))),
+            "flight_time_s": {n: _stats([r[f"{n}_flight_time_s"] for r in ok]) for n in names},
+            "ratio_to_bound": {n: _stats([r[f"{n}_ratio"] for r in ok if r.get(f"{n}_ratio") is not None])
+                               for n in names},
+            "common_scenarios": len(common),
+            "flight_time_common_s": {n: _stats([r[f"{n}_flight_time_s"] for r in ok_common]) for n in names},
+            "planner_ms_per_tick": round(statistics.fmean(ms), 4) if ms else None,
+            "wall_s": round(sum(r["wall_s"] for r in mine), 3),
+        }
+    return out
+
+
+def format_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
+    """The results table printed by ``companion bench`` (plain text, one line per variant)."""
+    names = list(next(iter(summary.values()))["flight_time_s"]) if summary else []
+
+    def num(x: Any, fmt: str) -> str:
+        return "-" if x is None else format(x, fmt)
+
+    head = f"{'variant':<22}{'success':>15}{'strict':>15}{'coll.':>6}"
+    for n in names:
+        head += f"{'t_' + n + ' mean/med (s)':>22}{'t/bound':>9}"
+    lines = [head, "-" * len(head)]
+    for variant, s in summary.items():
+        line = (f"{variant:<22}{s['successes']:>5}/{s['runs']:<3} {num(100 * s['success_rate'], '5.1f')}%"
+                f"{s['strict_successes']:>5}/{s['runs']:<3} {num(100 * s['strict_rate'], '5.1f')}%"
+                f"{s['collisions']:>6}")
+        for n in names:
+            ft, ratio = s["flight_time_s"][n], s["ratio_to_bound"][n]
+            line += f"{num(ft['mean'], '.1f') + ' / ' + num(ft['median'], '.1f'):>22}{num(ratio['mean'], '.3f'):>9}"
+        lines.append(line)
+    lines.append("")
+    for variant, s in summary.items():
+        reasons = ", ".join(f"{k} {v}" for k, v in s["reasons"].items()) or "none"
+        lines.append(f"failures {variant}: {reasons}")
+    return "\n".join(lines)
