@@ -1,0 +1,539 @@
+"""BDWA: one vectorised dynamic-window step with three critics (paper section IV, SPEC §1).
+
+    plan_step(pose, goals, other, snapshot, config) -> Command | NoLegalRollout
+
+The vehicle flies at constant speed v; only the yaw rate is chosen. ``config.samples`` yaw rates
+span [-v/r, v/r]; each is rolled out for the prediction time p in steps of dt. Because v and the
+samples are fixed, the rollout *shapes* are fixed: they are computed once in the body frame
+(cumulative yaw, cos/sin, cumulative positions) when the config is built, and each tick only
+rotates and translates them (one matrix product). Nothing loops over samples or steps.
+
+Critics (nav2 DWB style: one term per concern, each normalised over the legal candidates by its
+sum as in Fox et al. 1997, then weighted):
+
+- heading H = 180 deg - |theta_i - theta_j| at the prediction point toward the local goal
+  (toward the goal the tracker would hold there: see :class:`LocalGoals`);
+- distance D = the rollout's minimum clearance to the inflated obstacles (moving ones predicted
+  at constant velocity), saturated at ``distance_saturation_m``;
+- sightline S = min(cap, max over true obstacles crossing the UAV-UAV sight segment of
+  min(extent left, extent right)), 0 when nothing crosses (BDWA only).
+
+Legality (a rollout that fails is discarded, never scored):
+
+- no rollout point inside an inflated obstacle (the paper's rule). A vehicle that already is
+  inside an inflated zone (a moving obstacle came to it) may only fly rollouts that never get
+  deeper than it is now, so the planner leads it out instead of freezing it there;
+- no rollout point closer than ``min_separation_m`` to the other UAV predicted at constant
+  velocity (same relaxation when already closer). A hard rule rather than a penalty, because
+  separation is a success criterion and a penalty can always be outbid by the other critics.
+
+When every rollout is illegal the result is :class:`NoLegalRollout`; the caller holds (a
+multicopter can hover). Obstacle knowledge comes in as an :class:`ObstacleSnapshot`: what is
+known *now*, predicted forward at constant velocity, identically in the headless runner and the
+live companion.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:  # only for the builder's signature; the core takes plain values
+    from companion.mission import PlannerSettings, SafetySettings, VehicleSpec
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """Own state in the ENU mission frame; heading is a math angle (from +x, CCW)."""
+
+    x_m: float
+    y_m: float
+    heading_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class OtherUav:
+    """The other UAV as the link reports it; predicted at constant velocity."""
+
+    x_m: float
+    y_m: float
+    vx_m_s: float
+    vy_m_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """The chosen first step: ENU yaw rate (CCW positive) at the constant forward speed."""
+
+    yaw_rate_rad_s: float
+    speed_m_s: float
+    heading_score: float  # raw critic values of the chosen rollout, for logs
+    distance_score: float
+    sightline_score: float
+    eval_score: float  # normalised, weighted total
+    legal_count: int  # how many of the samples were legal
+
+
+@dataclass(frozen=True, slots=True)
+class NoLegalRollout:
+    """Every sampled rollout was illegal. The vehicle must hold this tick."""
+
+    reason: str
+
+
+@dataclass(frozen=True, eq=False)
+class LocalGoals:
+    """The current local goal and the nodes after it, for the heading critic.
+
+    The paper scores the heading at the prediction point toward "the local goal". A rollout whose
+    prediction point lies beyond the current node would then be rewarded for turning back to a
+    node the vehicle is about to pass anyway: with p = 11 s (110 m ahead) and nodes that sit on
+    the inflated edge, that is the "turning around in place" of the paper's Fig. 7. So each
+    rollout is scored toward the goal the tracker would hold at its prediction point: a node
+    counts as reached along the rollout when a rollout point comes within ``acceptance_radius_m``
+    of it or the prediction point has passed it (the tracker's own two rules); the station,
+    last, counts only within ``station_radius_m`` and then scores the full 180 deg.
+    """
+
+    nodes_xy: np.ndarray  # (G, 2): the current local goal first, then the ones after it
+    prev_xy: tuple[float, float]  # the node before the current goal
+    acceptance_radius_m: float
+    station_radius_m: float
+    ends_at_station: bool  # whether nodes_xy[-1] is the station
+
+    @classmethod
+    def single(cls, goal_xy: tuple[float, float]) -> "LocalGoals":
+        """One goal and nothing after it: the paper's heading critic exactly."""
+        return cls(np.asarray([goal_xy], dtype=float), (float(goal_xy[0]), float(goal_xy[1])),
+                   0.0, 0.0, ends_at_station=False)
+
+
+@dataclass(frozen=True, eq=False)
+class DwaConfig:
+    """Everything one BDWA step needs, with the fixed rollout shapes precomputed.
+
+    ``distance_saturation_m``: D stops growing beyond this clearance from the inflated edge.
+    With Fox's sum normalisation a critic's pull is its spread over the candidates divided by
+    its mean, so an unsaturated or widely saturated D (weight 0.6 against 0.37 for heading)
+    overrules the heading whenever the vehicle is near an obstacle, and A* puts every node it
+    turns at right on the inflated edge: the vehicle is pushed off its route, turns away from
+    the node and can end up flying from its goal (measured: with 60 m, UAV a never reaches B in
+    the reference scenario). The inflation margin already is the keep-out distance, so D only
+    has to say "do not skim the edge": 10 m, one grid cell, two steps of travel. A config value.
+
+    ``min_separation_m``: the planning separation from the other UAV (see from_settings).
+    ``turnaround_deg``: see :func:`_commit_turn`; 180 disables the rule.
+    """
+
+    speed_m_s: float
+    max_yaw_rate_rad_s: float
+    samples: int
+    dt_s: float
+    prediction_time_s: float
+    w_h: float
+    w_d: float
+    w_s: float
+    sightline_cap_m: float
+    distance_saturation_m: float = 10.0
+    min_separation_m: float = 0.0
+    turnaround_deg: float = 90.0
+
+    yaw_rates_rad_s: np.ndarray = field(init=False, repr=False)  # (S,)
+    times_s: np.ndarray = field(init=False, repr=False)  # (K + 1,) 0, dt, ..., p
+    body_xy_m: np.ndarray = field(init=False, repr=False)  # (S, K + 1, 2) from the origin, heading +x
+    final_dheading_rad: np.ndarray = field(init=False, repr=False)  # (S,) heading change at p
+
+    def __post_init__(self) -> None:
+        if self.samples < 1 or self.dt_s <= 0 or self.prediction_time_s < self.dt_s or self.speed_m_s <= 0:
+            raise ValueError("DwaConfig needs samples >= 1, speed > 0 and prediction_time_s >= dt_s > 0")
+        steps = max(1, round(self.prediction_time_s / self.dt_s))
+        w = (np.zeros(1) if self.samples == 1
+             else np.linspace(-self.max_yaw_rate_rad_s, self.max_yaw_rate_rad_s, self.samples))
+        t = self.dt_s * np.arange(0, steps + 1)
+        # The plant advances yaw first, then moves along the new heading (sim_bridge.kinematics).
+        dheading = np.outer(w, t[1:])
+        step_m = self.speed_m_s * self.dt_s
+        body = np.zeros((len(w), steps + 1, 2))
+        body[:, 1:, 0] = np.cumsum(np.cos(dheading), axis=1) * step_m
+        body[:, 1:, 1] = np.cumsum(np.sin(dheading), axis=1) * step_m
+        for name, value in (("yaw_rates_rad_s", w), ("times_s", t), ("body_xy_m", body),
+                            ("final_dheading_rad", dheading[:, -1].copy())):
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+
+    @classmethod
+    def from_settings(cls, planner: "PlannerSettings", vehicle: "VehicleSpec",
+                      safety: "SafetySettings | None" = None, *, sightline: bool = True,
+                      **overrides) -> "DwaConfig":
+        """The config a mission gives one vehicle. ``sightline=False`` is plain DWA (w_s = 0)."""
+        values = dict(
+            speed_m_s=vehicle.speed_m_s,
+            max_yaw_rate_rad_s=vehicle.max_yaw_rate_rad_s,
+            samples=planner.yaw_rate_samples,
+            dt_s=planner.dt_s,
+            prediction_time_s=planner.prediction_time_for(vehicle),
+            w_h=planner.weight_heading,
+            w_d=planner.weight_distance,
+            w_s=planner.weight_sightline if sightline else 0.0,
+            sightline_cap_m=planner.sightline_cap_m,
+            # One step of own travel on top of the success criterion: the other UAV's
+            # constant-velocity prediction drifts from its real (turning) path within a tick.
+            min_separation_m=(0.0 if safety is None
+                              else safety.min_separation_m + vehicle.speed_m_s * planner.dt_s),
+        )
+        values.update(overrides)
+        return cls(**values)
+
+    @property
+    def steps(self) -> int:
+        return int(self.times_s.shape[0]) - 1
+
+    @property
+    def reach_m(self) -> float:
+        """How far a rollout goes: v * p."""
+        return self.speed_m_s * float(self.times_s[-1])
+
+
+_EMPTY2 = np.zeros((0, 2))
+_EMPTY2.setflags(write=False)
+
+
+@dataclass(frozen=True, eq=False)
+class ObstacleSnapshot:
+    """Obstacles as known now, as flat arrays (ENU m, m/s), ready for the vectorised critics.
+
+    Circles are exact (centre + true radius + margin). Every other shape is its true polygon as
+    an edge list grouped by obstacle (``poly_start`` indexes each obstacle's first edge); its
+    inflated shape is "true shape + margin" (the round-joined buffer the world uses), so the
+    clearance to it is the distance to the true edges minus the margin. Each obstacle carries
+    the velocity it is predicted with (zero when static). Build with :meth:`build`.
+    """
+
+    circle_ids: tuple[str, ...]
+    circle_xy_m: np.ndarray  # (C, 2)
+    circle_radius_m: np.ndarray  # (C,) true radius
+    circle_margin_m: np.ndarray  # (C,)
+    circle_vel_m_s: np.ndarray  # (C, 2)
+    poly_ids: tuple[str, ...]
+    edge_a_m: np.ndarray  # (E, 2) edge start points = the polygons' vertices
+    edge_b_m: np.ndarray  # (E, 2)
+    edge_vel_m_s: np.ndarray  # (E, 2)
+    poly_start: np.ndarray  # (P,) first edge of each polygon
+    poly_margin_m: np.ndarray  # (P,)
+    poly_centre_m: np.ndarray  # (P, 2) a point and a radius that bound each true polygon
+    poly_bound_m: np.ndarray  # (P,)
+    poly_vel_m_s: np.ndarray  # (P, 2)
+
+    @property
+    def count(self) -> int:
+        return len(self.circle_ids) + len(self.poly_ids)
+
+    @property
+    def ids(self) -> tuple[str, ...]:
+        return self.circle_ids + self.poly_ids
+
+    @staticmethod
+    def build(circles: list[tuple[str, float, float, float, float, float, float]],
+              polygons: list[tuple[str, np.ndarray, float, float, float]]) -> "ObstacleSnapshot":
+        """``circles``: (id, x, y, radius, margin, vx, vy); ``polygons``: (id, vertices (N, 2)
+        without the closing repeat, margin, vx, vy); all at the current time."""
+        c = np.asarray([row[1:] for row in circles], dtype=float).reshape(-1, 6)
+        verts = [np.asarray(row[1], dtype=float) for row in polygons]
+        counts = [len(v) for v in verts]
+        pv = np.asarray([row[3:5] for row in polygons], dtype=float).reshape(-1, 2)
+        centres = np.asarray([v.mean(axis=0) for v in verts]).reshape(-1, 2)
+        return ObstacleSnapshot(
+            circle_ids=tuple(str(row[0]) for row in circles),
+            circle_xy_m=c[:, 0:2].copy(), circle_radius_m=c[:, 2].copy(),
+            circle_margin_m=c[:, 3].copy(), circle_vel_m_s=c[:, 4:6].copy(),
+            poly_ids=tuple(str(row[0]) for row in polygons),
+            edge_a_m=np.concatenate(verts) if verts else _EMPTY2,
+            edge_b_m=np.concatenate([np.roll(v, -1, axis=0) for v in verts]) if verts else _EMPTY2,
+            edge_vel_m_s=np.repeat(pv, counts, axis=0),
+            poly_start=np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp) if verts
+            else np.zeros(0, dtype=np.intp),
+            poly_margin_m=np.asarray([row[2] for row in polygons], dtype=float),
+            poly_centre_m=centres,
+            poly_bound_m=np.asarray([np.hypot(*(v - m).T).max() for v, m in zip(verts, centres)], dtype=float),
+            poly_vel_m_s=pv,
+        )
+
+    def merged(self, other: "ObstacleSnapshot") -> "ObstacleSnapshot":
+        """Both snapshots' obstacles in one (e.g. prepared static ones + this tick's moving ones)."""
+        if not other.count:
+            return self
+        if not self.count:
+            return other
+        cat = np.concatenate
+        return ObstacleSnapshot(
+            self.circle_ids + other.circle_ids, cat([self.circle_xy_m, other.circle_xy_m]),
+            cat([self.circle_radius_m, other.circle_radius_m]), cat([self.circle_margin_m, other.circle_margin_m]),
+            cat([self.circle_vel_m_s, other.circle_vel_m_s]), self.poly_ids + other.poly_ids,
+            cat([self.edge_a_m, other.edge_a_m]), cat([self.edge_b_m, other.edge_b_m]),
+            cat([self.edge_vel_m_s, other.edge_vel_m_s]),
+            cat([self.poly_start, other.poly_start + len(self.edge_a_m)]),
+            cat([self.poly_margin_m, other.poly_margin_m]), cat([self.poly_centre_m, other.poly_centre_m]),
+            cat([self.poly_bound_m, other.poly_bound_m]), cat([self.poly_vel_m_s, other.poly_vel_m_s]))
+
+    def near(self, x_m: float, y_m: float, reach_m: float, horizon_s: float,
+             to_xy: tuple[float, float] | None = None) -> "ObstacleSnapshot":
+        """Only the obstacles whose inflated shape can come within ``reach_m`` of (x, y) during
+        ``horizon_s`` at their predicted velocity; the others cannot touch any rollout. With
+        ``to_xy``: within ``reach_m`` of the segment (x, y) -> to_xy (sight lines)."""
+        if to_xy is None:
+            to_xy = (x_m, y_m)
+        keep_c = (_to_segment(self.circle_xy_m, x_m, y_m, to_xy) - self.circle_radius_m - self.circle_margin_m
+                  - np.hypot(self.circle_vel_m_s[:, 0], self.circle_vel_m_s[:, 1]) * horizon_s) <= reach_m
+        keep_p = (_to_segment(self.poly_centre_m, x_m, y_m, to_xy) - self.poly_bound_m - self.poly_margin_m
+                  - np.hypot(self.poly_vel_m_s[:, 0], self.poly_vel_m_s[:, 1]) * horizon_s) <= reach_m
+        if keep_c.all() and keep_p.all():
+            return self
+        counts = np.diff(np.append(self.poly_start, len(self.edge_a_m)))
+        keep_e = np.repeat(keep_p, counts)
+        kept_counts = counts[keep_p]
+        return ObstacleSnapshot(
+            tuple(i for i, k in zip(self.circle_ids, keep_c) if k), self.circle_xy_m[keep_c],
+            self.circle_radius_m[keep_c], self.circle_margin_m[keep_c], self.circle_vel_m_s[keep_c],
+            tuple(i for i, k in zip(self.poly_ids, keep_p) if k), self.edge_a_m[keep_e],
+            self.edge_b_m[keep_e], self.edge_vel_m_s[keep_e],
+            np.concatenate([[0], np.cumsum(kept_counts)[:-1]]).astype(np.intp) if kept_counts.size
+            else np.zeros(0, dtype=np.intp),
+            self.poly_margin_m[keep_p], self.poly_centre_m[keep_p], self.poly_bound_m[keep_p],
+            self.poly_vel_m_s[keep_p])
+
+
+def _to_segment(points: np.ndarray, x_m: float, y_m: float, to_xy: tuple[float, float]) -> np.ndarray:
+    """Distance from each point (N, 2) to the segment (x, y) -> to_xy."""
+    dx, dy = to_xy[0] - x_m, to_xy[1] - y_m
+    rx, ry = points[:, 0] - x_m, points[:, 1] - y_m
+    len2 = dx * dx + dy * dy
+    u = np.clip((rx * dx + ry * dy) / len2, 0.0, 1.0) if len2 > 0 else 0.0
+    return np.hypot(rx - u * dx, ry - u * dy)
+
+
+def rollouts(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
+    """All rollouts for ``pose``: points (S, K + 1, 2) at config.times_s (the first is the pose
+    itself) and the headings (S,) at the prediction point."""
+    c, s = math.cos(pose.heading_rad), math.sin(pose.heading_rad)
+    pts = config.body_xy_m @ np.array([[c, s], [-s, c]])
+    pts += (pose.x_m, pose.y_m)
+    return pts, pose.heading_rad + config.final_dheading_rad
+
+
+def inflated_clearance(px: np.ndarray, py: np.ndarray, times_s: np.ndarray,
+                       snap: ObstacleSnapshot) -> np.ndarray:
+    """Signed clearance (..., K, O) of points (..., K) at times (K,) to each inflated obstacle
+    predicted at constant velocity; negative inside. Obstacles: circles first, then polygons."""
+    parts = []
+    if snap.circle_ids:
+        parts.append(_circle_distance(px, py, times_s, snap) - snap.circle_margin_m)
+    if snap.poly_ids:
+        parts.append(_polygon_signed_distance(px, py, times_s, snap) - snap.poly_margin_m)
+    if not parts:
+        return np.zeros(px.shape + (0,))
+    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=-1)
+
+
+def _circle_distance(px: np.ndarray, py: np.ndarray, times_s: np.ndarray, snap: ObstacleSnapshot) -> np.ndarray:
+    """Signed distance (..., K, C) from points to each true circle, predicted to times_s."""
+    cx = snap.circle_xy_m[:, 0] + np.multiply.outer(times_s, snap.circle_vel_m_s[:, 0])  # (K, C)
+    cy = snap.circle_xy_m[:, 1] + np.multiply.outer(times_s, snap.circle_vel_m_s[:, 1])
+    return np.hypot(px[..., None] - cx, py[..., None] - cy) - snap.circle_radius_m
+
+
+def _polygon_signed_distance(px: np.ndarray, py: np.ndarray, times_s: np.ndarray,
+                             snap: ObstacleSnapshot) -> np.ndarray:
+    """Distance (..., K, P) from points to each true polygon, negative inside (crossing number).
+
+    A moving polygon is handled in its own frame: the points move by -v t instead of the edges.
+    Every operation is on one (..., K, E) array, in place where possible: this is the hot loop.
+    """
+    a, b = snap.edge_a_m, snap.edge_b_m
+    ax, ay = a[:, 0], a[:, 1]
+    abx, aby = b[:, 0] - ax, b[:, 1] - ay
+    inv_len2 = 1.0 / np.maximum(abx * abx + aby * aby, 1e-12)
+    qx, qy = px[..., None], py[..., None]  # (..., K, 1)
+    if np.any(snap.edge_vel_m_s):
+        qx = qx - np.multiply.outer(times_s, snap.edge_vel_m_s[:, 0])
+        qy = qy - np.multiply.outer(times_s, snap.edge_vel_m_s[:, 1])
+    apx = qx - ax
+    apy = qy - ay
+    # Crossing number first (it needs apy intact): edges straddling the point's row whose
+    # crossing lies right of the point.
+    straddle = (ay > qy) != (b[:, 1] > qy)
+    x_cross = apy * (abx / np.where(aby == 0.0, 1.0, aby))
+    straddle &= apx < x_cross
+    inside = np.add.reduceat(straddle, snap.poly_start, axis=-1, dtype=np.intp) & 1
+    # Distance to each edge segment, then the nearest edge of each polygon.
+    u = apx * abx
+    u += apy * aby
+    u *= inv_len2
+    np.clip(u, 0.0, 1.0, out=u)
+    apx -= u * abx
+    apy -= u * aby
+    apx *= apx
+    apy *= apy
+    apx += apy
+    d = np.sqrt(np.minimum.reduceat(apx, snap.poly_start, axis=-1))
+    return np.where(inside.astype(bool), -d, d)
+
+
+def sightline_scores(ends: np.ndarray, other_xy: tuple[float, float], t_s: float,
+                     snap: ObstacleSnapshot) -> np.ndarray:
+    """The sightline distance (S,) for sight segments ends[i] -> other_xy, uncapped.
+
+    For each TRUE obstacle (predicted to ``t_s``) that the segment crosses, d_O is the smaller
+    of the obstacle's extents left and right of the segment's line; the result is the largest
+    d_O, or 0 when nothing crosses.
+    """
+    ex, ey = ends[:, 0:1], ends[:, 1:2]  # (S, 1)
+    dx = other_xy[0] - ex
+    dy = other_xy[1] - ey
+    len2 = np.maximum(dx * dx + dy * dy, 1e-12)
+    inv_len = 1.0 / np.sqrt(len2)
+    nx, ny = -dy * inv_len, dx * inv_len  # unit left normal of each sight line
+    best = np.zeros(len(ends))
+    if snap.circle_ids:
+        cx = snap.circle_xy_m[:, 0] + snap.circle_vel_m_s[:, 0] * t_s - ex  # (S, C)
+        cy = snap.circle_xy_m[:, 1] + snap.circle_vel_m_s[:, 1] * t_s - ey
+        u = np.clip((cx * dx + cy * dy) / len2, 0.0, 1.0)
+        crosses = np.hypot(cx - u * dx, cy - u * dy) < snap.circle_radius_m
+        d_o = np.where(crosses, snap.circle_radius_m - np.abs(cx * nx + cy * ny), 0.0)
+        best = np.maximum(best, d_o.max(axis=1))
+    if snap.poly_ids:
+        ax = snap.edge_a_m[:, 0] + snap.edge_vel_m_s[:, 0] * t_s - ex  # (S, E), relative to ends
+        ay = snap.edge_a_m[:, 1] + snap.edge_vel_m_s[:, 1] * t_s - ey
+        bx = snap.edge_b_m[:, 0] + snap.edge_vel_m_s[:, 0] * t_s - ex
+        by = snap.edge_b_m[:, 1] + snap.edge_vel_m_s[:, 1] * t_s - ey
+        sa = ax * nx + ay * ny  # signed distance of each vertex from each sight line
+        sb = bx * nx + by * ny
+        # An edge crosses the segment if it straddles the line at a point between the ends.
+        straddle = (sa > 0.0) != (sb > 0.0)
+        k = sa / np.where(straddle, sa - sb, 1.0)
+        along = ((ax + k * (bx - ax)) * dx + (ay + k * (by - ay)) * dy) / len2
+        hit = straddle & (along >= 0.0) & (along <= 1.0)
+        crossed = np.logical_or.reduceat(hit, snap.poly_start, axis=1)
+        left = np.maximum.reduceat(sa, snap.poly_start, axis=1)
+        right = -np.minimum.reduceat(sa, snap.poly_start, axis=1)
+        d_o = np.where(crossed, np.minimum(left, right), 0.0)
+        best = np.maximum(best, d_o.max(axis=1))
+    return best
+
+
+def heading_scores(pts: np.ndarray, final_heading: np.ndarray, goals: LocalGoals) -> np.ndarray:
+    """H (S,) in degrees: 180 - |heading - bearing to goal| at each prediction point, toward the
+    goal the tracker would hold there (see :class:`LocalGoals`)."""
+    ex, ey = pts[:, -1, 0], pts[:, -1, 1]
+    nodes = goals.nodes_xy
+    count = len(nodes)
+    at_station = None
+    if count == 1 and not goals.ends_at_station:
+        tx, ty = nodes[0]
+    else:
+        gx, gy = nodes[:, 0], nodes[:, 1]
+        near2 = np.min((pts[:, :, 0, None] - gx) ** 2 + (pts[:, :, 1, None] - gy) ** 2, axis=1)  # (S, G)
+        radius = np.full(count, goals.acceptance_radius_m)
+        prev = np.vstack([goals.prev_xy, nodes[:-1]])
+        passed = (ex[:, None] - gx) * (gx - prev[:, 0]) + (ey[:, None] - gy) * (gy - prev[:, 1]) > 0.0
+        if goals.ends_at_station:
+            radius[-1] = goals.station_radius_m
+            passed[:, -1] = False  # the station is reached, never passed
+        reached = (near2 <= radius * radius) | passed
+        n_reached = np.cumprod(reached, axis=1).sum(axis=1)
+        if goals.ends_at_station:
+            at_station = n_reached == count
+        target = nodes[np.minimum(n_reached, count - 1)]
+        tx, ty = target[:, 0], target[:, 1]
+    bearing = np.arctan2(ty - ey, tx - ex)
+    deviation = np.abs((final_heading - bearing + np.pi) % (2.0 * np.pi) - np.pi)
+    heading = 180.0 - np.degrees(deviation)
+    return heading if at_station is None else np.where(at_station, 180.0, heading)
+
+
+def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherUav | None,
+              snapshot: ObstacleSnapshot, config: DwaConfig) -> Command | NoLegalRollout:
+    """One BDWA decision: the best legal yaw rate toward the local goal, or NoLegalRollout.
+
+    ``goals`` is a :class:`LocalGoals` window (what the fusion layer passes) or a bare (x, y).
+    """
+    if not isinstance(goals, LocalGoals):
+        goals = LocalGoals.single(goals)
+    pts, final_heading = rollouts(pose, config)
+    px, py = pts[..., 0], pts[..., 1]
+    times = config.times_s
+    legal = np.ones(config.samples, dtype=bool)
+    reasons = []
+
+    near = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, float(times[-1]))
+    if near.count:
+        clear = inflated_clearance(px, py, times, near)  # (S, K + 1, O); column 0 is the pose
+        floor = np.minimum(clear[0, 0], 0.0)  # already inside: never deeper than now
+        ahead = clear[:, 1:]
+        ok = np.all(ahead >= floor - 1e-9, axis=(1, 2))
+        if not ok.any():
+            reasons.append("every rollout enters an inflated obstacle")
+        legal &= ok
+        distance = np.clip(ahead.min(axis=(1, 2)), 0.0, config.distance_saturation_m)
+    else:
+        distance = np.full(config.samples, config.distance_saturation_m)
+
+    if other is not None and config.min_separation_m > 0:
+        sep2 = np.min((px - (other.x_m + other.vx_m_s * times)) ** 2
+                      + (py - (other.y_m + other.vy_m_s * times)) ** 2, axis=1)
+        limit = min(config.min_separation_m, math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m))
+        ok = sep2 >= (limit - 1e-6) ** 2
+        if not ok.any():
+            reasons.append(f"every rollout comes within {config.min_separation_m:g} m of the other UAV")
+        legal &= ok
+
+    if not legal.any():
+        reason = "; ".join(reasons) or "no rollout satisfies all constraints at once"
+        return NoLegalRollout(f"all {config.samples} rollouts illegal: {reason}")
+
+    heading = heading_scores(pts, final_heading, goals)
+    legal = _commit_turn(pose, goals, legal, config)
+
+    total = config.w_h * _normalised(heading, legal) + config.w_d * _normalised(distance, legal)
+    sightline = None
+    if other is not None and config.w_s > 0 and snapshot.count:
+        t_p = float(times[-1])
+        q = (other.x_m + other.vx_m_s * t_p, other.y_m + other.vy_m_s * t_p)
+        # Sight lines run from somewhere within reach of the pose to q: skip obstacles far from both.
+        seen = snapshot.near(pose.x_m, pose.y_m, config.reach_m, t_p, to_xy=q)
+        sightline = np.minimum(config.sightline_cap_m, sightline_scores(pts[:, -1], q, t_p, seen))
+        total += config.w_s * _normalised(sightline, legal)
+    total[~legal] = -np.inf
+    best = int(np.argmax(total))
+    return Command(yaw_rate_rad_s=float(config.yaw_rates_rad_s[best]), speed_m_s=config.speed_m_s,
+                   heading_score=float(heading[best]), distance_score=float(distance[best]),
+                   sightline_score=0.0 if sightline is None else float(sightline[best]),
+                   eval_score=float(total[best]), legal_count=int(np.count_nonzero(legal)))
+
+
+def _commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaConfig) -> np.ndarray:
+    """Turn-around rule: with the goal more than ``turnaround_deg`` off the nose, only turns
+    toward the goal's side (or straight on) stay candidates.
+
+    With p long enough for a U-turn (the paper's formula), a goal behind the vehicle is matched
+    at the prediction point equally well by turning left or right. Which side wins then flips
+    with sample quantisation from one tick to the next, and the vehicle chatters between the
+    two U-turns while flying away from its goal (nav2 DWB's OscillationCritic exists for the
+    same reason). The side of the goal as seen from the current pose is a stable choice: turning
+    toward it only shrinks the angle. It is a preference, not a safety rule: if it would leave
+    no legal rollout, it is dropped.
+    """
+    gx, gy = goals.nodes_xy[0]
+    error = (math.atan2(gy - pose.y_m, gx - pose.x_m) - pose.heading_rad + math.pi) % (2.0 * math.pi) - math.pi
+    if abs(error) <= math.radians(config.turnaround_deg):
+        return legal
+    toward = legal & (config.yaw_rates_rad_s * error >= 0.0)
+    return toward if toward.any() else legal
+
+
+def _normalised(score: np.ndarray, legal: np.ndarray) -> np.ndarray:
+    """Fox et al. 1997: each critic divided by its sum over the candidates (here: legal ones)."""
+    total = float(np.sum(score, where=legal))
+    return score / total if total > 0 else np.zeros_like(score)

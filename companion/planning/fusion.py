@@ -1,0 +1,261 @@
+"""A*-BDWA fusion (paper section V): global nodes become BDWA's successive local goals.
+
+This is the per-tick code that the headless runner and the live companion both call:
+
+    planner = VehiclePlanner.build(mission, vehicle, route, variant)
+    field = ObstacleField.from_world(mission.world)       # static geometry, prepared once
+    snapshot = field.at_time(t_s)                         # headless: true state, now
+    snapshot = field.from_tracks(adsb_tracks)             # live: what ADSB says, now
+    result = planner.tick(own_pose, other_uav, snapshot, t_s)
+
+Either way the snapshot holds the obstacles' *current* position and velocity, and BDWA predicts
+them at constant velocity, so the live and headless planners see exactly the same thing.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from companion.planning.dwa import (Command, DwaConfig, LocalGoals, NoLegalRollout, ObstacleSnapshot,
+                                    OtherUav, Pose, plan_step)
+from companion.planning.world import Obstacle, World
+
+if TYPE_CHECKING:
+    from companion.mission import Mission, VehicleSpec
+    from companion.planning.routes import Route
+
+# Variant -> (local goals come from, sightline term on). SPEC §1's ablation table.
+VARIANT_GOALS: dict[str, tuple[str, bool]] = {
+    "astar-bdwa": ("sparse", True),
+    "astar-bdwa-nosparse": ("raw", True),
+    "bdwa": ("station", True),
+    "dwa": ("station", False),
+}
+
+
+def variant_needs_route(variant: str) -> bool:
+    return VARIANT_GOALS[variant][0] != "station"
+
+
+class ObstacleTrack(NamedTuple):
+    """A moving obstacle as a sensor reports it (e.g. one ADSB_VEHICLE): centre and velocity."""
+
+    id: str
+    x_m: float
+    y_m: float
+    vx_m_s: float
+    vy_m_s: float
+
+
+@dataclass(frozen=True, eq=False)
+class ObstacleField:
+    """The world's obstacles prepared once as arrays; makes a snapshot per tick cheaply.
+
+    Static obstacles are fixed. Moving ones keep their shape, which a track places at its
+    reported centre. A track whose id the mission does not know is an unknown intruder: it is
+    avoided as a disc of ``unknown_radius_m`` (true size, plus the mission's inflation ratio).
+    """
+
+    static: ObstacleSnapshot
+    moving: dict[str, Obstacle] = field(repr=False)
+    inflation_ratio: float
+    unknown_radius_m: float
+
+    @classmethod
+    def from_world(cls, world: World, *, inflation_ratio: float | None = None,
+                   unknown_radius_m: float = 150.0) -> "ObstacleField":
+        circles: list = []
+        polygons: list = []
+        for o in world.static_obstacles:
+            _shape_rows(o, o.center, (0.0, 0.0), circles, polygons)
+        if inflation_ratio is None:  # the ratio every obstacle of the mission was built with
+            ratios = [o.margin_m / o.size_m for o in world.obstacles if o.size_m > 0]
+            inflation_ratio = ratios[0] if ratios else 0.2
+        return cls(ObstacleSnapshot.build(circles, polygons), {o.id: o for o in world.moving_obstacles},
+                   inflation_ratio, unknown_radius_m)
+
+    def from_tracks(self, tracks: Iterable[ObstacleTrack | tuple]) -> ObstacleSnapshot:
+        """Snapshot from the static world plus moving obstacles' (id, x, y, vx, vy) now."""
+        circles: list = []
+        polygons: list = []
+        for track in tracks:
+            oid, x, y, vx, vy = track
+            shape = self.moving.get(oid)
+            if shape is None:
+                r = self.unknown_radius_m
+                circles.append((oid, float(x), float(y), r, r * self.inflation_ratio, float(vx), float(vy)))
+            else:
+                _shape_rows(shape, (float(x), float(y)), (float(vx), float(vy)), circles, polygons)
+        if not circles and not polygons:
+            return self.static
+        return self.static.merged(ObstacleSnapshot.build(circles, polygons))
+
+    def tracks_at(self, t_s: float) -> list[ObstacleTrack]:
+        """The true state of every moving obstacle at ``t_s`` (what a perfect ADSB would say)."""
+        out = []
+        for o in self.moving.values():
+            x, y = o.center_at(t_s)
+            vx, vy = o.motion.velocity_at(t_s)
+            out.append(ObstacleTrack(o.id, x, y, vx, vy))
+        return out
+
+    def at_time(self, t_s: float) -> ObstacleSnapshot:
+        """Headless snapshot: moving obstacles' true position and velocity at ``t_s``."""
+        return self.from_tracks(self.tracks_at(t_s))
+
+
+def _shape_rows(o: Obstacle, centre: tuple[float, float], vel: tuple[float, float],
+                circles: list, polygons: list) -> None:
+    """Append ``o`` placed with its reference centre at ``centre`` to the snapshot rows."""
+    if o.is_circle:
+        circles.append((o.id, centre[0], centre[1], o.size_m, o.margin_m, vel[0], vel[1]))
+    else:
+        shift = np.array([centre[0] - o.center[0], centre[1] - o.center[1]])
+        polygons.append((o.id, o.vertices() + shift, o.margin_m, vel[0], vel[1]))
+
+
+def snapshot_from_tracks(world: World, tracks: Iterable[ObstacleTrack | tuple]) -> ObstacleSnapshot:
+    """One-off snapshot from the static world and tracks; keep an ObstacleField when ticking."""
+    return ObstacleField.from_world(world).from_tracks(tracks)
+
+
+def snapshot_at(world: World, t_s: float) -> ObstacleSnapshot:
+    """One-off headless snapshot at ``t_s``; keep an ObstacleField when ticking."""
+    return ObstacleField.from_world(world).at_time(t_s)
+
+
+class LocalGoalTracker:
+    """Walks a node list: the current local goal advances when the vehicle is inside the
+    acceptance radius of it, or has passed it (its projection on the segment from the previous
+    node lies beyond the node). The last node, the station, is never passed over.
+
+    Mutable by design: it is the one piece of per-vehicle planning state that persists across
+    ticks. ``index`` is the current goal's position in ``nodes``.
+    """
+
+    def __init__(self, nodes: np.ndarray, acceptance_radius_m: float):
+        nodes = np.asarray(nodes, dtype=float)
+        if nodes.ndim != 2 or nodes.shape[1] != 2 or len(nodes) < 2:
+            raise ValueError("a tracker needs at least two nodes (start and station), shape (N, 2)")
+        self.nodes = nodes
+        self.acceptance_radius_m = float(acceptance_radius_m)
+        self.index = 1
+
+    @property
+    def goal_xy(self) -> tuple[float, float]:
+        x, y = self.nodes[self.index]
+        return float(x), float(y)
+
+    @property
+    def is_last(self) -> bool:
+        return self.index == len(self.nodes) - 1
+
+    def window(self, x_m: float, y_m: float, reach_m: float, station_radius_m: float) -> LocalGoals:
+        """The current goal and every node after it that a rollout of length ``reach_m`` from
+        (x, y) could make the target (it must reach the node before it first)."""
+        nodes = self.nodes[self.index:]
+        gx, gy = nodes[0]
+        to_node = math.hypot(gx - x_m, gy - y_m) + np.concatenate(
+            [[0.0], np.cumsum(np.hypot(*np.diff(nodes, axis=0).T))])
+        count = min(len(nodes), int(np.searchsorted(to_node, reach_m, side="right")) + 1)
+        px, py = self.nodes[self.index - 1]
+        return LocalGoals(nodes[:count], (float(px), float(py)), self.acceptance_radius_m,
+                          station_radius_m, ends_at_station=self.index + count == len(self.nodes))
+
+    def update(self, x_m: float, y_m: float) -> tuple[float, float]:
+        """Advance past every node already reached or passed; return the current goal."""
+        while not self.is_last:
+            gx, gy = self.nodes[self.index]
+            px, py = self.nodes[self.index - 1]
+            reached = math.hypot(x_m - gx, y_m - gy) <= self.acceptance_radius_m
+            passed = (x_m - gx) * (gx - px) + (y_m - gy) * (gy - py) > 0.0
+            if not (reached or passed):
+                break
+            self.index += 1
+        return self.goal_xy
+
+
+@dataclass(frozen=True, slots=True)
+class TickResult:
+    """What one vehicle does this tick. ``command`` is None when it must hold (zero speed)."""
+
+    t_s: float
+    command: Command | None
+    local_goal_xy: tuple[float, float]
+    goal_index: int
+    arrived: bool
+    planner_ms: float
+    hold_reason: str | None = None
+
+    @property
+    def yaw_rate_rad_s(self) -> float:
+        return 0.0 if self.command is None else self.command.yaw_rate_rad_s
+
+    @property
+    def speed_m_s(self) -> float:
+        return 0.0 if self.command is None else self.command.speed_m_s
+
+
+class VehiclePlanner:
+    """One vehicle's A*-BDWA (or ablation variant): local-goal tracking + one BDWA step a tick."""
+
+    def __init__(self, name: str, config: DwaConfig, tracker: LocalGoalTracker, arrival_radius_m: float):
+        self.name = name
+        self.config = config
+        self.tracker = tracker
+        self.arrival_radius_m = arrival_radius_m
+        self.arrived = False
+
+    @classmethod
+    def build(cls, mission: "Mission", vehicle: "VehicleSpec", route: "Route | None",
+              variant: str | None = None) -> "VehiclePlanner":
+        """The planner for ``vehicle``; ``route`` is required for the A* variants.
+
+        Priority (paper §II.B: the UAV leaving A "is prioritized to arrive"): the first vehicle in
+        priority order has right of way and flies without the sightline term; every other
+        vehicle carries the sightline objective and bends its path to keep the sight line
+        occluded. Separation is enforced by all of them.
+        """
+        variant = variant or mission.planner.variant
+        goals_from, sightline = VARIANT_GOALS[variant]
+        sightline = sightline and mission.by_priority[0].name != vehicle.name
+        if goals_from == "station":
+            nodes = np.array([vehicle.start_enu_m, vehicle.goal_enu_m], dtype=float)
+        elif route is None:
+            raise ValueError(f"variant {variant!r} needs an A* route for vehicle {vehicle.name!r}")
+        else:
+            nodes = route.sparse_enu_m if goals_from == "sparse" else route.raw_enu_m
+        config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline)
+        tracker = LocalGoalTracker(nodes, mission.planner.acceptance_radius_m)
+        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m)
+
+    @property
+    def station_xy(self) -> tuple[float, float]:
+        x, y = self.tracker.nodes[-1]
+        return float(x), float(y)
+
+    def tick(self, own: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, t_s: float) -> TickResult:
+        """Decide this tick's command from the current own pose, other UAV and obstacles.
+
+        Once inside the arrival radius the vehicle has arrived for good and holds.
+        """
+        started = time.perf_counter()
+        sx, sy = self.station_xy
+        if self.arrived or math.hypot(own.x_m - sx, own.y_m - sy) <= self.arrival_radius_m:
+            self.arrived = True
+            return TickResult(t_s, None, (sx, sy), self.tracker.index, True,
+                              (time.perf_counter() - started) * 1e3, "arrived")
+        goal = self.tracker.update(own.x_m, own.y_m)
+        reach = self.config.speed_m_s * self.config.prediction_time_s + self.tracker.acceptance_radius_m
+        goals = self.tracker.window(own.x_m, own.y_m, reach, self.arrival_radius_m)
+        decision = plan_step(own, goals, other, snapshot, self.config)
+        ms = (time.perf_counter() - started) * 1e3
+        if isinstance(decision, NoLegalRollout):
+            return TickResult(t_s, None, goal, self.tracker.index, False, ms, decision.reason)
+        return TickResult(t_s, decision, goal, self.tracker.index, False, ms)

@@ -1,0 +1,299 @@
+"""SPEC §2 in one place: success, failure reason and every reported metric, from flown tracks.
+
+The input is plain :class:`Track` arrays (time, x, y in ENU metres) per vehicle, so the headless
+runner, the live companion (from telemetry) and the pytest harness all score a flight with the
+same code. Nothing here knows how the tracks were produced.
+
+Checks are on the continuous path between samples, not only at the samples:
+
+- obstacles: each step's segment against the TRUE footprints, moving ones at their true motion
+  (the segment is taken in the obstacle's frame, which is exact while the obstacle moves on a
+  straight line during the step);
+- separation: the two vehicles move linearly between common samples, so the closest approach
+  on each interval is a point-to-segment distance of the relative motion;
+- geofence: the fence is a box, so a segment is inside exactly when both ends are.
+
+Tracks of different vehicles may have different sample times (telemetry); they are merged on the
+union of their times, a vehicle holding its first / last position outside its own track.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import shapely
+
+from companion.planning.world import World
+
+if TYPE_CHECKING:
+    from companion.mission import Mission
+
+FAILURE_ORDER = ("collision", "separation", "geofence")  # ties at the same instant: worst first
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """One vehicle's flown path: strictly increasing sim times and ENU positions."""
+
+    t_s: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+
+    def __post_init__(self) -> None:
+        arrays = [np.asarray(a, dtype=float).ravel() for a in (self.t_s, self.x_m, self.y_m)]
+        if not (len(arrays[0]) == len(arrays[1]) == len(arrays[2]) >= 1):
+            raise ValueError("a track needs t_s, x_m, y_m of the same non-zero length")
+        if np.any(np.diff(arrays[0]) <= 0):
+            raise ValueError("track times must be strictly increasing")
+        for name, a in zip(("t_s", "x_m", "y_m"), arrays):
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def at(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions at ``t_s``; held at the first / last sample outside the track."""
+        return np.interp(t_s, self.t_s, self.x_m), np.interp(t_s, self.t_s, self.y_m)
+
+
+class TruthGeometry:
+    """The world's TRUE obstacle footprints, prepared once, with vectorised path queries."""
+
+    def __init__(self, world: World):
+        self.world = world
+        self.circles = [o for o in world.obstacles if o.is_circle]
+        self.polygons = [o for o in world.obstacles if not o.is_circle]
+        self._c_xy = np.array([o.center for o in self.circles], dtype=float).reshape(-1, 2)
+        self._c_r = np.array([o.size_m for o in self.circles], dtype=float)
+        for o in self.polygons:
+            shapely.prepare(o.footprint)
+
+    def segment_clearance_m(self, x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray,
+                            t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
+        """Smallest distance (N,) from each moving segment to any true footprint; 0 = contact."""
+        x0, y0, x1, y1, t0, t1 = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (x0, y0, x1, y1, t0, t1))
+        best = np.full(x0.shape, np.inf)
+        for i, o in enumerate(self.circles):
+            o0, o1 = o.offset_at(t0), o.offset_at(t1)
+            ax, ay = x0 - o0[..., 0] - self._c_xy[i, 0], y0 - o0[..., 1] - self._c_xy[i, 1]
+            bx, by = x1 - o1[..., 0] - self._c_xy[i, 0], y1 - o1[..., 1] - self._c_xy[i, 1]
+            best = np.minimum(best, _origin_to_segment(ax, ay, bx, by) - self._c_r[i])
+        for o in self.polygons:
+            o0, o1 = o.offset_at(t0), o.offset_at(t1)
+            coords = np.stack([np.stack([x0 - o0[..., 0], y0 - o0[..., 1]], axis=-1),
+                               np.stack([x1 - o1[..., 0], y1 - o1[..., 1]], axis=-1)], axis=-2)
+            best = np.minimum(best, shapely.distance(shapely.linestrings(coords), o.footprint))
+        return np.maximum(best, 0.0)
+
+    def sight_blocked(self, ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray,
+                      t_s: np.ndarray) -> np.ndarray:
+        """Whether the segment a-b at time t crosses any true footprint (N,) bool."""
+        ax, ay, bx, by, t_s = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (ax, ay, bx, by, t_s))
+        blocked = np.zeros(ax.shape, dtype=bool)
+        for i, o in enumerate(self.circles):
+            off = o.offset_at(t_s)
+            cx, cy = self._c_xy[i, 0] + off[..., 0], self._c_xy[i, 1] + off[..., 1]
+            blocked |= _origin_to_segment(ax - cx, ay - cy, bx - cx, by - cy) < self._c_r[i]
+        for o in self.polygons:
+            off = o.offset_at(t_s)
+            coords = np.stack([np.stack([ax - off[..., 0], ay - off[..., 1]], axis=-1),
+                               np.stack([bx - off[..., 0], by - off[..., 1]], axis=-1)], axis=-2)
+            blocked |= shapely.intersects(shapely.linestrings(coords), o.footprint)
+        return blocked
+
+
+def _origin_to_segment(ax, ay, bx, by):
+    """Distance from the origin to segments a-b (arrays)."""
+    dx, dy = bx - ax, by - ay
+    len2 = dx * dx + dy * dy
+    u = np.clip(-(ax * dx + ay * dy) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
+    return np.hypot(ax + u * dx, ay + u * dy)
+
+
+def pair_min_distance(a0x, a0y, a1x, a1y, b0x, b0y, b1x, b1y) -> np.ndarray:
+    """Closest approach of two vehicles each moving linearly over the same interval."""
+    return _origin_to_segment(np.asarray(a0x) - b0x, np.asarray(a0y) - b0y,
+                              np.asarray(a1x) - b1x, np.asarray(a1y) - b1y)
+
+
+def inside_fence(world: World, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    m = world.geofence_margin_m
+    return ((world.x_min_m - m <= x) & (x <= world.x_max_m + m)
+            & (world.y_min_m - m <= y) & (y <= world.y_max_m + m))
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleMetrics:
+    name: str
+    arrived: bool
+    flight_time_s: float  # to arrival, or the whole track when it never arrived
+    path_length_m: float
+    lower_bound_s: float | None
+    ratio: float | None  # flight time over the lower bound
+    min_obstacle_clearance_m: float  # to the true footprints
+    nodes_raw: int | None
+    nodes_sparse: int | None
+    planner_ms_per_tick: float | None
+    planner_ms_max: float | None
+    arrival_t_s: float | None
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    success: bool
+    success_strict: bool
+    reason: str | None  # None on success
+    failure_t_s: float | None
+    vehicles: dict[str, VehicleMetrics]
+    min_separation_m: float | None
+    los_blocked_fraction: float | None
+    crossing_occluded: bool | None
+    planner_ms_per_tick: float | None
+    duration_s: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def summary_dict(self) -> dict[str, Any]:
+        """The summary.json of ``companion simulate`` / ``run`` (JSON-ready)."""
+        out: dict[str, Any] = {
+            "success": self.success,
+            "success_strict": self.success_strict,
+            "reason": self.reason,
+            "failure_t_s": self.failure_t_s,
+            "duration_s": self.duration_s,
+            "vehicles": {name: {k: getattr(v, k) for k in VehicleMetrics.__slots__ if k != "name"}
+                         for name, v in self.vehicles.items()},
+            "min_separation_m": self.min_separation_m,
+            "los_blocked_fraction": self.los_blocked_fraction,
+            "crossing_occluded": self.crossing_occluded,
+            "planner_ms_per_tick": self.planner_ms_per_tick,
+        }
+        out.update(self.extra)
+        return _json_ready(out)
+
+
+def _json_ready(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return round(v, 6) if math.isfinite(v) else None
+    return value
+
+
+def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
+              routes: Mapping[str, Any] | None = None,
+              planner_ms: Mapping[str, Sequence[float]] | None = None,
+              failure: str | None = None, failure_t_s: float | None = None,
+              lower_bounds_s: Mapping[str, float] | None = None,
+              geometry: TruthGeometry | None = None) -> RunSummary:
+    """Score a flight (SPEC §2).
+
+    ``failure``: a reason found outside the tracks (``no_path``, ``link_lost``...), reported
+    unless the tracks show an earlier violation. ``routes`` (name -> Route) supplies the node
+    counts; ``lower_bounds_s`` overrides the bound per vehicle (default: bounds.lower_bound_s).
+    """
+    world = mission.world
+    geometry = geometry or TruthGeometry(world)
+    safety = mission.safety
+    names = [v.name for v in mission.by_priority if v.name in tracks]
+    events: list[tuple[float, int, str]] = []  # (time, severity, reason)
+
+    per_vehicle: dict[str, VehicleMetrics] = {}
+    for name in names:
+        spec = mission.vehicle(name)
+        tr = tracks[name]
+        gx, gy = spec.goal_enu_m
+        near = np.flatnonzero(np.hypot(tr.x_m - gx, tr.y_m - gy) <= safety.arrival_radius_m)
+        arrived = bool(near.size) and float(tr.t_s[near[0]]) <= safety.time_limit_s
+        end = int(near[0]) if arrived else len(tr) - 1
+        steps = np.hypot(np.diff(tr.x_m[:end + 1]), np.diff(tr.y_m[:end + 1]))
+        clearance = geometry.segment_clearance_m(tr.x_m[:-1], tr.y_m[:-1], tr.x_m[1:], tr.y_m[1:],
+                                                 tr.t_s[:-1], tr.t_s[1:]) if len(tr) > 1 else \
+            geometry.segment_clearance_m(tr.x_m, tr.y_m, tr.x_m, tr.y_m, tr.t_s, tr.t_s)
+        hit = np.flatnonzero(clearance <= 0.0)
+        if hit.size:
+            events.append((float(tr.t_s[min(hit[0] + 1, len(tr) - 1)]), 0, "collision"))
+        out = np.flatnonzero(~inside_fence(world, tr.x_m, tr.y_m))
+        if out.size:
+            events.append((float(tr.t_s[out[0]]), 2, "geofence"))
+        flight = float(tr.t_s[end] - tr.t_s[0])
+        if lower_bounds_s is not None and name in lower_bounds_s:
+            bound = lower_bounds_s[name]
+        else:
+            bound = _lower_bound_s(world, spec.start_enu_m, spec.goal_enu_m, spec.speed_m_s)
+        route = None if routes is None else routes.get(name)
+        ms = None if planner_ms is None or not len(planner_ms.get(name, ())) else np.asarray(planner_ms[name])
+        per_vehicle[name] = VehicleMetrics(
+            name=name, arrived=arrived, flight_time_s=flight, path_length_m=float(steps.sum()),
+            lower_bound_s=bound, ratio=(flight / bound if bound and arrived else None),
+            min_obstacle_clearance_m=float(clearance.min()) if clearance.size else math.inf,
+            nodes_raw=None if route is None else int(route.nodes_raw),
+            nodes_sparse=None if route is None else int(route.nodes_sparse),
+            planner_ms_per_tick=None if ms is None else float(ms.mean()),
+            planner_ms_max=None if ms is None else float(ms.max()),
+            arrival_t_s=float(tr.t_s[end]) if arrived else None,
+        )
+
+    t_all = np.unique(np.concatenate([tracks[n].t_s for n in names]))
+    min_sep = los_fraction = occluded = None
+    if len(names) >= 2:
+        xy = {n: tracks[n].at(t_all) for n in names}
+        sep_steps = []
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                (ax, ay), (bx, by) = xy[a], xy[b]
+                if len(t_all) > 1:
+                    d = pair_min_distance(ax[:-1], ay[:-1], ax[1:], ay[1:], bx[:-1], by[:-1], bx[1:], by[1:])
+                else:
+                    d = np.hypot(ax - bx, ay - by)
+                sep_steps.append(d)
+        sep = np.min(np.stack(sep_steps), axis=0)
+        min_sep = float(sep.min())
+        close = np.flatnonzero(sep < safety.min_separation_m)
+        if close.size:
+            events.append((float(t_all[min(close[0] + 1, len(t_all) - 1)]), 1, "separation"))
+        # Sight metrics are the paper's pair: the two vehicles first in priority.
+        (ax, ay), (bx, by) = xy[names[0]], xy[names[1]]
+        blocked = geometry.sight_blocked(ax, ay, bx, by, t_all)
+        los_fraction = float(blocked.mean())
+        occluded = bool(blocked[int(np.argmin(np.hypot(ax - bx, ay - by)))])
+
+    reason = None
+    fail_t = None
+    if events:
+        fail_t, _, reason = min(events)
+    elif failure is not None:
+        reason, fail_t = failure, failure_t_s
+    elif not all(v.arrived for v in per_vehicle.values()):
+        reason = "timeout" if float(t_all[-1]) >= safety.time_limit_s - 1e-9 else "incomplete"
+        fail_t = float(t_all[-1])
+    success = reason is None and len(per_vehicle) == len(mission.vehicles)
+    if reason is None and not success:
+        reason = "incomplete"
+    all_ms = [m for n in names if planner_ms and len(planner_ms.get(n, ())) for m in planner_ms[n]]
+    return RunSummary(
+        success=success, success_strict=bool(success and (occluded is None or occluded)),
+        reason=reason, failure_t_s=fail_t, vehicles=per_vehicle, min_separation_m=min_sep,
+        los_blocked_fraction=los_fraction, crossing_occluded=occluded,
+        planner_ms_per_tick=float(np.mean(all_ms)) if all_ms else None,
+        duration_s=float(t_all[-1] - t_all[0]),
+    )
+
+
+def _lower_bound_s(world: World, start, goal, speed_m_s: float) -> float | None:
+    try:
+        from companion.planning.bounds import lower_bound_s
+    except ImportError:  # TEMPORARY SHIM until bounds.py lands
+        from companion.planning._shim_routes import lower_bound_s
+    return float(lower_bound_s(world, start, goal, speed_m_s))
