@@ -1,0 +1,150 @@
+"""Global routes for every vehicle: A* on the grid, the paper's priority rule, sparse optimisation.
+
+Priority (paper section III.A, last paragraph): vehicles are planned in ``mission.by_priority``
+order. The first is planned freely. Each later vehicle must keep to the other side of the line
+joining the start and goal of every earlier route. Blocked for it (as extra grid obstacles):
+  * each earlier (sparse) route, buffered by the minimum separation;
+  * that route's side: the half-plane of its start-goal line that it lies in (clipped to the
+    geofence box), or, when the route crosses its own line, every lobe it encloses with the
+    line (there is no single side then, so the later vehicle goes around all of them).
+Discs of radius ``min_separation + 2 cells`` around the later vehicle's own start and goal are
+exempt: stations are shared, and meeting there is separated in time, which is the local
+planner's job. The line is geometric, so the direction each vehicle flies does not matter.
+
+If that makes the later route impossible, the constraint is relaxed, and the Route records what
+held:
+
+    "opposite-side"   earlier routes and their sides blocked (the paper's rule)
+    "avoid-route"     only the earlier routes, buffered by the separation, blocked
+    "none"            the first vehicle, or no constrained route exists
+
+The sparse route of a constrained vehicle is shortcut only where the same constraint allows, so
+sparse optimisation never pulls it back across.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Point
+from shapely.geometry.base import BaseGeometry
+
+from companion.mission import Mission, VehicleSpec
+from companion.planning.astar import astar, path_length_m
+from companion.planning.errors import BudgetExceeded, NoPath
+from companion.planning.grid import rasterise
+from companion.planning.sparse import sparsify
+
+Constraint = Literal["opposite-side", "avoid-route", "none"]
+
+_MIN_SIDE_AREA_M2 = 1.0  # a route along its own chord encloses nothing: no side to keep off
+
+
+@dataclass(frozen=True, eq=False)
+class Route:
+    """One vehicle's global route in ENU metres: every A* cell, and the sparse key nodes."""
+
+    vehicle: str
+    raw_enu_m: np.ndarray     # (N, 2): exact start, cell centres, exact goal
+    sparse_enu_m: np.ndarray  # (M, 2): a subsequence of raw with the same ends
+    constraint: Constraint = "none"
+
+    @property
+    def nodes_raw(self) -> int:
+        return len(self.raw_enu_m)
+
+    @property
+    def nodes_sparse(self) -> int:
+        return len(self.sparse_enu_m)
+
+    @property
+    def length_m(self) -> float:
+        """Length of the sparse route (what the vehicle is asked to fly)."""
+        return path_length_m(self.sparse_enu_m)
+
+    @property
+    def raw_length_m(self) -> float:
+        return path_length_m(self.raw_enu_m)
+
+
+def plan_routes(mission: Mission, *, max_expansions: int | None = None) -> dict[str, Route]:
+    """Routes for all vehicles, keyed by name, planned in priority order (see the module doc).
+
+    Raises :class:`NoPath` naming the vehicle when even the unconstrained grid has no route
+    (start or goal blocked, goal walled in), and :class:`BudgetExceeded` when a search hits
+    ``max_expansions`` (a budget is a cap on work, so it is not answered by relaxing constraints).
+    """
+    world = mission.world
+    resolution_m = mission.planner.grid_resolution_m
+    base = rasterise(world, resolution_m)
+    routes: dict[str, Route] = {}
+    for vehicle in mission.by_priority:
+        earlier = list(routes.values())
+        failure: NoPath | None = None
+        ladder = _constraint_ladder(earlier, vehicle, mission.safety.min_separation_m, resolution_m, world.geofence)
+        for constraint, blocked in ladder:
+            grid = base.with_geometry_blocked(blocked) if blocked else base
+            try:
+                raw = astar(grid, vehicle.start_enu_m, vehicle.goal_enu_m, max_expansions=max_expansions)
+            except BudgetExceeded as exc:
+                raise exc.for_vehicle(vehicle.name) from None
+            except NoPath as exc:
+                failure = exc
+                continue
+            sparse = sparsify(raw, world, extra=blocked)
+            routes[vehicle.name] = Route(vehicle.name, raw, sparse, constraint)
+            break
+        else:
+            assert failure is not None
+            raise failure.for_vehicle(vehicle.name) from None
+    return routes
+
+
+def _constraint_ladder(earlier: Sequence[Route], vehicle: VehicleSpec, separation_m: float,
+                       resolution_m: float, box: BaseGeometry) -> list[tuple[Constraint, list[BaseGeometry]]]:
+    """The constraints to try for ``vehicle``, strictest first, each with the geometry it blocks."""
+    if not earlier:
+        return [("none", [])]
+    exempt_m = separation_m + 2.0 * resolution_m
+    exempt = shapely.union(Point(vehicle.start_enu_m).buffer(exempt_m), Point(vehicle.goal_enu_m).buffer(exempt_m))
+    bands = shapely.union_all([LineString(r.sparse_enu_m).buffer(separation_m) for r in earlier])
+    sides = shapely.union_all([side_region(r.sparse_enu_m, box) for r in earlier])
+    ladder: list[tuple[Constraint, list[BaseGeometry]]] = []
+    if sides.area >= _MIN_SIDE_AREA_M2:
+        ladder.append(("opposite-side", [shapely.union(bands, sides).difference(exempt)]))
+    ladder.append(("avoid-route", [bands.difference(exempt)]))
+    ladder.append(("none", []))
+    return ladder
+
+
+def side_region(route_enu_m: np.ndarray, box: BaseGeometry) -> BaseGeometry:
+    """The side of its start-goal line that a route keeps to, clipped to ``box``.
+
+    A route on one side (touching the line is allowed) gives that whole half-plane; a route that
+    crosses the line gives the lobes it encloses with the segment; a straight route gives nothing.
+    """
+    p = np.asarray(route_enu_m, dtype=float)
+    a, b = p[0], p[-1]
+    chord = b - a
+    length = float(np.hypot(*chord))
+    if len(p) < 3 or length == 0.0:
+        return shapely.Polygon()
+    rel = p[1:-1] - a
+    cross = (chord[0] * rel[:, 1] - chord[1] * rel[:, 0]) / length  # signed distance, + is left
+    tol = 1e-9 * max(length, 1.0)
+    left, right = bool(np.any(cross > tol)), bool(np.any(cross < -tol))
+    if left and right:
+        linework = shapely.union(LineString(p), LineString([b, a]))  # the union nodes the crossings
+        return shapely.union_all(list(shapely.polygonize([linework]).geoms))
+    if not (left or right):
+        return shapely.Polygon()
+    x0, y0, x1, y1 = box.bounds
+    reach = 2.0 * (float(np.hypot(x1 - x0, y1 - y0)) + float(np.hypot(*(a - (x0, y0)))))
+    d = chord / length
+    n = np.array([-d[1], d[0]]) * (1.0 if left else -1.0) * reach
+    far_a, far_b = a - d * reach, b + d * reach
+    return shapely.Polygon([far_a, far_b, far_b + n, far_a + n]).intersection(box)
