@@ -1,0 +1,112 @@
+"""Headless runner end to end: the paper's reference flight, dodging moving obstacles and each
+other, and failing safe (a timeout, never a collision) when the local planner is trapped."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.mission import load_mission, parse_mission
+from companion.planning.runner import simulate
+
+REFERENCE_BOUND_S = 473.8  # SPEC §1: tangent + arc + tangent around the 600 m disk, at 10 m/s
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return simulate(load_mission("missions/paper_reference.yaml"))
+
+
+def test_reference_mission_succeeds_near_the_physical_bound(reference):
+    s = reference.summary
+    assert s.success, s.reason
+    a, b = s.vehicles["a"], s.vehicles["b"]
+    assert a.arrived and b.arrived
+    assert a.lower_bound_s == pytest.approx(REFERENCE_BOUND_S, abs=0.05)
+    assert a.lower_bound_s <= a.flight_time_s <= 1.02 * a.lower_bound_s
+    assert b.flight_time_s >= b.lower_bound_s
+    assert a.min_obstacle_clearance_m > 100.0 - 1e-6  # never inside the 20 % margin
+    assert s.min_separation_m >= 50.0
+    assert a.nodes_sparse < a.nodes_raw
+
+
+def test_reference_tracks_are_the_plant_at_constant_speed(reference):
+    for name, tr in reference.tracks.items():
+        steps = np.hypot(np.diff(tr.x_m), np.diff(tr.y_m))
+        assert steps == pytest.approx(np.full(len(steps), 5.0), abs=1e-6), name  # 10 m/s, dt 0.5, no hold
+        assert np.diff(tr.t_s) == pytest.approx(np.full(len(steps), 0.5))
+        # an arrived vehicle is frozen: its track ends inside the arrival radius
+        goal = reference.mission.vehicle(name).goal_enu_m
+        assert math.hypot(tr.x_m[-1] - goal[0], tr.y_m[-1] - goal[1]) <= 20.0
+    assert all(r.arrived for r in (reference.ticks["a"][-1], reference.ticks["b"][-1]))
+
+
+TWO_WAY = """
+name: head_on
+area: {x_min_m: 0, y_min_m: -500, x_max_m: 2000, y_max_m: 500}
+stations: {A: [0, 0], B: [2000, 0]}
+vehicles:
+  - {name: a, start: A, goal: B, initial_heading_deg: 0}
+  - {name: b, start: B, goal: A, initial_heading_deg: 180}
+planner: {variant: dwa}
+"""
+
+
+def test_head_on_vehicles_keep_their_separation():
+    run = simulate(parse_mission(TWO_WAY, "head_on"))
+    assert run.summary.success, run.summary.reason
+    assert run.summary.min_separation_m >= 50.0
+
+
+CROSSING = """
+name: crossing
+area: {x_min_m: 0, y_min_m: -800, x_max_m: 2000, y_max_m: 800}
+stations: {A: [0, 0], B: [2000, 0]}
+obstacles:
+  # both timed to be on the straight line A-B when the vehicle gets there
+  - {id: cart, shape: circle, center: [1000, -500], radius_m: 120,
+     motion: {type: shuttle, to: [1000, 700], speed_m_s: 5}}
+  - {id: box, shape: rectangle, center: [600, 240], width_m: 200, height_m: 100, rotation_deg: 20,
+     motion: {type: shuttle, to: [600, -500], speed_m_s: 4}}
+vehicles:
+  - {name: a, start: A, goal: B, initial_heading_deg: 0}
+planner: {variant: bdwa}
+"""
+
+
+def test_moving_obstacles_are_dodged_with_their_true_motion_checked():
+    mission = parse_mission(CROSSING, "crossing")
+    run = simulate(mission)
+    assert run.summary.success, run.summary.reason
+    tr = run.tracks["a"]
+    assert np.ptp(tr.y_m) > 50.0  # it had to leave the straight line
+    assert run.summary.vehicles["a"].min_obstacle_clearance_m > 0.0
+
+
+TRAP = """
+name: trap
+area: {x_min_m: 0, y_min_m: -600, x_max_m: 1500, y_max_m: 600}
+stations: {A: [0, 0], B: [1500, 0]}
+obstacles:
+  - {id: cup, shape: polygon, vertices: [[500, -300], [900, -300], [900, 300], [500, 300], [500, 240],
+                                         [840, 240], [840, -240], [500, -240]]}
+vehicles:
+  - {name: a, start: A, goal: B, initial_heading_deg: 0}
+planner: {variant: dwa}
+safety: {time_limit_s: 300}
+"""
+
+
+def test_a_trapped_local_planner_fails_safe_by_timeout_not_collision():
+    run = simulate(parse_mission(TRAP, "trap"))
+    s = run.summary
+    assert not s.success and s.reason == "timeout"
+    assert s.vehicles["a"].min_obstacle_clearance_m > 0.0
+    assert run.tracks["a"].t_s[-1] == pytest.approx(300.0)
+
+
+def test_variant_argument_overrides_the_mission():
+    run = simulate(parse_mission(TWO_WAY, "head_on"), "bdwa")
+    assert run.variant == "bdwa" and run.routes == {}
