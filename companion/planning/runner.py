@@ -30,10 +30,7 @@ from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside
                                         pair_min_distance, summarize)
 from sim_bridge.kinematics import HOVER, KinematicState, VehicleLimits, VelocityCommand, VelocityFrame, step
 
-try:
-    from companion.planning.routes import Route, plan_routes
-except ImportError:  # TEMPORARY SHIM until routes.py lands
-    from companion.planning._shim_routes import Route, plan_routes  # type: ignore[assignment]
+from companion.planning.routes import Route, plan_routes
 
 
 @dataclass(frozen=True)
