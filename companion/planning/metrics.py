@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import shapely
 
+from companion.planning.errors import PlanningError
 from companion.planning.world import World
 
 if TYPE_CHECKING:
@@ -292,8 +293,12 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
 
 
 def _lower_bound_s(world: World, start, goal, speed_m_s: float) -> float | None:
+    """The bound, or None when there is none (no static route exists)."""
     try:
         from companion.planning.bounds import lower_bound_s
     except ImportError:  # TEMPORARY SHIM until bounds.py lands
         from companion.planning._shim_routes import lower_bound_s
-    return float(lower_bound_s(world, start, goal, speed_m_s))
+    try:
+        return float(lower_bound_s(world, start, goal, speed_m_s))
+    except PlanningError:
+        return None
