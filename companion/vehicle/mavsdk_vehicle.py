@@ -181,6 +181,9 @@ class MavsdkVehicle:
     async def arm(self) -> None:
         await self._command("arm", self._action.arm)
 
+    async def disarm(self) -> None:
+        await self._command("disarm", self._action.disarm)
+
     async def takeoff(self, alt_rel_m: float) -> None:
         # PX4 takes off to MIS_TAKEOFF_ALT; MAVSDK sets it through the param protocol.
         await self._command("set takeoff altitude", lambda: self._action.set_takeoff_altitude(float(alt_rel_m)))
@@ -233,7 +236,7 @@ class MavsdkVehicle:
     async def _pump_attitude(self) -> None:
         async for a in self._telemetry.subscribe_attitude_euler():
             t_sim = a.timestamp_us / 1e6
-            self._board.note_clock(t_sim)
+            await self._board.note_clock(t_sim)
             self._att = (t_sim, frames.ned_yaw_to_enu_heading(math.radians(a.yaw_deg)))
             self._att_fresh = True
             await self._maybe_emit()

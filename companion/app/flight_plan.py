@@ -1,0 +1,78 @@
+"""What the companion decides before anything connects: routes, planners, the uploaded missions.
+
+:func:`prepare` is the last gate for bad input: an unreachable goal (the planner's ``NoPath``)
+becomes a :class:`companion.mission.MissionError` naming the vehicle's ``goal`` field, so the CLI
+can refuse it in one line before any vehicle is armed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion import frames
+from companion.errors import MissionUploadError
+from companion.mission import Mission, VehicleSpec, mission_error
+from companion.planning.errors import NoPath
+from companion.planning.fusion import VARIANT_GOALS, variant_needs_route
+from companion.vehicle.port import GeoWaypoint
+
+from companion.planning.routes import Route, plan_routes
+
+LATLON_TOLERANCE_DEG = 2e-7  # MISSION_ITEM_INT stores 1e-7 degrees: allow one rounding step each way
+ALT_TOLERANCE_M = 0.01
+
+
+@dataclass(frozen=True)
+class FlightPlan:
+    """A mission with its variant fixed and its routes planned, ready to upload and fly."""
+
+    mission: Mission
+    variant: str
+    routes: dict[str, Route]  # empty for the station-goal variants (bdwa, dwa)
+
+    def nodes_enu_m(self, vehicle: VehicleSpec) -> np.ndarray:
+        """The local goals the vehicle's planner follows, start first (what gets uploaded)."""
+        goals_from, _ = VARIANT_GOALS[self.variant]
+        if goals_from == "station":
+            return np.array([vehicle.start_enu_m, vehicle.goal_enu_m], dtype=float)
+        route = self.routes[vehicle.name]
+        return np.asarray(route.sparse_enu_m if goals_from == "sparse" else route.raw_enu_m, dtype=float)
+
+    def waypoints(self, vehicle: VehicleSpec) -> tuple[GeoWaypoint, ...]:
+        """The route as MAVLink NAV_WAYPOINTs at the vehicle's cruise altitude above home."""
+        out = []
+        for x, y in self.nodes_enu_m(vehicle):
+            lat, lon, _ = frames.local_to_geodetic(self.mission.origin, float(x), float(y))
+            out.append(GeoWaypoint(lat_deg=lat, lon_deg=lon, alt_rel_m=vehicle.cruise_alt_m))
+        return tuple(out)
+
+
+def prepare(mission: Mission, variant: str | None = None) -> FlightPlan:
+    """Fix the variant and plan the routes. Raises MissionError (bad variant, unreachable goal)."""
+    if variant is not None:
+        mission = mission.with_variant(variant)
+    variant = mission.planner.variant
+    routes: dict[str, Route] = {}
+    if variant_needs_route(variant):
+        try:
+            routes = dict(plan_routes(mission))
+        except NoPath as exc:
+            index = next((v.index for v in mission.vehicles if v.name == exc.vehicle), None)
+            field = f"vehicles[{index}].goal" if index is not None else "vehicles"
+            raise mission_error(mission, field, str(exc)) from None
+    return FlightPlan(mission, variant, routes)
+
+
+def verify_readback(vehicle: str, sent: Sequence[GeoWaypoint], got: Sequence[GeoWaypoint]) -> None:
+    """Raise MissionUploadError unless the downloaded mission is the uploaded one."""
+    if len(sent) != len(got):
+        raise MissionUploadError(f"read back {len(got)} waypoints, uploaded {len(sent)}", vehicle=vehicle)
+    for i, (a, b) in enumerate(zip(sent, got)):
+        if (abs(a.lat_deg - b.lat_deg) > LATLON_TOLERANCE_DEG or abs(a.lon_deg - b.lon_deg) > LATLON_TOLERANCE_DEG
+                or abs(a.alt_rel_m - b.alt_rel_m) > ALT_TOLERANCE_M):
+            raise MissionUploadError(f"waypoint {i} read back as ({b.lat_deg:.7f}, {b.lon_deg:.7f}, "
+                                     f"{b.alt_rel_m:g} m), uploaded ({a.lat_deg:.7f}, {a.lon_deg:.7f}, "
+                                     f"{a.alt_rel_m:g} m)", vehicle=vehicle)

@@ -1,0 +1,191 @@
+"""The mission runner: connect every vehicle, fly them all with one task group, score the flight.
+
+    run_mission(plan, connections, settings, out_dir, report, stop) -> RunResult
+
+One Mavsdk connection per vehicle (opened in mission order, closed in reverse), one
+:class:`~companion.app.pilot.Pilot` task per vehicle inside the mission's task group, and one
+watcher task that turns an operator's stop request (Ctrl-C, SIGTERM) into ``interrupted``. Any
+pilot's failure cancels the others; every pilot leaves its vehicle safe on the way out. The flown
+tracks are scored by the shared metrics module, exactly as ``companion simulate`` scores its own.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import time
+from collections.abc import Callable, Mapping
+from contextlib import AsyncExitStack
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion.app.flight_log import FlightLog
+from companion.app.flight_plan import FlightPlan
+from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings, _primary
+from companion.errors import CompanionError, MissionAborted
+from companion.planning.metrics import RunSummary, Track, summarize
+from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
+
+
+@dataclass(frozen=True)
+class RunResult:
+    summary: RunSummary | None  # None when no vehicle got as far as departing
+    summary_dict: dict[str, Any]
+    outcomes: dict[str, PilotOutcome]
+    reason: str | None  # None on success
+    message: str | None
+    wall_s: float
+
+    @property
+    def success(self) -> bool:
+        return self.reason is None and self.summary is not None and self.summary.success
+
+
+async def _watch_stop(stop: asyncio.Event) -> None:
+    await stop.wait()
+    raise MissionAborted("interrupted", "stopped by the operator (signal)")
+
+
+async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings: RunSettings,
+                      out_dir: Path | None, report: Callable[[str], None],
+                      stop: asyncio.Event | None = None, extra: Mapping[str, Any] | None = None) -> RunResult:
+    """Fly ``plan`` over the given MAVSDK connection URLs (vehicle name -> URL)."""
+    mission = plan.mission
+    stop = stop or asyncio.Event()
+    started = time.monotonic()
+    outcomes: dict[str, PilotOutcome] = {}
+    reason: str | None = None
+    message: str | None = None
+    with FlightLog(out_dir) as log:
+        try:
+            async with AsyncExitStack() as stack:
+                vehicles = {}
+                for spec in mission.vehicles:
+                    url = connections[spec.name]
+                    vehicles[spec.name] = await stack.enter_async_context(open_mavsdk_vehicle(
+                        spec.name, spec.system_id, url, mission.origin,
+                        connect_timeout_s=settings.connect_timeout_s))
+                    report(f"{spec.name}: connected on {url} (system id {spec.system_id})")
+                ctx = FlightContext(plan, settings, log, vehicles, report)
+                pilots = [Pilot(ctx, spec) for spec in mission.by_priority]
+                outcomes = {p.name: p.outcome for p in pilots}
+                try:
+                    async with asyncio.TaskGroup() as tg:
+                        watcher = tg.create_task(_watch_stop(stop), name="stop-watcher")
+                        flights = [tg.create_task(p.fly(), name=f"{p.name}:pilot") for p in pilots]
+                        remaining = len(flights)
+
+                        def done(_task: asyncio.Task) -> None:
+                            nonlocal remaining
+                            remaining -= 1
+                            if remaining == 0:
+                                watcher.cancel()
+                        for f in flights:
+                            f.add_done_callback(done)
+                except BaseExceptionGroup as group:
+                    raise _primary(group) from None
+        except MissionAborted as exc:
+            reason, message = exc.reason, str(exc)
+        except CompanionError as exc:
+            reason, message = _reason_of(exc), str(exc)
+        log.flush()
+
+        summary = _score(plan, log, outcomes, reason)
+        doc = _summary_doc(plan, summary, outcomes, reason, message, time.monotonic() - started, extra)
+        if out_dir is not None:
+            (out_dir / "summary.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+            _plot(out_dir / "trajectory.png", plan, log)
+    final_reason = reason if reason is not None else (None if summary is not None and summary.success
+                                                      else (summary.reason if summary else "incomplete"))
+    return RunResult(summary, doc, outcomes, final_reason, message, time.monotonic() - started)
+
+
+def _reason_of(exc: CompanionError) -> str:
+    from companion.errors import CommandRefused, LinkError, MissionUploadError, VehicleNotReady
+    if isinstance(exc, LinkError):
+        return "link_lost"
+    if isinstance(exc, CommandRefused):
+        return "command_refused"
+    if isinstance(exc, MissionUploadError):
+        return "upload_failed"
+    if isinstance(exc, VehicleNotReady):
+        return "not_ready"
+    return "error"
+
+
+def _tracks(log: FlightLog) -> dict[str, Track]:
+    return {n: Track(np.asarray(tr.t_s), np.asarray(tr.x_m), np.asarray(tr.y_m))
+            for n, tr in log.tracks.items() if len(tr) >= 1}
+
+
+def _score(plan: FlightPlan, log: FlightLog, outcomes: Mapping[str, PilotOutcome],
+           reason: str | None) -> RunSummary | None:
+    tracks = _tracks(log)
+    if len(tracks) < len(plan.mission.vehicles):
+        return None  # some vehicle never departed: nothing was flown to score
+    failure_t = max(float(tr.t_s[-1]) for tr in tracks.values()) if reason else None
+    return summarize(plan.mission, tracks, routes=plan.routes,
+                     planner_ms={n: o.planner_ms for n, o in outcomes.items()},
+                     failure=reason, failure_t_s=failure_t)
+
+
+def _summary_doc(plan: FlightPlan, summary: RunSummary | None, outcomes: Mapping[str, PilotOutcome],
+                 reason: str | None, message: str | None, wall_s: float,
+                 extra: Mapping[str, Any] | None) -> dict[str, Any]:
+    if summary is not None:
+        doc = summary.summary_dict()
+    else:
+        doc = {"success": False, "success_strict": False, "reason": reason or "incomplete", "failure_t_s": None,
+               "duration_s": 0.0, "vehicles": {}, "min_separation_m": None, "los_blocked_fraction": None,
+               "crossing_occluded": None, "planner_ms_per_tick": None}
+    if reason is not None and doc.get("reason") is None:
+        doc["success"] = doc["success_strict"] = False
+        doc["reason"] = reason
+    doc.setdefault("mission", plan.mission.name)
+    doc.setdefault("variant", plan.variant)
+    doc["live"] = {
+        "message": message,
+        "wall_s": round(wall_s, 3),
+        "vehicles": {n: {"phase": o.phase, "landed": o.landed, "ticks": o.ticks,
+                         "offboard_reentries": o.offboard_reentries,
+                         "interventions": dict(o.interventions), "error": o.error,
+                         "arrival_t_mission_s": o.arrival_t_mission_s}
+                     for n, o in outcomes.items()},
+        **dict(extra or {}),
+    }
+    return doc
+
+
+def _plot(path: Path, plan: FlightPlan, log: FlightLog) -> None:
+    from companion.plots import save_trajectory
+    tracks = _tracks(log)
+    save_trajectory(path, plan.mission, tracks, plan.routes)
+
+
+def summary_table(plan: FlightPlan, result: RunResult) -> str:
+    """The human summary printed on exit."""
+    doc = result.summary_dict
+    lines = [f"{'vehicle':<8} {'arrived':<8} {'flight s':>9} {'bound s':>8} {'ratio':>6} {'path m':>8} "
+             f"{'min clear m':>11} {'nodes':>9} {'plan ms':>8} {'phase':<9}"]
+
+    def f(v, fmt):
+        return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+    for spec in plan.mission.by_priority:
+        v = doc.get("vehicles", {}).get(spec.name, {})
+        o = result.outcomes.get(spec.name)
+        nodes = "-" if v.get("nodes_raw") is None else f"{v['nodes_raw']}->{v['nodes_sparse']}"
+        lines.append(f"{spec.name:<8} {str(v.get('arrived', False)):<8} {f(v.get('flight_time_s'), '9.1f')} "
+                     f"{f(v.get('lower_bound_s'), '8.1f')} {f(v.get('ratio'), '6.3f')} {f(v.get('path_length_m'), '8.0f')} "
+                     f"{f(v.get('min_obstacle_clearance_m'), '11.1f')} {nodes:>9} "
+                     f"{f(v.get('planner_ms_per_tick'), '8.2f')} {(o.phase if o else '-'):<9}")
+    verdict = "SUCCESS" if result.success else f"FAILED ({result.reason})"
+    lines.append(f"run: {verdict}; min separation {f(doc.get('min_separation_m'), '.1f')} m; "
+                 f"sight blocked {f(doc.get('los_blocked_fraction'), '.2f')}; "
+                 f"crossing occluded {doc.get('crossing_occluded')}; wall {result.wall_s:.1f} s")
+    if result.message:
+        lines.append(f"why: {result.message}")
+    return "\n".join(lines)

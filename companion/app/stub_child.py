@@ -1,0 +1,28 @@
+"""Entry point of the embedded stub's child process: ``sim-bridge`` that dies with its parent.
+
+The companion keeps the child's stdin open and never writes to it. When the companion exits in
+any way, including SIGKILL, the OS closes that pipe; the watcher thread sees end-of-file and
+sends the stub SIGTERM, which stops it cleanly. No orphan keeps flying after the companion.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+
+
+def _watch_parent() -> None:
+    sys.stdin.buffer.read()  # returns at EOF: the parent is gone (or closed the pipe to stop us)
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def main() -> int:
+    from sim_bridge.cli import main as sim_main
+    threading.Thread(target=_watch_parent, name="parent-watch", daemon=True).start()
+    return sim_main(sys.argv[1:])
+
+
+if __name__ == "__main__":
+    sys.exit(main())
