@@ -1,0 +1,5 @@
+"""``python -m sim_bridge MISSION.yaml ...``"""
+
+from sim_bridge.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,455 @@
+"""The thin asyncio UDP layer around the sans-I/O vehicles, and the embedding API.
+
+    async with SimBridge(mission, SimOptions(speedup=10)) as sim:
+        ...                       # vehicles are live on UDP; sim.vehicle("a").mode, sim.sim_time_s
+
+Sockets (all bound to loopback unless told otherwise):
+- one API socket per vehicle, sending first to ``host:api_port_base + i`` (PX4 SITL convention;
+  the companion listens with ``udpin://0.0.0.0:14540+i``) and answering whoever writes to it;
+- one GCS socket carrying every vehicle, sending to ``host:gcs_port`` and to every peer that
+  writes to it (QGroundControl, MAVProxy).
+
+Each socket decodes with its own pymavlink parser per peer (``MAVLink.parse_buffer``) and each
+(vehicle, link) encodes with its own ``MAVLink`` object, so sequence numbers are per link as in
+PX4. Nothing here blocks: datagrams go out through ``transport.sendto`` and come in through
+``DatagramProtocol.datagram_received``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import logging
+import time
+from collections import Counter, OrderedDict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Hashable
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.mission import Mission
+from sim_bridge.clock import SimClock
+from sim_bridge.energy import EnergyModel
+from sim_bridge.faults import Blackout, FaultConfig, LinkFaults
+from sim_bridge.px4 import FlightMode
+from sim_bridge.streams import API_PROFILE, GCS_PROFILE, StreamProfile
+from sim_bridge.tlog import TlogWriter
+from sim_bridge.vehicle import Emit, SimVehicle
+
+log = logging.getLogger(__name__)
+
+API_LINK = "api"
+GCS_LINK = "gcs"
+MAX_PEERS_PER_SOCKET = 8  # learned peers (and parsers) kept per socket; the oldest is dropped
+
+
+class SimBridgeError(RuntimeError):
+    """The stub cannot start (e.g. a socket cannot be bound)."""
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    speedup: float = 1.0
+    host: str = "127.0.0.1"  # where the companion and the GCS listen
+    bind_host: str | None = None  # the stub's own address; None: loopback if host is loopback, else 0.0.0.0
+    api_port_base: int = 14540
+    api_ports: tuple[int, ...] | None = None  # explicit port per vehicle (tests: free ports); overrides the base
+    gcs_port: int | None = 14550  # None: no GCS link
+    physics_dt_s: float = 0.02
+    seed: int = 0
+    faults: FaultConfig = field(default_factory=FaultConfig)  # applied to the API links
+    faults_on_gcs: bool = False
+    tlog_dir: Path | None = None
+    speed_headroom: float = 1.0  # vehicle speed limit = mission speed * headroom
+    energy: EnergyModel = field(default_factory=EnergyModel)
+    api_profile: StreamProfile = API_PROFILE
+    gcs_profile: StreamProfile = GCS_PROFILE
+    min_tick_wall_s: float = 0.004  # the loop wakes at most this often and runs the steps due
+
+    def api_port(self, index: int) -> int:
+        """The port vehicle ``index`` sends its API link to."""
+        if self.api_ports is not None:
+            return self.api_ports[index]
+        return self.api_port_base + index
+
+    @property
+    def resolved_bind_host(self) -> str:
+        if self.bind_host is not None:
+            return self.bind_host
+        try:
+            return "127.0.0.1" if ipaddress.ip_address(self.host).is_loopback else "0.0.0.0"
+        except ValueError:  # a host name
+            return "127.0.0.1" if self.host == "localhost" else "0.0.0.0"
+
+
+@dataclass
+class _Link:
+    """One (vehicle, link) pair: encoder, fault models, where its datagrams go."""
+
+    name: str
+    encoder: Any
+    faults_out: LinkFaults | None
+    faults_in: LinkFaults | None
+
+
+class _Endpoint(asyncio.DatagramProtocol):
+    def __init__(self, bridge: "SimBridge", socket_name: str, vehicle_index: int | None):
+        self.bridge = bridge
+        self.socket_name = socket_name
+        self.vehicle_index = vehicle_index
+        self.transport: asyncio.DatagramTransport | None = None
+        self.default_remote: tuple[str, int] | None = None
+        self.peers: OrderedDict[Hashable, Any] = OrderedDict()  # peer address -> parser
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.bridge._on_datagram(self, data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP port unreachable while nobody listens yet: normal before the companion starts.
+        self.bridge.stats["socket_errors"] += 1
+
+    def parser_for(self, addr: Hashable) -> Any:
+        parser = self.peers.get(addr)
+        if parser is None:
+            parser = mavlink.MAVLink(None, 0, 0)
+            parser.robust_parsing = True
+            self.peers[addr] = parser
+            while len(self.peers) > MAX_PEERS_PER_SOCKET:
+                self.peers.popitem(last=False)
+        else:
+            self.peers.move_to_end(addr)
+        return parser
+
+    def destinations(self) -> list[Hashable]:
+        out: list[Hashable] = [] if self.default_remote is None else [self.default_remote]
+        out += [p for p in self.peers if p != self.default_remote]
+        return out
+
+
+class SimBridge:
+    """The running stub: vehicles, sockets, sim clock. Use as ``async with``."""
+
+    def __init__(self, mission: Mission, options: SimOptions | None = None):
+        self.mission = mission
+        self.options = options or SimOptions()
+        o = self.options
+        if o.api_ports is not None and len(o.api_ports) < len(mission.vehicles):
+            raise SimBridgeError(f"api_ports has {len(o.api_ports)} port(s) for {len(mission.vehicles)} vehicles")
+        SimClock(o.speedup, o.physics_dt_s, 0.0)  # fail early on a bad speed factor or step
+        self.vehicles: tuple[SimVehicle, ...] = tuple(
+            SimVehicle(spec, mission, speed_headroom=o.speed_headroom, energy=o.energy) for spec in mission.vehicles)
+        self._by_sysid = {v.system_id: i for i, v in enumerate(self.vehicles)}
+        self._links: list[dict[str, _Link]] = []
+        for v in self.vehicles:
+            links = {API_LINK: self._make_link(v, API_LINK, with_faults=not o.faults.is_clean)}
+            v.add_link(API_LINK, o.api_profile)
+            if o.gcs_port is not None:
+                links[GCS_LINK] = self._make_link(v, GCS_LINK, with_faults=o.faults_on_gcs and not o.faults.is_clean)
+                v.add_link(GCS_LINK, o.gcs_profile)
+            self._links.append(links)
+        self.stats: Counter[str] = Counter()
+        self._clock: SimClock | None = None
+        self._api: list[_Endpoint] = []
+        self._gcs: _Endpoint | None = None
+        self._task: asyncio.Task | None = None
+        self._tlog: TlogWriter | None = None
+        self._timers: set[asyncio.TimerHandle] = set()
+        self._cpu_start = 0.0
+        self._wall_start = 0.0
+        self._running = False
+
+    def _make_link(self, v: SimVehicle, name: str, with_faults: bool) -> _Link:
+        o = self.options
+        fo = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/out") if with_faults else None
+        fi = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/in") if with_faults else None
+        return _Link(name, mavlink.MAVLink(None, v.system_id, v.component_id), fo, fi)
+
+    # ================================================================== lifecycle =========
+    async def __aenter__(self) -> "SimBridge":
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.stop()
+
+    async def start(self) -> None:
+        """Bind the sockets and start the sim loop. Raises SimBridgeError if a socket cannot bind."""
+        if self._running:
+            return
+        loop = asyncio.get_running_loop()
+        o = self.options
+        bind = o.resolved_bind_host
+        try:
+            for i, v in enumerate(self.vehicles):
+                _, ep = await loop.create_datagram_endpoint(lambda i=i: _Endpoint(self, API_LINK, i), local_addr=(bind, 0))
+                ep.default_remote = (o.host, o.api_port(i))
+                self._api.append(ep)
+            if o.gcs_port is not None:
+                _, ep = await loop.create_datagram_endpoint(lambda: _Endpoint(self, GCS_LINK, None), local_addr=(bind, 0))
+                ep.default_remote = (o.host, o.gcs_port)
+                self._gcs = ep
+        except OSError as exc:
+            self._close_sockets()
+            raise SimBridgeError(f"cannot open UDP sockets on {bind}: {exc}") from None
+        if o.tlog_dir is not None:
+            self._tlog = TlogWriter.create(Path(o.tlog_dir), self.mission.name)
+        self._clock = SimClock(o.speedup, o.physics_dt_s, loop.time())
+        self._cpu_start = time.process_time()
+        self._wall_start = loop.time()
+        self._running = True
+        self._task = asyncio.create_task(self._run(), name="sim_bridge-loop")
+        log.info("sim_bridge: %d vehicle(s) at %gx; GCS %s", len(self.vehicles), o.speedup,
+                 "off" if o.gcs_port is None else f"{o.host}:{o.gcs_port}")
+
+    async def stop(self) -> None:
+        """Stop the loop, close sockets, finish the tlog. Safe to call twice."""
+        if not self._running:
+            return
+        self._running = False
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            try:
+                await task
+            except asyncio.CancelledError:
+                pass
+        for handle in self._timers:
+            handle.cancel()
+        self._timers.clear()
+        self._close_sockets()
+        if self._tlog is not None:
+            self._tlog.close()
+        log.info("sim_bridge stopped at sim t=%.1f s; %s", self.sim_time_s, dict(self.stats))
+
+    def _close_sockets(self) -> None:
+        for ep in self._api + ([self._gcs] if self._gcs else []):
+            if ep.transport is not None:
+                ep.transport.close()
+        self._api = []
+        self._gcs = None
+
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        clock = self._clock
+        assert clock is not None
+        dt = clock.dt_s
+        o = self.options
+        while True:
+            now = loop.time()
+            try:
+                for _ in range(clock.steps_due(now)):
+                    clock.advance()
+                    for i, v in enumerate(self.vehicles):
+                        self._dispatch(i, v.step(dt))
+                for i, v in enumerate(self.vehicles):
+                    self._dispatch(i, v.poll(now))
+                    self._dispatch(i, v.telemetry(now))
+                if self._tlog is not None:
+                    self._tlog.maybe_flush(now)
+            except Exception:  # noqa: BLE001 - the loop must outlive any one bad tick
+                self.stats["loop_errors"] += 1
+                log.exception("sim_bridge: error in the sim loop")
+            delay = max(clock.wall_of_next_step() - loop.time(), o.min_tick_wall_s)
+            await asyncio.sleep(delay)
+
+    # ================================================================== I/O ===============
+    def _on_datagram(self, ep: _Endpoint, data: bytes, addr: tuple[str, int]) -> None:
+        self.stats["rx_datagrams"] += 1
+        try:
+            if ep.vehicle_index is not None:
+                link = self._links[ep.vehicle_index][API_LINK]
+                delay = link.faults_in.verdict(self.sim_time_s) if link.faults_in else 0.0
+                if delay is None:
+                    return
+                if delay > 0:
+                    self._later(delay, self._decode, ep, data, addr)
+                    return
+            self._decode(ep, data, addr)
+        except Exception:  # noqa: BLE001 - garbage must never reach the loop
+            self.stats["rx_errors"] += 1
+            log.debug("sim_bridge: error on datagram from %s", addr, exc_info=True)
+
+    def _decode(self, ep: _Endpoint, data: bytes, addr: tuple[str, int]) -> None:
+        if not self._running:
+            return
+        parser = ep.parser_for(addr)
+        try:
+            msgs = parser.parse_buffer(data) or []
+        except Exception:  # noqa: BLE001 - pymavlink raises on some malformed frames
+            self.stats["garbage"] += 1
+            parser.buf = bytearray()  # resynchronise on the next datagram
+            parser.buf_index = 0
+            return
+        for msg in msgs:
+            if msg.get_type() == "BAD_DATA":
+                self.stats["garbage"] += 1
+                continue
+            self.stats["rx_messages"] += 1
+            if self._tlog is not None and ep.socket_name == GCS_LINK:
+                self._tlog.write(msg.get_msgbuf())
+            if ep.vehicle_index is not None:
+                self._deliver(ep.vehicle_index, msg, API_LINK, addr)
+                continue
+            target = getattr(msg, "target_system", 0)
+            if target == 0:
+                for i in range(len(self.vehicles)):
+                    self._deliver(i, msg, GCS_LINK, addr)
+            elif target in self._by_sysid:
+                self._deliver(self._by_sysid[target], msg, GCS_LINK, addr)
+            else:
+                self.stats["wrong_target"] += 1
+
+    def _deliver(self, index: int, msg: Any, link: str, peer: Hashable) -> None:
+        self._dispatch(index, self.vehicles[index].handle(msg, link, peer))
+
+    def _dispatch(self, index: int, emits: list[Emit]) -> None:
+        links = self._links[index]
+        for e in emits:
+            names = links if e.link is None else (e.link,)
+            for name in names:
+                link = links.get(name)
+                if link is not None:
+                    self._send(index, link, e.msg, e.peer)
+
+    def _send(self, index: int, link: _Link, msg: Any, peer: Hashable | None) -> None:
+        ep = self._api[index] if link.name == API_LINK else self._gcs
+        if ep is None or ep.transport is None:
+            return
+        try:
+            buf = msg.pack(link.encoder)
+        except Exception:  # noqa: BLE001 - a message that cannot be packed is a bug, not a crash
+            self.stats["pack_errors"] += 1
+            log.exception("sim_bridge: cannot pack %s", msg.get_type())
+            return
+        link.encoder.seq = (link.encoder.seq + 1) % 256
+        if self._tlog is not None and link.name == GCS_LINK:
+            self._tlog.write(buf)
+        for dest in ([peer] if peer is not None else ep.destinations()):
+            delay = link.faults_out.verdict(self.sim_time_s) if link.faults_out else 0.0
+            if delay is None:
+                continue
+            if delay > 0:
+                self._later(delay, self._sendto, ep, buf, dest)
+            else:
+                self._sendto(ep, buf, dest)
+
+    def _sendto(self, ep: _Endpoint, buf: bytes, dest: Hashable) -> None:
+        if ep.transport is None or ep.transport.is_closing():
+            return
+        try:
+            ep.transport.sendto(buf, dest)
+            self.stats["tx_messages"] += 1
+        except OSError:
+            self.stats["socket_errors"] += 1
+
+    def _later(self, delay_s: float, fn: Callable[..., None], *args: Any) -> None:
+        loop = asyncio.get_running_loop()
+        handle: asyncio.TimerHandle
+
+        def run() -> None:
+            self._timers.discard(handle)
+            fn(*args)
+
+        handle = loop.call_later(delay_s, run)
+        self._timers.add(handle)
+
+    # ================================================================== accessors =========
+    @property
+    def sim_time_s(self) -> float:
+        return self._clock.sim_time_s if self._clock is not None else 0.0
+
+    @property
+    def achieved_speedup(self) -> float:
+        if self._clock is None:
+            return 0.0
+        return self._clock.achieved_speedup(asyncio.get_running_loop().time())
+
+    @property
+    def cpu_fraction(self) -> float:
+        """Process CPU time over wall time since start (all vehicles together)."""
+        if not self._running:
+            return 0.0
+        wall = asyncio.get_running_loop().time() - self._wall_start
+        return (time.process_time() - self._cpu_start) / wall if wall > 0 else 0.0
+
+    def vehicle(self, key: str | int) -> SimVehicle:
+        """A vehicle by mission name or by index."""
+        if isinstance(key, int):
+            return self.vehicles[key]
+        for v in self.vehicles:
+            if v.name == key:
+                return v
+        raise KeyError(key)
+
+    @property
+    def collision_count(self) -> int:
+        return sum(v.collision_count for v in self.vehicles)
+
+    def modes(self) -> dict[str, FlightMode]:
+        return {v.name: v.mode for v in self.vehicles}
+
+    def api_address(self, index: int) -> tuple[str, int]:
+        """The local (host, port) of vehicle ``index``'s API socket."""
+        ep = self._api[index]
+        assert ep.transport is not None
+        return ep.transport.get_extra_info("sockname")[:2]
+
+    @property
+    def gcs_address(self) -> tuple[str, int] | None:
+        if self._gcs is None or self._gcs.transport is None:
+            return None
+        return self._gcs.transport.get_extra_info("sockname")[:2]
+
+    @property
+    def tlog_path(self) -> Path | None:
+        return None if self._tlog is None else self._tlog.path
+
+    def blackout(self, duration_s: float, vehicle: str | int | None = None) -> None:
+        """Cut the API link(s) for ``duration_s`` sim seconds from now (both directions)."""
+        targets = range(len(self.vehicles)) if vehicle is None else [self.vehicles.index(self.vehicle(vehicle))]
+        b = Blackout(self.sim_time_s, duration_s)
+        for i in targets:
+            link = self._links[i][API_LINK]
+            if link.faults_out is None:
+                link.faults_out = LinkFaults(FaultConfig(), self.options.seed, f"{self.vehicles[i].name}/api/out")
+                link.faults_in = LinkFaults(FaultConfig(), self.options.seed, f"{self.vehicles[i].name}/api/in")
+            link.faults_out.add_blackout(b)
+            assert link.faults_in is not None
+            link.faults_in.add_blackout(b)
+
+    def fault_counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for v, links in zip(self.vehicles, self._links):
+            for link in links.values():
+                for direction, f in (("out", link.faults_out), ("in", link.faults_in)):
+                    if f is not None:
+                        out[f"{v.name}/{link.name}/{direction}/dropped"] = f.dropped
+        return out
+
+    async def wait_for(self, predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.01) -> bool:
+        """Wait (wall clock) until ``predicate()`` holds; False on timeout."""
+        try:
+            async with asyncio.timeout(timeout_s):
+                while not predicate():
+                    await asyncio.sleep(poll_s)
+        except TimeoutError:
+            return False
+        return True
+
+
+async def run_stub(mission: Mission, options: SimOptions | None = None, *, stop: asyncio.Event | None = None,
+                   on_ready: Callable[[SimBridge], None] | None = None) -> SimBridge:
+    """Run the stub until ``stop`` is set (or the task is cancelled); returns the stopped bridge."""
+    sim = SimBridge(mission, options)
+    async with sim:
+        if on_ready is not None:
+            on_ready(sim)
+        if stop is None:
+            await asyncio.Event().wait()
+        else:
+            await stop.wait()
+    return sim

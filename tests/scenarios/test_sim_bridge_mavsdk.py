@@ -1,0 +1,123 @@
+"""An unmodified MAVSDK 4.x client (mavsdk.asyncio) flies the stub over real UDP.
+
+Each test starts the stub on free ports and one Mavsdk instance per vehicle, as the companion
+does (``udpin://0.0.0.0:<port>``). Expectations come from the mission and from the stub's own
+ground truth, never from the client alone.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+from collections.abc import AsyncIterator, Callable
+from typing import Any, TypeVar
+
+import pytest
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, System
+from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.mission import MissionAsync, MissionItem, MissionPlan
+from mavsdk.asyncio.plugins.offboard import OffboardAsync, VelocityBodyYawspeed, VelocityNedYaw
+from mavsdk.asyncio.plugins.telemetry import FixType, FlightMode, LandedState, TelemetryAsync
+
+from companion.frames import local_to_geodetic
+from companion.mission import Mission, parse_mission
+from sim_bridge.bridge import SimBridge, SimOptions
+from sim_bridge.px4 import FlightMode as StubMode
+from sim_bridge.testing import sim_connection_url, stub_on_free_ports
+
+T = TypeVar("T")
+
+MISSION_YAML = """
+name: mavsdk_scenario
+origin: {lat_deg: 47.397742, lon_deg: 8.545594, alt_m: 488.0}
+area: {x_min_m: 0, y_min_m: 0, x_max_m: 1000, y_max_m: 1000, geofence_margin_m: 100}
+stations: {A: [100, 100], B: [900, 900]}
+obstacles:
+  - {id: hill, shape: circle, center: [500, 300], radius_m: 50}
+  - id: drifter
+    shape: circle
+    center: [200, 700]
+    radius_m: 30
+    motion: {type: shuttle, to: [600, 700], speed_m_s: 3}
+vehicles:
+  - {name: a, start: A, goal: B, speed_m_s: 10, turn_radius_m: 30, cruise_alt_m: 8,
+     initial_heading_deg: 45, battery_pct: 100}
+  - {name: b, start: B, goal: A, speed_m_s: 10, turn_radius_m: 30, cruise_alt_m: 8,
+     initial_heading_deg: -135, battery_pct: 35}
+"""
+
+
+@pytest.fixture(scope="module")
+def mission() -> Mission:
+    return parse_mission(MISSION_YAML, "mavsdk_scenario.yaml")
+
+
+@contextlib.asynccontextmanager
+async def mavsdk_client(url: str) -> AsyncIterator[System]:
+    """One Mavsdk instance on one link, as the companion runs it; yields the autopilot."""
+    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as sdk:
+        await sdk.add_any_connection(url)
+        system = await sdk.first_autopilot(timeout_s=10.0)
+        assert system is not None, f"no autopilot on {url}"
+        yield system
+
+
+async def first(agen: AsyncIterator[T], pred: Callable[[T], bool] = lambda _: True, timeout_s: float = 15.0) -> T:
+    """The first item of a MAVSDK subscription that satisfies ``pred``; closes the subscription."""
+    async with contextlib.aclosing(agen):  # type: ignore[type-var]
+        async with asyncio.timeout(timeout_s):
+            async for item in agen:
+                if pred(item):
+                    return item
+    raise AssertionError("subscription ended")
+
+
+def quantize(deg: float) -> float:
+    """Degrees as MAVLink's int32 degE7 carries them."""
+    return round(deg * 1e7) / 1e7
+
+
+async def wait_until(sim: SimBridge, pred: Callable[[], bool], timeout_s: float, what: str) -> None:
+    assert await sim.wait_for(pred, timeout_s), f"timed out waiting for {what}"
+
+
+async def arm_and_take_off(system: System, sim: SimBridge, index: int) -> None:
+    tel, act = TelemetryAsync(system), ActionAsync(system)
+    await first(tel.subscribe_health_all_ok(), bool)
+    await act.arm()
+    await act.takeoff()
+    await first(tel.subscribe_flight_mode(), lambda m: m == FlightMode.HOLD and sim.vehicle(index).in_air, 30.0)
+
+
+# ---------------------------------------------------------------- (1) connect, health ------
+@pytest.mark.timeout(60)
+def test_mavsdk_connects_to_each_vehicle_and_sees_health_home_position_battery_mode(mission):
+    async def scenario():
+        async with stub_on_free_ports(mission, SimOptions(speedup=5.0)) as sim:
+            for i, spec in enumerate(mission.vehicles):
+                async with mavsdk_client(sim_connection_url(sim, i)) as system:
+                    tel = TelemetryAsync(system)
+                    assert await system.get_system_id() == spec.system_id
+                    await first(tel.subscribe_health_all_ok(), bool)
+                    health = await tel.health()
+                    assert all(vars(health).values()), health
+                    lat, lon, alt = local_to_geodetic(mission.origin, *spec.start_enu_m)
+                    home = await first(tel.subscribe_home())
+                    assert (home.latitude_deg, home.longitude_deg) == pytest.approx((quantize(lat), quantize(lon)), abs=1e-9)
+                    assert home.absolute_altitude_m == pytest.approx(alt, abs=0.01)
+                    pos = await first(tel.subscribe_position())
+                    assert (pos.latitude_deg, pos.longitude_deg) == pytest.approx((lat, lon), abs=2e-7)
+                    assert pos.relative_altitude_m == pytest.approx(0.0, abs=0.01)
+                    ned = await first(tel.subscribe_position_velocity_ned())
+                    assert (ned.position.east_m, ned.position.north_m) == pytest.approx(spec.start_enu_m, abs=0.01)
+                    bat = await first(tel.subscribe_battery())
+                    assert bat.remaining_percent == pytest.approx(spec.battery_pct, abs=0.5)
+                    assert await first(tel.subscribe_flight_mode()) == FlightMode.HOLD
+                    assert await first(tel.subscribe_landed_state()) == LandedState.ON_GROUND
+                    assert await first(tel.subscribe_armed()) is False
+                    gps = await first(tel.subscribe_gps_info())
+                    assert gps.fix_type == FixType.FIX_3D and gps.num_satellites >= 6
+            assert sim.stats["garbage"] == 0 and sim.stats["loop_errors"] == 0
+
+    asyncio.run(scenario())
