@@ -19,9 +19,11 @@ Pruning, for a cell x reached from its parent p:
     fails at a blocked cell; a diagonal jump stops where either straight jump would succeed.
 
 Straight jumps are O(1): numpy precomputes, for every cell and each of the four directions, the
-next cell where a straight scan stops. The search reads these tables through memoryviews
-(no per-cell Python objects). The path between consecutive jump points is a straight or diagonal
-run of cells and is filled back in, so the result is the full cell path.
+next cell where a straight scan stops, and h for every cell. The search reads these through
+memoryviews (no per-cell Python objects are built), keeps g, parent, entry direction and the
+closed flags in preallocated flat lists / bytearrays, and pushes (f, h, index) tuples on heapq.
+The path between consecutive jump points is a straight or diagonal run of cells and is filled
+back in, so the result is the full cell path.
 """
 
 from __future__ import annotations
@@ -41,12 +43,26 @@ Heuristic = Literal["octile", "euclidean"]
 _SQRT2 = math.sqrt(2.0)
 _CANCEL_EVERY = 64  # expansions between two polls of the cancel callback
 
-# Directions: the four straight ones index the stop tables; a diagonal is a pair of them.
+# Directions: the four straight ones index the stop tables; a diagonal is a pair of them. All the
+# tables below are tuples indexed by direction code (constants, read in the hot loop).
 _E, _W, _N, _S, _NE, _NW, _SE, _SW = range(8)
-_PARTS = {_NE: (_E, _N), _NW: (_W, _N), _SE: (_E, _S), _SW: (_W, _S)}
-_SIDES = {_E: (_N, _S), _W: (_N, _S), _N: (_E, _W), _S: (_E, _W)}
-_DIAGONAL = {frozenset(parts): d for d, parts in _PARTS.items()}
-_START = -1  # the start cell has no incoming direction: all eight moves are open
+_PARTS = ((), (), (), (), (_E, _N), (_W, _N), (_E, _S), (_W, _S))  # a diagonal's straight parts
+_SIDES = ((_N, _S), (_N, _S), (_E, _W), (_E, _W))                  # a straight move's two sides
+
+
+def _diagonal(a: int, b: int) -> int:
+    return next(d for d in (_NE, _NW, _SE, _SW) if set(_PARTS[d]) == {a, b})
+
+
+# Moves to try from a jump point, by how it was entered. From the start: all eight. After a
+# straight move: straight on, plus each side (and the diagonal to it) whose cell behind is
+# blocked, indexed by a 2-bit mask of those sides. After a diagonal move: its two parts and itself.
+_ALL_MOVES = tuple(range(8))
+_STRAIGHT_MOVES = tuple(
+    tuple((d,) + sum(((side, _diagonal(d, side)) for k, side in enumerate(_SIDES[d]) if mask >> k & 1), ())
+          for mask in range(4))
+    for d in (_E, _W, _N, _S))
+_DIAGONAL_MOVES = tuple((*_PARTS[d], d) if _PARTS[d] else () for d in range(8))
 
 
 def astar(grid: OccupancyGrid, start_xy: tuple[float, float], goal_xy: tuple[float, float], *,
@@ -164,24 +180,16 @@ def _jump_point_search(free_grid: np.ndarray, start: int, goal: int, heuristic: 
                        max_expansions: int | None, cancel: Callable[[], bool] | None) -> list[int] | None:
     """Jump points from start to goal (flat padded indices), or None when the goal is walled in."""
     rows, width = free_grid.shape
+    n = rows * width
     # One extra False at the end: index -1 (a backward scan's sentinel) then reads "blocked".
     free = memoryview(np.append(free_grid.ravel(), False).view(np.uint8))
     nxt = _stop_tables(free_grid, goal)
+    h = memoryview(_heuristic_table(rows, width, goal, heuristic).ravel())
     step = (1, -1, width, -width, width + 1, width - 1, 1 - width, -1 - width)
-    gy, gx = divmod(goal, width)
-    octile = heuristic == "octile"
+    unit = (1.0, 1.0, 1.0, 1.0, _SQRT2, _SQRT2, _SQRT2, _SQRT2)
+    behind_side = tuple(tuple(-step[d] + step[side] for side in _SIDES[d]) for d in (_E, _W, _N, _S))
 
-    def h(j: int) -> float:
-        y, x = divmod(j, width)
-        dx, dy = abs(x - gx), abs(y - gy)
-        if octile:
-            return dx + dy + (_SQRT2 - 2.0) * min(dx, dy)
-        return math.hypot(dx, dy)
-
-    def jump(i: int, d: int) -> int:
-        if d < 4:
-            j = nxt[d][i]
-            return j if free[j] else -1
+    def diagonal_jump(i: int, d: int) -> int:
         a, b = _PARTS[d]
         s, sa, sb, ta, tb = step[d], step[a], step[b], nxt[a], nxt[b]
         while free[i + sa] and free[i + sb] and free[i + s]:
@@ -190,53 +198,66 @@ def _jump_point_search(free_grid: np.ndarray, start: int, goal: int, heuristic: 
                 return i
         return -1
 
-    g = {start: 0.0}
-    parent = {start: -1}
-    came = {start: _START}
-    closed: set[int] = set()
-    heap = [(h(start), h(start), start)]
+    g = [math.inf] * n
+    parent = [-1] * n
+    came = bytearray(n)  # direction code + 1 of the move into each jump point; 0 = the start
+    closed = bytearray(n)
+    g[start] = 0.0
+    heap = [(h[start], h[start], start)]
     expansions = 0
     while heap:
         _, _, i = heappop(heap)
-        if i in closed:
+        if closed[i]:
             continue
         if i == goal:
             corners = [i]
-            while parent[i] != -1:
+            while i != start:
                 i = parent[i]
                 corners.append(i)
             corners.reverse()
             return corners
-        closed.add(i)
+        closed[i] = 1
         expansions += 1
         if max_expansions is not None and expansions > max_expansions:
             raise BudgetExceeded(f"expansion budget of {max_expansions} jump points spent before reaching the goal")
         if cancel is not None and expansions % _CANCEL_EVERY == 1 and cancel():
             raise BudgetExceeded(f"search cancelled after {expansions} expansions")
-        d = came[i]
-        if d == _START:
-            moves: tuple[int, ...] | list[int] = range(8)  # type: ignore[assignment]
+        d = came[i] - 1
+        if d < 0:
+            moves = _ALL_MOVES
         elif d < 4:
-            moves = [d]
-            behind = i - step[d]
-            for side in _SIDES[d]:
-                if not free[behind + step[side]]:
-                    moves += (side, _DIAGONAL[frozenset((d, side))])
+            left, right = behind_side[d]
+            moves = _STRAIGHT_MOVES[d][(not free[i + left]) | (not free[i + right]) << 1]
         else:
-            moves = (*_PARTS[d], d)
+            moves = _DIAGONAL_MOVES[d]
         gi = g[i]
         for m in moves:
-            j = jump(i, m)
-            if j < 0 or j in closed:
-                continue
-            ng = gi + (j - i) // step[m] * (1.0 if m < 4 else _SQRT2)
-            if ng < g.get(j, math.inf):
+            if m < 4:
+                j = nxt[m][i]
+                if not free[j]:
+                    continue
+            else:
+                j = diagonal_jump(i, m)
+                if j < 0:
+                    continue
+            ng = gi + (j - i) // step[m] * unit[m]
+            if ng < g[j]:
                 g[j] = ng
                 parent[j] = i
-                came[j] = m
-                hj = h(j)
+                came[j] = m + 1
+                hj = h[j]
                 heappush(heap, (ng + hj, hj, j))
     return None
+
+
+def _heuristic_table(rows: int, width: int, goal: int, heuristic: Heuristic) -> np.ndarray:
+    """h in cells from every cell of the padded grid to the goal (float64, rows x width)."""
+    gy, gx = divmod(goal, width)
+    dx = np.abs(np.arange(width, dtype=float) - gx)[None, :]
+    dy = np.abs(np.arange(rows, dtype=float) - gy)[:, None]
+    if heuristic == "octile":
+        return dx + dy + (_SQRT2 - 2.0) * np.minimum(dx, dy)
+    return np.hypot(dx, dy)
 
 
 def _fill_runs(corners: np.ndarray, width: int) -> np.ndarray:

@@ -1,0 +1,103 @@
+"""Global-planning timings: rasterise + A*, A* on big grids, sparse optimisation, routes, bounds.
+
+Prints the median (and min) over repeats; no pass/fail. Targets from the team brief:
+rasterise + A* on the reference map at 10 m <= 50 ms; A* on a 1000 x 1000 random grid <= 1 s.
+
+    python benchmarks/bench_astar.py [--repeats 7]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from companion.mission import load_mission
+from companion.planning.astar import astar
+from companion.planning.bounds import inscribed_outline, lower_bound_m
+from companion.planning.grid import OccupancyGrid, rasterise
+from companion.planning.routes import plan_routes
+from companion.planning.sparse import sparsify
+from companion.planning.world import make_obstacle
+
+REFERENCE = Path(__file__).resolve().parents[1] / "missions" / "paper_reference.yaml"
+
+
+def measure(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]:
+    """(median ms, min ms, last result)."""
+    times, result = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        result = fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(times), min(times), result
+
+
+def random_grid(kind: str, seed: int, n: int = 1000) -> OccupancyGrid:
+    rng = np.random.default_rng(seed)
+    if kind.startswith("iid"):
+        occ = rng.random((n, n)) < float(kind[3:]) / 100.0
+    else:  # blobs: 60 random discs, ~35 % of the cells
+        yy, xx = np.mgrid[0:n, 0:n]
+        occ = np.zeros((n, n), dtype=bool)
+        for _ in range(60):
+            cx, cy = rng.uniform(0, n, 2)
+            r = rng.uniform(0.02 * n, 0.08 * n)
+            occ |= (xx - cx) ** 2 + (yy - cy) ** 2 < r * r
+    occ[0, 0] = occ[-1, -1] = False
+    return OccupancyGrid((0.0, 0.0), 1.0, occ)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=7)
+    args = parser.parse_args()
+    rep = args.repeats
+    mission = load_mission(REFERENCE)
+    world = mission.world
+    a, b = mission.stations["A"], mission.stations["B"]
+    res = mission.planner.grid_resolution_m
+
+    rows: list[tuple[str, float, float, str]] = []
+
+    def row(name: str, fn: Callable[[], object], note: Callable[[object], str] = lambda _: "", repeats: int = rep):
+        med, best, out = measure(fn, repeats)
+        rows.append((name, med, best, note(out)))
+        print(f"{name:<48} median {med:9.2f} ms   min {best:9.2f} ms   {rows[-1][3]}", flush=True)
+
+    row(f"rasterise reference @ {res:g} m", lambda: rasterise(world, res),
+        lambda g: f"{g.shape[1]} x {g.shape[0]} cells, {int(g.occupied.sum())} occupied")
+    grid = rasterise(world, res)
+    row("A* reference A -> B", lambda: astar(grid, a, b), lambda p: f"{len(p)} nodes")
+    row("rasterise + A* reference (target <= 50 ms)", lambda: astar(rasterise(world, res), a, b))
+    raw = astar(grid, a, b)
+    row("sparsify reference route (World, exact disc)", lambda: sparsify(raw, world),
+        lambda s: f"{len(raw)} -> {len(s)} nodes")
+    row("sparsify reference route (polygon list)", lambda: sparsify(raw, [o.inflated for o in world.static_obstacles]))
+    row("plan_routes reference (a, then b constrained)", lambda: plan_routes(mission),
+        lambda r: ", ".join(f"{k}: {v.nodes_raw}->{v.nodes_sparse} nodes {v.length_m:.1f} m [{v.constraint}]"
+                            for k, v in r.items()))
+    row("lower_bound_m reference (closed form)", lambda: lower_bound_m(world, a, b), lambda v: f"{v:.2f} m")
+    aside = make_obstacle("aside", "rectangle", center=(3000.0, 200.0), width_m=50.0, height_m=50.0)
+    general_world = replace(world, obstacles=world.obstacles + (aside,))
+    row("lower_bound_m reference (visibility graph)", lambda: lower_bound_m(general_world, a, b),
+        lambda v: f"{v:.2f} m ({len(inscribed_outline(world.obstacles[0]).exterior.coords) - 1}-gon disc)")
+
+    for kind, seed in (("blobs", 2), ("iid10", 2), ("iid20", 3)):
+        g = random_grid(kind, seed)
+        try:
+            astar(g, (0.5, 0.5), (999.5, 999.5))
+        except Exception as exc:  # a walled-in draw would only time the failure
+            print(f"A* 1000x1000 {kind}: {exc}")
+            continue
+        row(f"A* 1000x1000 {kind} corner->corner (target <= 1 s)", lambda g=g: astar(g, (0.5, 0.5), (999.5, 999.5)),
+            lambda p: f"{len(p)} nodes, {g.occupied.mean() * 100:.0f} % blocked", repeats=max(3, rep // 2))
+
+
+if __name__ == "__main__":
+    main()
