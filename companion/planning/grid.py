@@ -20,7 +20,7 @@ from shapely.geometry.base import BaseGeometry
 from companion.planning.errors import PlanningError
 from companion.planning.world import World
 
-MAX_CELLS = 25_000_000  # ~25 MB of bools plus A*'s per-cell lists; far above any sane mission
+MAX_CELLS = 4_000_000  # A* keeps ~50 bytes per cell (g, parent, h, stop tables): ~200 MB at the cap
 
 # Dilating a polygon with a buffer puts the arc vertices ON the true offset curve, so the chords
 # cut inside it. Scaling the distance by 1/cos(pi/(4*q)) makes the arcs circumscribe the curve:
