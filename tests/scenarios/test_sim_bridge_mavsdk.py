@@ -121,3 +121,108 @@ def test_mavsdk_connects_to_each_vehicle_and_sees_health_home_position_battery_m
             assert sim.stats["garbage"] == 0 and sim.stats["loop_errors"] == 0
 
     asyncio.run(scenario())
+
+
+# ---------------------------------------------------------------- (2) commands, offboard ---
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_mavsdk_arms_takes_off_flies_offboard_body_and_ned_holds_and_lands(mission):
+    async def scenario():
+        async with stub_on_free_ports(mission, SimOptions(speedup=10.0)) as sim:
+            v = sim.vehicle("a")
+            async with mavsdk_client(sim_connection_url(sim, 0)) as system:
+                tel, act, off = TelemetryAsync(system), ActionAsync(system), OffboardAsync(system)
+                await act.set_takeoff_altitude(6.0)
+                assert v.param("MIS_TAKEOFF_ALT") == 6.0 and await act.get_takeoff_altitude() == 6.0
+                await arm_and_take_off(system, sim, 0)
+                assert v.position_enu_m[2] == pytest.approx(6.0, abs=0.3)
+                assert await first(tel.subscribe_landed_state(), lambda s: s == LandedState.IN_AIR)
+
+                # Body frame: 8 m/s forward while yawing at 15 deg/s (within v/r = 19.1 deg/s).
+                await off.set_velocity_body(VelocityBodyYawspeed(8.0, 0.0, 0.0, 15.0))
+                await off.start()
+                await first(tel.subscribe_flight_mode(), lambda m: m == FlightMode.OFFBOARD, 2.0)
+                await wait_until(sim, lambda: v.state.ground_speed_m_s > 7.99, 5.0, "cruise speed")
+                yaw0, t0 = v.state.yaw_rad, sim.sim_time_s
+                await wait_until(sim, lambda: sim.sim_time_s > t0 + 6.0, 5.0, "6 s of sim time")
+                turned = math.remainder(v.state.yaw_rad - yaw0, 2 * math.pi)
+                assert turned == pytest.approx(math.radians(15.0) * (sim.sim_time_s - t0), abs=math.radians(3))
+                vel = (await first(tel.subscribe_position_velocity_ned())).velocity
+                assert math.hypot(vel.north_m_s, vel.east_m_s) == pytest.approx(8.0, abs=0.05)
+                # Beyond the turn-rate limit the vehicle turns at v/r, no faster.
+                await off.set_velocity_body(VelocityBodyYawspeed(8.0, 0.0, 0.0, 90.0))
+                await wait_until(sim, lambda: abs(v.state.yawspeed_rad_s) > 0.3, 3.0, "fast yaw command")
+                assert abs(v.state.yawspeed_rad_s) == pytest.approx(10.0 / 30.0)
+
+                # NED frame with a yaw ANGLE (what set_velocity_ned sends): fly east facing east.
+                await off.set_velocity_ned(VelocityNedYaw(0.0, 5.0, 0.0, 90.0))
+                await wait_until(sim, lambda: abs(v.state.yaw_rad - math.pi / 2) < 1e-3
+                                 and abs(v.state.ve_m_s - 5.0) < 1e-3, 10.0, "east at 5 m/s facing east")
+                heading = await first(tel.subscribe_heading())
+                assert heading.heading_deg == pytest.approx(90.0, abs=0.5)
+                assert v.state.vn_m_s == pytest.approx(0.0, abs=1e-3)
+
+                await off.stop()  # MAVSDK switches to Hold
+                await first(tel.subscribe_flight_mode(), lambda m: m == FlightMode.HOLD, 2.0)
+                await wait_until(sim, lambda: v.state.ground_speed_m_s < 0.05, 10.0, "hold to settle")
+                held = v.position_enu_m
+                await asyncio.sleep(0.5)
+                assert v.position_enu_m == pytest.approx(held, abs=0.1)
+
+                await act.land()
+                await first(tel.subscribe_in_air(), lambda air: not air, 30.0)
+                await first(tel.subscribe_armed(), lambda armed: not armed, 10.0)  # auto-disarm
+                assert v.position_enu_m[:2] == pytest.approx(held[:2], abs=0.5)
+                assert v.collision_count == 0 and v.offboard_losses == []
+                assert v.counters["handler_error"] == 0 and sim.stats["loop_errors"] == 0
+
+    asyncio.run(scenario())
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(90)
+def test_companion_crash_fails_safe_to_hold_within_com_of_loss_t(mission):
+    """The client dies mid-offboard: HOLD within COM_OF_LOSS_T + one physics tick of sim time."""
+    async def scenario():
+        async with stub_on_free_ports(mission, SimOptions(speedup=5.0)) as sim:
+            v = sim.vehicle("b")
+            async with mavsdk_client(sim_connection_url(sim, 1)) as system:
+                await arm_and_take_off(system, sim, 1)
+                off = OffboardAsync(system)
+                await off.set_velocity_body(VelocityBodyYawspeed(5.0, 0.0, 0.0, 0.0))
+                await off.start()
+                await wait_until(sim, lambda: v.mode is StubMode.OFFBOARD, 2.0, "OFFBOARD")
+                await asyncio.sleep(0.5)
+            # The Mavsdk instance is gone: no more setpoints, no offboard.stop().
+            await wait_until(sim, lambda: v.mode is StubMode.HOLD, 5.0, "failsafe to HOLD")
+            (loss,) = v.offboard_losses
+            timeout, tick = v.param("COM_OF_LOSS_T"), sim.options.physics_dt_s
+            assert timeout < loss.failsafe_t_s - loss.last_setpoint_t_s <= timeout + tick + 1e-9
+            await wait_until(sim, lambda: v.state.ground_speed_m_s < 0.05, 10.0, "braking")
+            assert v.in_air and v.armed
+
+    asyncio.run(scenario())
+
+
+@pytest.mark.timeout(60)
+def test_offboard_is_refused_without_a_setpoint_stream_and_commands_are_acked(mission):
+    async def scenario():
+        async with stub_on_free_ports(mission, SimOptions(speedup=5.0)) as sim:
+            async with mavsdk_client(sim_connection_url(sim, 0)) as system:
+                from mavsdk.asyncio.plugins.action import ActionError
+                from mavsdk.asyncio.plugins.offboard import OffboardError
+
+                tel, act = TelemetryAsync(system), ActionAsync(system)
+                await first(tel.subscribe_health_all_ok(), bool)
+                # MAVSDK refuses locally without a setpoint (the stub's own refusal of a stale
+                # stream is covered in tests/unit/test_sim_vehicle.py).
+                with pytest.raises(OffboardError):
+                    await OffboardAsync(system).start()
+                with pytest.raises(ActionError):
+                    await act.return_to_launch()  # RTL on the ground: DENIED by the vehicle
+                await act.arm()
+                await act.disarm()  # landed: allowed
+                assert sim.vehicle(0).mode is StubMode.HOLD
+                assert sim.vehicle(0).counters["command_denied"] >= 1
+
+    asyncio.run(scenario())
