@@ -74,8 +74,8 @@ async def first(agen: AsyncIterator[T], pred: Callable[[T], bool] = lambda _: Tr
 
 
 def quantize(deg: float) -> float:
-    """Degrees as MAVLink's int32 degE7 carries them."""
-    return round(deg * 1e7) / 1e7
+    """Degrees as MAVLink's int32 degE7 carries them (and as MAVSDK converts them back)."""
+    return round(deg * 1e7) * 1e-7
 
 
 async def wait_until(sim: SimBridge, pred: Callable[[], bool], timeout_s: float, what: str) -> None:
@@ -224,5 +224,73 @@ def test_offboard_is_refused_without_a_setpoint_stream_and_commands_are_acked(mi
                 await act.disarm()  # landed: allowed
                 assert sim.vehicle(0).mode is StubMode.HOLD
                 assert sim.vehicle(0).counters["command_denied"] >= 1
+
+    asyncio.run(scenario())
+
+
+# ---------------------------------------------------------------- (3) missions -------------
+def mission_item(mission: Mission, x_m: float, y_m: float, alt_m: float, **kw: Any) -> MissionItem:
+    lat, lon, _ = local_to_geodetic(mission.origin, x_m, y_m)
+    defaults: dict[str, Any] = dict(
+        speed_m_s=math.nan, is_fly_through=True, gimbal_pitch_deg=math.nan, gimbal_yaw_deg=math.nan,
+        camera_action=MissionItem.CameraAction.NONE, loiter_time_s=math.nan, camera_photo_interval_s=1.0,
+        acceptance_radius_m=4.0, yaw_deg=math.nan, camera_photo_distance_m=math.nan,
+        vehicle_action=MissionItem.VehicleAction.NONE)
+    defaults.update(kw)
+    return MissionItem(quantize(lat), quantize(lon), alt_m, **defaults)
+
+
+def item_differences(a: MissionItem, b: MissionItem) -> dict[str, tuple[Any, Any]]:
+    def eq(x: Any, y: Any) -> bool:
+        return (isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y)) or x == y
+    return {k: (x, vars(b)[k]) for k, x in vars(a).items() if not eq(x, vars(b)[k])}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_mavsdk_uploads_downloads_identical_and_flies_the_mission_to_completion(mission):
+    async def scenario():
+        async with stub_on_free_ports(mission, SimOptions(speedup=20.0)) as sim:
+            v = sim.vehicle("a")  # station A is (100, 100)
+            # MAVSDK does not carry an acceptance radius for TAKEOFF / LAND items (it reads 1 m back).
+            plan = MissionPlan([
+                mission_item(mission, 100, 100, 10.0, vehicle_action=MissionItem.VehicleAction.TAKEOFF,
+                             is_fly_through=False, acceptance_radius_m=1.0),
+                mission_item(mission, 100, 250, 12.5, speed_m_s=8.0),
+                mission_item(mission, 250, 250, 12.5, is_fly_through=False, loiter_time_s=2.0),
+                mission_item(mission, 250, 150, 10.0),
+                mission_item(mission, 200, 150, 10.0, vehicle_action=MissionItem.VehicleAction.LAND,
+                             is_fly_through=False, acceptance_radius_m=1.0),
+            ])
+            async with mavsdk_client(sim_connection_url(sim, 0)) as system:
+                tel, act, mis = TelemetryAsync(system), ActionAsync(system), MissionAsync(system)
+                await first(tel.subscribe_health_all_ok(), bool)
+                await mis.upload_mission(plan)
+                stored = v.missions.plan()
+                assert len(stored) >= len(plan.mission_items)  # MAVSDK adds DO_CHANGE_SPEED items
+                downloaded = await mis.download_mission()
+                assert len(downloaded.mission_items) == len(plan.mission_items)
+                for sent, got in zip(plan.mission_items, downloaded.mission_items):
+                    assert item_differences(sent, got) == {}
+
+                await act.arm()
+                progress = []
+                await mis.start_mission()
+                async with contextlib.aclosing(mis.subscribe_mission_progress()) as updates:
+                    async with asyncio.timeout(60.0):
+                        async for p in updates:
+                            progress.append((p.current, p.total))
+                            if p.current == p.total:
+                                break
+                assert progress[-1] == (5, 5) and [c for c, _ in progress] == sorted(c for c, _ in progress)
+                assert await mis.is_mission_finished()
+                await first(tel.subscribe_armed(), lambda armed: not armed, 20.0)  # landed, auto-disarmed
+                assert v.mode is StubMode.LAND and v.position_enu_m == pytest.approx((200.0, 150.0, 0.0), abs=1.0)
+                assert v.collision_count == 0 and v.missions.counters["upload_timeout"] == 0
+
+                # Clearing works too, and an empty plan cannot be started.
+                await mis.clear_mission()
+                assert v.missions.plan() == ()
+                assert (await mis.download_mission()).mission_items == []
 
     asyncio.run(scenario())
