@@ -79,8 +79,7 @@ class OccupancyGrid:
     def cell_centres(self) -> tuple[np.ndarray, np.ndarray]:
         """1-D arrays of the centre x (length nx) and centre y (length ny) of every column / row."""
         ny, nx = self.shape
-        return (self.origin_m[0] + (np.arange(nx) + 0.5) * self.resolution_m,
-                self.origin_m[1] + (np.arange(ny) + 0.5) * self.resolution_m)
+        return _centres(self.origin_m, self.resolution_m, nx, ny)
 
     def with_blocked(self, extra_mask: np.ndarray) -> OccupancyGrid:
         """A new grid with the cells of ``extra_mask`` (same shape) also occupied."""
@@ -93,9 +92,8 @@ class OccupancyGrid:
         """A new grid with the cells within h of any of ``geometries`` also occupied."""
         mask = np.zeros(self.shape, dtype=bool)
         xs, ys = self.cell_centres()
-        h = self.resolution_m * math.sqrt(2.0) / 2.0
         for geom in geometries:
-            _fill_within(mask, xs, ys, geom, h)
+            _fill_within(mask, xs, ys, geom, _half_diagonal(self.resolution_m))
         return self.with_blocked(mask)
 
 
@@ -115,9 +113,8 @@ def rasterise(world: World, resolution_m: float, *, t_s: float = 0.0,
     if nx * ny > MAX_CELLS:
         raise PlanningError(f"a {resolution_m:g} m grid over {fx1 - fx0:g} x {fy1 - fy0:g} m is {nx} x {ny} "
                             f"cells (limit {MAX_CELLS}); use a coarser grid_resolution_m")
-    xs = fx0 + (np.arange(nx) + 0.5) * resolution_m
-    ys = fy0 + (np.arange(ny) + 0.5) * resolution_m
-    h = resolution_m * math.sqrt(2.0) / 2.0
+    xs, ys = _centres((fx0, fy0), resolution_m, nx, ny)
+    h = _half_diagonal(resolution_m)
     occ = np.zeros((ny, nx), dtype=bool)
     occ[:, xs > fx1] = True
     occ[ys > fy1, :] = True
@@ -129,6 +126,16 @@ def rasterise(world: World, resolution_m: float, *, t_s: float = 0.0,
     for geom in extra:
         _fill_within(occ, xs, ys, geom, h)
     return OccupancyGrid((fx0, fy0), float(resolution_m), occ)
+
+
+def _centres(origin_m: tuple[float, float], resolution_m: float, nx: int, ny: int) -> tuple[np.ndarray, np.ndarray]:
+    return (origin_m[0] + (np.arange(nx) + 0.5) * resolution_m,
+            origin_m[1] + (np.arange(ny) + 0.5) * resolution_m)
+
+
+def _half_diagonal(resolution_m: float) -> float:
+    """h: every point of a move between 8-neighbour centres is within h of one of its ends."""
+    return resolution_m * math.sqrt(2.0) / 2.0
 
 
 def _index_range(centres: np.ndarray, lo: float, hi: float) -> slice:
