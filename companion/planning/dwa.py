@@ -227,6 +227,18 @@ class ObstacleSnapshot:
     poly_bound_m: np.ndarray  # (P,)
     poly_vel_m_s: np.ndarray  # (P, 2)
 
+    # Per obstacle (circles, then polygons): a disc bounding the inflated shape, and its speed.
+    bound_xy_m: np.ndarray = field(init=False, repr=False)
+    bound_radius_m: np.ndarray = field(init=False, repr=False)
+    speed_m_s: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "bound_xy_m", np.concatenate([self.circle_xy_m, self.poly_centre_m]))
+        object.__setattr__(self, "bound_radius_m", np.concatenate(
+            [self.circle_radius_m + self.circle_margin_m, self.poly_bound_m + self.poly_margin_m]))
+        vel = np.concatenate([self.circle_vel_m_s, self.poly_vel_m_s])
+        object.__setattr__(self, "speed_m_s", np.hypot(vel[:, 0], vel[:, 1]))
+
     @property
     def count(self) -> int:
         return len(self.circle_ids) + len(self.poly_ids)
@@ -283,15 +295,19 @@ class ObstacleSnapshot:
         """Only the obstacles whose inflated shape can come within ``reach_m`` of (x, y) during
         ``horizon_s`` at their predicted velocity; the others cannot touch any rollout. With
         ``to_xy``: within ``reach_m`` of the segment (x, y) -> to_xy (sight lines)."""
+        bx, by = self.bound_xy_m[:, 0], self.bound_xy_m[:, 1]
         if to_xy is None:
-            to_xy = (x_m, y_m)
-        keep_c = (_to_segment(self.circle_xy_m, x_m, y_m, to_xy) - self.circle_radius_m - self.circle_margin_m
-                  - np.hypot(self.circle_vel_m_s[:, 0], self.circle_vel_m_s[:, 1]) * horizon_s) <= reach_m
-        keep_p = (_to_segment(self.poly_centre_m, x_m, y_m, to_xy) - self.poly_bound_m - self.poly_margin_m
-                  - np.hypot(self.poly_vel_m_s[:, 0], self.poly_vel_m_s[:, 1]) * horizon_s) <= reach_m
-        if keep_c.all() and keep_p.all():
+            d = np.hypot(bx - x_m, by - y_m)
+        else:
+            d = _to_segment(bx, by, x_m, y_m, to_xy)
+        keep = d - self.bound_radius_m - self.speed_m_s * horizon_s <= reach_m
+        if keep.all():
             return self
-        counts = np.diff(np.append(self.poly_start, len(self.edge_a_m)))
+        if not keep.any():
+            return NO_OBSTACLES
+        n_c = len(self.circle_ids)
+        keep_c, keep_p = keep[:n_c], keep[n_c:]
+        counts = np.diff(self.poly_start, append=len(self.edge_a_m))
         keep_e = np.repeat(keep_p, counts)
         kept_counts = counts[keep_p]
         return ObstacleSnapshot(
@@ -305,12 +321,17 @@ class ObstacleSnapshot:
             self.poly_vel_m_s[keep_p])
 
 
-def _to_segment(points: np.ndarray, x_m: float, y_m: float, to_xy: tuple[float, float]) -> np.ndarray:
-    """Distance from each point (N, 2) to the segment (x, y) -> to_xy."""
+NO_OBSTACLES = ObstacleSnapshot.build([], [])
+
+
+def _to_segment(px: np.ndarray, py: np.ndarray, x_m: float, y_m: float, to_xy: tuple[float, float]) -> np.ndarray:
+    """Distance from points (px, py) to the segment (x, y) -> to_xy."""
     dx, dy = to_xy[0] - x_m, to_xy[1] - y_m
-    rx, ry = points[:, 0] - x_m, points[:, 1] - y_m
+    rx, ry = px - x_m, py - y_m
     len2 = dx * dx + dy * dy
-    u = np.clip((rx * dx + ry * dy) / len2, 0.0, 1.0) if len2 > 0 else 0.0
+    if len2 == 0.0:
+        return np.hypot(rx, ry)
+    u = np.minimum(np.maximum((rx * dx + ry * dy) / len2, 0.0), 1.0)
     return np.hypot(rx - u * dx, ry - u * dy)
 
 
@@ -430,7 +451,13 @@ def heading_scores(pts: np.ndarray, final_heading: np.ndarray, goals: LocalGoals
     nodes = goals.nodes_xy
     count = len(nodes)
     at_station = None
-    if count == 1 and not goals.ends_at_station:
+    if count == 1 and goals.ends_at_station:  # only the station: can any rollout reach it?
+        x0, y0 = pts[0, 0]  # every rollout starts at the pose
+        reach = float(np.hypot(ex - x0, ey - y0).max())
+        single = math.hypot(nodes[0, 0] - x0, nodes[0, 1] - y0) > reach + goals.station_radius_m
+    else:
+        single = count == 1
+    if single:
         tx, ty = nodes[0]
     else:
         gx, gy = nodes[:, 0], nodes[:, 1]
@@ -496,15 +523,16 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     heading = heading_scores(pts, final_heading, goals)
     legal = _commit_turn(pose, goals, legal, config)
 
-    total = config.w_h * _normalised(heading, legal) + config.w_d * _normalised(distance, legal)
     sightline = None
     if other is not None and config.w_s > 0 and snapshot.count:
         t_p = float(times[-1])
         q = (other.x_m + other.vx_m_s * t_p, other.y_m + other.vy_m_s * t_p)
         # Sight lines run from somewhere within reach of the pose to q: skip obstacles far from both.
         seen = snapshot.near(pose.x_m, pose.y_m, config.reach_m, t_p, to_xy=q)
-        sightline = np.minimum(config.sightline_cap_m, sightline_scores(pts[:, -1], q, t_p, seen))
-        total += config.w_s * _normalised(sightline, legal)
+        if seen.count:
+            sightline = np.minimum(config.sightline_cap_m, sightline_scores(pts[:, -1], q, t_p, seen))
+    critics = np.stack([heading, distance, sightline if sightline is not None else np.zeros_like(heading)])
+    total = _weights(config) @ _normalised(critics, legal)
     total[~legal] = -np.inf
     best = int(np.argmax(total))
     return Command(yaw_rate_rad_s=float(config.yaw_rates_rad_s[best]), speed_m_s=config.speed_m_s,
@@ -533,7 +561,12 @@ def _commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaCo
     return toward if toward.any() else legal
 
 
-def _normalised(score: np.ndarray, legal: np.ndarray) -> np.ndarray:
-    """Fox et al. 1997: each critic divided by its sum over the candidates (here: legal ones)."""
-    total = float(np.sum(score, where=legal))
-    return score / total if total > 0 else np.zeros_like(score)
+def _weights(config: DwaConfig) -> np.ndarray:
+    return np.array([config.w_h, config.w_d, config.w_s])
+
+
+def _normalised(critics: np.ndarray, legal: np.ndarray) -> np.ndarray:
+    """Fox et al. 1997: each critic (row) divided by its sum over the candidates (here: the
+    legal ones); a critic that is zero for all of them contributes nothing."""
+    sums = (critics if legal.all() else critics[:, legal]).sum(axis=1, keepdims=True)
+    return np.divide(critics, sums, out=np.zeros_like(critics), where=sums > 0)

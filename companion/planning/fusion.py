@@ -146,6 +146,7 @@ class LocalGoalTracker:
         self.nodes = nodes
         self.acceptance_radius_m = float(acceptance_radius_m)
         self.index = 1
+        self._along_m = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(nodes, axis=0).T))])
 
     @property
     def goal_xy(self) -> tuple[float, float]:
@@ -161,8 +162,8 @@ class LocalGoalTracker:
         (x, y) could make the target (it must reach the node before it first)."""
         nodes = self.nodes[self.index:]
         gx, gy = nodes[0]
-        to_node = math.hypot(gx - x_m, gy - y_m) + np.concatenate(
-            [[0.0], np.cumsum(np.hypot(*np.diff(nodes, axis=0).T))])
+        # path length from (x, y) to each remaining node, via the current goal
+        to_node = math.hypot(gx - x_m, gy - y_m) + self._along_m[self.index:] - self._along_m[self.index]
         count = min(len(nodes), int(np.searchsorted(to_node, reach_m, side="right")) + 1)
         px, py = self.nodes[self.index - 1]
         return LocalGoals(nodes[:count], (float(px), float(py)), self.acceptance_radius_m,

@@ -69,26 +69,38 @@ class TruthGeometry:
         self.world = world
         self.circles = [o for o in world.obstacles if o.is_circle]
         self.polygons = [o for o in world.obstacles if not o.is_circle]
-        self._c_xy = np.array([o.center for o in self.circles], dtype=float).reshape(-1, 2)
-        self._c_r = np.array([o.size_m for o in self.circles], dtype=float)
+        fixed = [o for o in self.circles if not o.is_moving]
+        self._moving_circles = [o for o in self.circles if o.is_moving]
+        self._c_xy = np.array([o.center for o in fixed], dtype=float).reshape(-1, 2)
+        self._c_r = np.array([o.size_m for o in fixed], dtype=float)
         for o in self.polygons:
             shapely.prepare(o.footprint)
 
     def segment_clearance_m(self, x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray,
                             t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
         """Smallest distance (N,) from each moving segment to any true footprint; 0 = contact."""
-        x0, y0, x1, y1, t0, t1 = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (x0, y0, x1, y1, t0, t1))
+        x0, y0, x1, y1 = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (x0, y0, x1, y1))
         best = np.full(x0.shape, np.inf)
-        for i, o in enumerate(self.circles):
+        if len(self._c_r):  # static discs, all at once: (N, C)
+            cx, cy = self._c_xy[:, 0], self._c_xy[:, 1]
+            d = _origin_to_segment(x0[:, None] - cx, y0[:, None] - cy, x1[:, None] - cx, y1[:, None] - cy)
+            best = np.minimum(best, (d - self._c_r).min(axis=1))
+        if not (self._moving_circles or self.polygons):
+            return np.maximum(best, 0.0)
+        t0, t1 = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (t0, t1))
+        for o in self._moving_circles:
             o0, o1 = o.offset_at(t0), o.offset_at(t1)
-            ax, ay = x0 - o0[..., 0] - self._c_xy[i, 0], y0 - o0[..., 1] - self._c_xy[i, 1]
-            bx, by = x1 - o1[..., 0] - self._c_xy[i, 0], y1 - o1[..., 1] - self._c_xy[i, 1]
-            best = np.minimum(best, _origin_to_segment(ax, ay, bx, by) - self._c_r[i])
+            cx, cy = o.center
+            best = np.minimum(best, _origin_to_segment(x0 - o0[..., 0] - cx, y0 - o0[..., 1] - cy,
+                                                       x1 - o1[..., 0] - cx, y1 - o1[..., 1] - cy) - o.size_m)
         for o in self.polygons:
-            o0, o1 = o.offset_at(t0), o.offset_at(t1)
-            coords = np.stack([np.stack([x0 - o0[..., 0], y0 - o0[..., 1]], axis=-1),
-                               np.stack([x1 - o1[..., 0], y1 - o1[..., 1]], axis=-1)], axis=-2)
-            best = np.minimum(best, shapely.distance(shapely.linestrings(coords), o.footprint))
+            if o.is_moving:  # in the obstacle's frame
+                o0, o1 = o.offset_at(t0), o.offset_at(t1)
+                a = np.stack([x0 - o0[..., 0], y0 - o0[..., 1]], axis=-1)
+                b = np.stack([x1 - o1[..., 0], y1 - o1[..., 1]], axis=-1)
+            else:
+                a, b = np.stack([x0, y0], axis=-1), np.stack([x1, y1], axis=-1)
+            best = np.minimum(best, shapely.distance(shapely.linestrings(np.stack([a, b], axis=-2)), o.footprint))
         return np.maximum(best, 0.0)
 
     def sight_blocked(self, ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray,

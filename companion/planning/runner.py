@@ -55,6 +55,9 @@ class RunResult:
         return self.summary.duration_s / self.wall_s if self.wall_s > 0 else math.inf
 
 
+_CHECK_EVERY_TICKS = 32  # safety is checked in vectorised batches; a violation truncates the run there
+
+
 def body_command(yaw_rate_enu_rad_s: float, speed_m_s: float) -> VelocityCommand:
     """The planner's (ENU yaw rate, forward speed) as PX4's BODY_NED setpoint."""
     return VelocityCommand(VelocityFrame.BODY_NED, speed_m_s, 0.0, 0.0,
@@ -97,66 +100,77 @@ def simulate(mission: Mission, variant: str | None = None, *,
     truth = TruthGeometry(mission.world)
     dt = mission.planner.dt_s
     n_ticks = int(math.floor(mission.safety.time_limit_s / dt + 1e-9))
-    t_log = {v.name: [0.0] for v in vehicles}
-    x_log = {v.name: [states[v.name].east_m] for v in vehicles}
-    y_log = {v.name: [states[v.name].north_m] for v in vehicles}
-    ticks: dict[str, list[TickResult]] = {v.name: [] for v in vehicles}
-    active = [v.name for v in vehicles]
+    names = [v.name for v in vehicles]
+    # rows[i] = every vehicle's (x, y) at t = i * dt; an arrived vehicle repeats its last row.
+    rows = [[(states[n].east_m, states[n].north_m) for n in names]]
+    last_row = {n: None for n in names}  # the row of arrival
+    ticks: dict[str, list[TickResult]] = {n: [] for n in names}
+    active = list(names)
+    checked = 0  # rows[0..checked] are known to be safe
+    bad = None
 
     for k in range(n_ticks):
         t = k * dt
         snapshot = field.at_time(t)
         commands = {}
         for name in list(active):
-            others = [states[n] for n in states if n != name]
             own = states[name]
-            nearest = min(others, key=lambda s: (s.east_m - own.east_m) ** 2 + (s.north_m - own.north_m) ** 2,
-                          default=None)
+            nearest = min((states[n] for n in names if n != name), default=None,
+                          key=lambda s: (s.east_m - own.east_m) ** 2 + (s.north_m - own.north_m) ** 2)
             result = planners[name].tick(_pose(own), None if nearest is None else _other(nearest), snapshot, t)
             ticks[name].append(result)
             if result.arrived:
                 active.remove(name)
+                last_row[name] = k
             else:
                 commands[name] = (HOVER if result.command is None
                                   else body_command(result.yaw_rate_rad_s, result.speed_m_s))
         if not active:
             break
-        before = {n: states[n] for n in states}
         for name, command in commands.items():
             states[name] = step(states[name], command, limits[name], dt)
-            t_log[name].append(t + dt)
-            x_log[name].append(states[name].east_m)
-            y_log[name].append(states[name].north_m)
-        if _violation(mission, truth, before, states, active, t, t + dt):
-            break
+        rows.append([(states[n].east_m, states[n].north_m) for n in names])
+        if len(rows) - 1 - checked >= _CHECK_EVERY_TICKS:
+            bad = _first_violation(mission, truth, rows, checked, dt)
+            if bad is not None:
+                break
+            checked = len(rows) - 1
+    if bad is None and len(rows) - 1 > checked:
+        bad = _first_violation(mission, truth, rows, checked, dt)
+    if bad is not None:  # stop at the step that broke a rule: drop what was flown after it
+        del rows[bad + 2:]
+        for name in names:
+            del ticks[name][bad + 1:]
 
-    tracks = {n: Track(np.array(t_log[n]), np.array(x_log[n]), np.array(y_log[n])) for n in t_log}
+    xy = np.asarray(rows)  # (T, V, 2)
+    tracks = {}
+    for i, name in enumerate(names):
+        end = len(xy) - 1 if last_row[name] is None else min(last_row[name], len(xy) - 1)
+        tracks[name] = Track(dt * np.arange(end + 1), xy[:end + 1, i, 0], xy[:end + 1, i, 1])
     planner_ms = {n: [r.planner_ms for r in ticks[n] if not r.arrived] for n in ticks}
     summary = summarize(mission, tracks, routes=routes, planner_ms=planner_ms, geometry=truth)
     return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started)
 
 
-def _violation(mission: Mission, truth: TruthGeometry, before: dict[str, KinematicState],
-               after: dict[str, KinematicState], moving: list[str], t0: float, t1: float) -> bool:
-    """Did this step break a safety rule? (metrics.summarize then names it from the tracks.)"""
-    if not moving:
-        return False
-    b = [before[n] for n in moving]
-    a = [after[n] for n in moving]
-    x0 = np.array([s.east_m for s in b])
-    y0 = np.array([s.north_m for s in b])
-    x1 = np.array([s.east_m for s in a])
-    y1 = np.array([s.north_m for s in a])
+def _first_violation(mission: Mission, truth: TruthGeometry, rows: list, first: int, dt: float) -> int | None:
+    """The first step i >= first (rows[i] -> rows[i + 1]) that breaks a safety rule, or None.
+
+    Checked in batches for speed; metrics.summarize then names the rule from the tracks.
+    """
+    xy = np.asarray(rows[first:])  # (n + 1, V, 2)
+    a, b = xy[:-1], xy[1:]
+    n, nv = a.shape[0], a.shape[1]
+    bad = np.zeros(n, dtype=bool)
     if truth.circles or truth.polygons:
-        if np.any(truth.segment_clearance_m(x0, y0, x1, y1, np.full_like(x0, t0), np.full_like(x0, t1)) <= 0.0):
-            return True
-    if not np.all(inside_fence(mission.world, x1, y1)):
-        return True
-    names = list(after)
-    for i, p in enumerate(names):
-        for q in names[i + 1:]:
-            d = pair_min_distance(before[p].east_m, before[p].north_m, after[p].east_m, after[p].north_m,
-                                  before[q].east_m, before[q].north_m, after[q].east_m, after[q].north_m)
-            if float(d) < mission.safety.min_separation_m:
-                return True
-    return False
+        t0 = np.repeat(dt * np.arange(first, first + n), nv)
+        clear = truth.segment_clearance_m(a[..., 0].ravel(), a[..., 1].ravel(), b[..., 0].ravel(), b[..., 1].ravel(),
+                                          t0, t0 + dt)
+        bad |= (clear <= 0.0).reshape(n, nv).any(axis=1)
+    bad |= ~inside_fence(mission.world, b[..., 0], b[..., 1]).all(axis=1)
+    for i in range(nv):
+        for j in range(i + 1, nv):
+            d = pair_min_distance(a[:, i, 0], a[:, i, 1], b[:, i, 0], b[:, i, 1],
+                                  a[:, j, 0], a[:, j, 1], b[:, j, 0], b[:, j, 1])
+            bad |= d < mission.safety.min_separation_m
+    hits = np.flatnonzero(bad)
+    return first + int(hits[0]) if hits.size else None

@@ -110,3 +110,32 @@ def test_a_trapped_local_planner_fails_safe_by_timeout_not_collision():
 def test_variant_argument_overrides_the_mission():
     run = simulate(parse_mission(TWO_WAY, "head_on"), "bdwa")
     assert run.variant == "bdwa" and run.routes == {}
+
+
+WHIRL = """
+name: whirl
+area: {x_min_m: 0, y_min_m: -600, x_max_m: 2000, y_max_m: 600}
+stations: {A: [0, 0], B: [2000, 0]}
+obstacles:
+  # 60 m/s around a 300 m circle: far outside what constant-velocity prediction can foresee
+  - {id: blade, shape: rectangle, center: [1000, 300], width_m: 120, height_m: 60,
+     motion: {type: orbit, pivot: [1000, 0], speed_m_s: 60}}
+vehicles:
+  - {name: a, start: A, goal: B, initial_heading_deg: 0}
+planner: {variant: dwa}
+"""
+
+
+def test_the_run_stops_at_the_step_that_collides():
+    run = simulate(parse_mission(WHIRL, "whirl"))
+    s = run.summary
+    assert s.reason == "collision" and not s.success
+    tr = run.tracks["a"]
+    assert tr.t_s[-1] == s.failure_t_s  # nothing flown after the violation is kept
+    assert len(run.ticks["a"]) == len(tr) - 1
+    blade = run.mission.world.obstacles[0]
+    from shapely.geometry import LineString
+    last = LineString([(tr.x_m[-2], tr.y_m[-2]), (tr.x_m[-1], tr.y_m[-1])])
+    before = LineString([(tr.x_m[-3], tr.y_m[-3]), (tr.x_m[-2], tr.y_m[-2])])
+    assert last.intersects(blade.footprint_at(tr.t_s[-1])) or last.intersects(blade.footprint_at(tr.t_s[-2]))
+    assert not before.intersects(blade.footprint_at(tr.t_s[-3]))
