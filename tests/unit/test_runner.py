@@ -3,10 +3,12 @@ other, and failing safe (a timeout, never a collision) when the local planner is
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pytest
+from shapely.geometry import LineString, Point
 
 from companion.mission import load_mission, parse_mission
 from companion.planning.runner import simulate
@@ -134,8 +136,69 @@ def test_the_run_stops_at_the_step_that_collides():
     assert tr.t_s[-1] == s.failure_t_s  # nothing flown after the violation is kept
     assert len(run.ticks["a"]) == len(tr) - 1
     blade = run.mission.world.obstacles[0]
-    from shapely.geometry import LineString
     last = LineString([(tr.x_m[-2], tr.y_m[-2]), (tr.x_m[-1], tr.y_m[-1])])
     before = LineString([(tr.x_m[-3], tr.y_m[-3]), (tr.x_m[-2], tr.y_m[-2])])
     assert last.intersects(blade.footprint_at(tr.t_s[-1])) or last.intersects(blade.footprint_at(tr.t_s[-2]))
     assert not before.intersects(blade.footprint_at(tr.t_s[-3]))
+
+
+# --- the command line ----------------------------------------------------------------------------
+
+def test_cli_simulate_writes_summary_and_plot(tmp_path, capsys):
+    from companion.cli import main
+    code = main(["simulate", "missions/paper_reference.yaml", "--out", str(tmp_path)])
+    assert code == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["success"] is True and summary["vehicles"]["a"]["arrived"] is True
+    assert (tmp_path / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    out = capsys.readouterr().out
+    assert "SUCCESS" in out and "ratio" in out
+
+
+def test_cli_simulate_failed_flight_exits_1(tmp_path):
+    from companion.cli import main
+    mission = tmp_path / "trap.yaml"
+    mission.write_text(TRAP)
+    assert main(["simulate", str(mission), "--out", str(tmp_path / "out")]) == 1
+    assert (tmp_path / "out" / "summary.json").exists()
+
+
+BOXED = """
+area: {x_min_m: 0, y_min_m: -600, x_max_m: 1500, y_max_m: 600}
+stations: {A: [0, 0], B: [1000, 0]}
+obstacles:  # a closed box of four walls around B
+  - {shape: rectangle, center: [850, 0], width_m: 40, height_m: 340}
+  - {shape: rectangle, center: [1150, 0], width_m: 40, height_m: 340}
+  - {shape: rectangle, center: [1000, 150], width_m: 340, height_m: 40}
+  - {shape: rectangle, center: [1000, -150], width_m: 340, height_m: 40}
+vehicles:
+  - {name: a, start: A, goal: B}
+"""
+
+
+@pytest.mark.parametrize(("text", "needle"), [(BOXED, "no path for vehicle 'a'"),
+                                               ("vehicles: [}", "YAML syntax")])
+def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, text, needle):
+    from companion.cli import main
+    mission = tmp_path / "bad.yaml"
+    mission.write_text(text)
+    assert main(["simulate", str(mission), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and "\n" not in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_sweep_rows_vary_the_reference_as_the_paper_does():
+    from companion.cli import table_missions
+    base = load_mission("missions/paper_reference.yaml")
+    t1 = table_missions("table1", base)
+    assert [(m.vehicle("a").initial_heading_deg, m.vehicle("b").initial_heading_deg) for _, m in t1] == \
+        [(a, a - 180.0) for a in (0.0, 18.0, 36.0, 54.0, 72.0, 90.0)]
+    assert [m.vehicle("a").speed_m_s for _, m in table_missions("table2", base)] == [10.0, 20.0, 30.0]
+    for label, m in table_missions("table3", base):
+        (o,) = m.world.obstacles
+        b = np.array(m.vehicle("a").goal_enu_m)
+        assert m.vehicle("a").start_enu_m == (0.0, 0.0) and m.vehicle("b").goal_enu_m == (0.0, 0.0)
+        assert math.hypot(*o.center) == pytest.approx(float(label))
+        assert np.hypot(*(b - o.center)) == pytest.approx(1000.0)
+        assert o.footprint.centroid.distance(Point(o.center)) < 1e-6
