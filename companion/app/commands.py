@@ -193,7 +193,6 @@ def cmd_plan(args: argparse.Namespace) -> int:
         plan = _load_and_plan(args)
     except MissionError as exc:
         return _bad(exc)
-    from companion.plots import save_trajectory
     from companion.planning.bounds import lower_bound_s
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -214,9 +213,30 @@ def cmd_plan(args: argparse.Namespace) -> int:
               + (f"{route.nodes_raw} A* nodes -> {route.nodes_sparse} sparse" if route else "no global route (variant)")
               + f"; lower bound {bound:.1f} s")
     (out / "routes.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    save_trajectory(out / "trajectory.png", plan.mission, {}, plan.routes, title=f"{plan.mission.name}: planned routes")
+    _save_plan_figure(out / "trajectory.png", plan)
     print(f"wrote {out / 'routes.json'} and {out / 'trajectory.png'}")
     return EXIT_OK
+
+
+def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
+    """The shared trajectory figure with the planned routes (nothing flown yet) drawn on it."""
+    import warnings
+
+    from companion.plots import trajectory_figure
+    with warnings.catch_warnings():  # the figure's legend is empty until the routes are added
+        warnings.filterwarnings("ignore", message="No artists with labels found", category=UserWarning)
+        fig = trajectory_figure(plan.mission, {}, None, title=f"{plan.mission.name}: planned routes ({plan.variant})")
+    ax = fig.axes[0]
+    for v in plan.mission.by_priority:
+        nodes = plan.nodes_enu_m(v)
+        route = plan.routes.get(v.name)
+        if route is not None and len(route.raw_enu_m) != len(nodes):
+            ax.plot(route.raw_enu_m[:, 0], route.raw_enu_m[:, 1], ls="--", lw=0.8, alpha=0.6,
+                    label=f"{v.name}: raw A* ({route.nodes_raw} nodes)")
+        ax.plot(nodes[:, 0], nodes[:, 1], lw=1.4, marker="o", ms=3.5,
+                label=f"{v.name}: uploaded route ({len(nodes)} waypoints)")
+    ax.legend(loc="lower right", fontsize=7, framealpha=0.85)
+    fig.savefig(path)
 
 
 def cmd_upload(args: argparse.Namespace) -> int:

@@ -49,7 +49,7 @@ class RunSettings:
     lookahead_s: float = 2.0  # sim, safety monitors
     link_lost_after_s: float = 10.0  # sim, continuous silence before the flight is abandoned
     keepalive_sim_s: float = 0.1  # sim, setpoint resend period (bounded to 10..100 ms wall)
-    max_offboard_reentries: int = 3
+    max_offboard_reentries: int = 10
     land: bool = True
     safe_state_timeout_s: float = 5.0  # wall
 
@@ -84,6 +84,14 @@ class FlightContext:
         self.field = ObstacleField.from_world(plan.mission.world)
         self.barrier = asyncio.Barrier(len(self.vehicles))
         self.rank = {v.name: i for i, v in enumerate(plan.mission.by_priority)}
+        # ADS-B callsigns hold 8 characters: match them to the mission's moving obstacles.
+        moving = [o.id for o in plan.mission.world.moving_obstacles]
+        self._callsigns = {oid[:8]: oid for oid in moving}
+        self._callsigns.update({oid: oid for oid in moving})
+
+    def obstacle_id(self, callsign: str) -> str:
+        """The mission obstacle an ADS-B callsign stands for (unknown ones keep their callsign)."""
+        return self._callsigns.get(callsign, callsign)
 
     def track_time(self, pilot: "Pilot", t_sim_s: float) -> float:
         """The time base of the flown tracks: the shared sim clock (which also drives the moving
@@ -187,25 +195,33 @@ class Pilot:
 
     async def _fly_offboard(self) -> None:
         pose = await self.vehicle.next_pose(0, wall_for_sim(self.vehicle, 2.0))
-        self.outcome.t_depart_sim_s = pose.t_sim_s
-        self._record(pose)
         result = self._tick(pose)
         self.setpoint = self._setpoint(pose, result)[0]
-        await self._retry("offboard start", lambda: self.vehicle.start_offboard(self.setpoint))
-        await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.OFFBOARD,
-                                      wall_for_sim(self.vehicle, 5.0), "OFFBOARD mode")
-        self.outcome.phase = "offboard"
+        # Setpoints stream (keep-alive) from before the mode switch to the end, as PX4 requires.
         self._offboard_live = True
-        self.ctx.report(f"{self.name}: OFFBOARD, departing at t_sim={pose.t_sim_s:.1f} s")
         try:
             async with asyncio.TaskGroup() as tg:
                 keepalive = tg.create_task(self._keepalive(), name=f"{self.name}:keepalive")
-                control = tg.create_task(self._control_loop(pose), name=f"{self.name}:control")
+                control = tg.create_task(self._engage_and_fly(), name=f"{self.name}:control")
                 control.add_done_callback(lambda _: keepalive.cancel())
         except BaseExceptionGroup as group:
             raise _primary(group) from None
         finally:
             self._offboard_live = False
+
+    async def _engage_and_fly(self) -> None:
+        await self.vehicle.send_setpoint(self.setpoint)
+        await self._retry("offboard start", lambda: self.vehicle.start_offboard(self.setpoint))
+        await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.OFFBOARD,
+                                      wall_for_sim(self.vehicle, 5.0), "OFFBOARD mode")
+        self.outcome.phase = "offboard"
+        pose = self.vehicle.latest_pose()
+        assert pose is not None
+        # Mission time starts when the companion has control: the headless runner's t = 0.
+        self.outcome.t_depart_sim_s = pose.t_sim_s
+        self._record(pose)
+        self.ctx.report(f"{self.name}: OFFBOARD, departing at t_sim={pose.t_sim_s:.1f} s")
+        await self._control_loop(pose)
 
     async def _keepalive(self) -> None:
         while True:
@@ -227,14 +243,20 @@ class Pilot:
         seq = pose.seq
         while True:
             bound = monitors.wall_bound_s(timeout, _sim_rate(self.vehicle))
+            watch_clock = stale_since is None  # once stale, only a new sample ends it
+
+            def news(st, p) -> bool:
+                return p is not None and (p.seq > seq or (
+                    watch_clock and monitors.is_stale(p.t_sim_s, _clock(self.vehicle), timeout)))
             try:
-                await self.vehicle.wait_until(
-                    lambda st, p: p is not None and (p.seq > seq or monitors.is_stale(p.t_sim_s, _clock(self.vehicle), timeout)),
-                    bound, "fresh position")
+                await self.vehicle.wait_until(news, bound, "fresh position")
                 fresh = self.vehicle.latest_pose()
                 assert fresh is not None
-                if fresh.seq == seq or monitors.is_stale(fresh.t_sim_s, _clock(self.vehicle), timeout):
+                if fresh.seq == seq:
                     raise TelemetryLost("position stopped while the clock ran on", vehicle=self.name)
+                seq = fresh.seq
+                if monitors.is_stale(fresh.t_sim_s, _clock(self.vehicle), timeout):
+                    raise TelemetryLost("position lags the vehicle clock", vehicle=self.name)
             except TelemetryLost as exc:
                 stale_since = stale_since if stale_since is not None else time.monotonic()
                 await self._on_stale(exc, time.monotonic() - stale_since)
@@ -242,7 +264,7 @@ class Pilot:
             if stale_since is not None:
                 self.ctx.report(f"{self.name}: telemetry fresh again after {time.monotonic() - stale_since:.2f} s wall")
                 stale_since = None
-            pose, seq = fresh, fresh.seq
+            pose = fresh
             self._record(pose)
             await self._check_mode()
             if pose.t_sim_s + 1e-6 < next_tick and not self._at_station(pose):
@@ -388,7 +410,7 @@ class Pilot:
         for callsign, r in self._traffic().items():
             self.ctx.log.traffic(r.t_sim_s, callsign, r.via, r.x_east_m, r.y_north_m, r.vx_east_m_s, r.vy_north_m_s)
             age = self._age_s(pose, r.t_sim_s, r.t_wall_s, same_link=r.via == self.name)
-            tracks.append(ObstacleTrack(callsign, r.x_east_m + r.vx_east_m_s * age,
+            tracks.append(ObstacleTrack(self.ctx.obstacle_id(callsign), r.x_east_m + r.vx_east_m_s * age,
                                         r.y_north_m + r.vy_north_m_s * age, r.vx_east_m_s, r.vy_north_m_s))
         return tracks
 

@@ -26,7 +26,8 @@ import numpy as np
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings, _primary
-from companion.errors import CompanionError, MissionAborted
+from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
+                              VehicleNotReady)
 from companion.planning.metrics import RunSummary, Track, summarize
 from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
 
@@ -105,7 +106,6 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
 
 
 def _reason_of(exc: CompanionError) -> str:
-    from companion.errors import CommandRefused, LinkError, MissionUploadError, VehicleNotReady
     if isinstance(exc, LinkError):
         return "link_lost"
     if isinstance(exc, CommandRefused):

@@ -84,6 +84,19 @@ def items_to_waypoints(items: Sequence[MissionItem]) -> tuple[GeoWaypoint, ...]:
                  for it in items if it.command == MAV_CMD_NAV_WAYPOINT)
 
 
+def body_setpoint(sp: VelocityYawRateSetpoint) -> VelocityBodyYawspeed:
+    """The port's setpoint as MAVSDK's BODY_NED velocity + PX4 (clockwise) yawspeed."""
+    yawspeed = frames.enu_yaw_rate_to_ned(sp.yaw_rate_enu_rad_s)
+    return VelocityBodyYawspeed(forward_m_s=float(sp.forward_m_s), right_m_s=0.0,
+                                down_m_s=float(-sp.climb_m_s), yawspeed_deg_s=math.degrees(yawspeed))
+
+
+def traffic_velocity_enu(heading_deg: float, speed_m_s: float) -> tuple[float, float]:
+    """(vx_east, vy_north) from an ADS-B course (clockwise from north, a NED yaw) and speed."""
+    course = frames.ned_yaw_to_enu_heading(math.radians(heading_deg))
+    return speed_m_s * math.cos(course), speed_m_s * math.sin(course)
+
+
 class MavsdkVehicle:
     """One autopilot over its own Mavsdk instance. Build with :func:`open_mavsdk_vehicle`."""
 
@@ -189,18 +202,13 @@ class MavsdkVehicle:
         await self._command("set takeoff altitude", lambda: self._action.set_takeoff_altitude(float(alt_rel_m)))
         await self._command("takeoff", self._action.takeoff)
 
-    def _body(self, sp: VelocityYawRateSetpoint) -> VelocityBodyYawspeed:
-        yawspeed = frames.enu_yaw_rate_to_ned(sp.yaw_rate_enu_rad_s)
-        return VelocityBodyYawspeed(forward_m_s=float(sp.forward_m_s), right_m_s=0.0,
-                                    down_m_s=float(-sp.climb_m_s), yawspeed_deg_s=math.degrees(yawspeed))
-
     async def start_offboard(self, first: VelocityYawRateSetpoint) -> None:
         # PX4 refuses OFFBOARD unless setpoints are already flowing: send one first.
         await self.send_setpoint(first)
         await self._command("offboard start", self._offboard.start)
 
     async def send_setpoint(self, setpoint: VelocityYawRateSetpoint) -> None:
-        body = self._body(setpoint)
+        body = body_setpoint(setpoint)
         await self._command("offboard setpoint", lambda: self._offboard.set_velocity_body(body))
 
     async def hold(self) -> None:
@@ -282,13 +290,11 @@ class MavsdkVehicle:
             if not callsign or not (math.isfinite(a.latitude_deg) and math.isfinite(a.longitude_deg)):
                 continue
             x, y, _ = frames.geodetic_to_local(self._origin, a.latitude_deg, a.longitude_deg)
-            # ADS-B course is clockwise from north, i.e. a NED yaw.
-            course = frames.ned_yaw_to_enu_heading(math.radians(a.heading_deg))
-            speed = float(a.horizontal_velocity_m_s)
+            vx, vy = traffic_velocity_enu(float(a.heading_deg), float(a.horizontal_velocity_m_s))
             t_sim = self._board.latest_clock_s if self._board.latest_clock_s is not None else math.nan
             await self._board.put_traffic(TrafficReport(
                 callsign=callsign, x_east_m=x, y_north_m=y,
-                vx_east_m_s=speed * math.cos(course), vy_north_m_s=speed * math.sin(course),
+                vx_east_m_s=vx, vy_north_m_s=vy,
                 t_sim_s=t_sim, t_wall_s=time.monotonic(), via=self._name))
 
 
