@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import shapely
 
+from companion.planning.bounds import lower_bound_s
 from companion.planning.errors import PlanningError
 from companion.planning.world import World
 
@@ -306,10 +307,6 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
 
 def _lower_bound_s(world: World, start, goal, speed_m_s: float) -> float | None:
     """The bound, or None when there is none (no static route exists)."""
-    try:
-        from companion.planning.bounds import lower_bound_s
-    except ImportError:  # TEMPORARY SHIM until bounds.py lands
-        from companion.planning._shim_routes import lower_bound_s
     try:
         return float(lower_bound_s(world, start, goal, speed_m_s))
     except PlanningError:
