@@ -329,6 +329,15 @@ class Pilot:
                              vehicle=self.name)
 
     async def _finish(self) -> None:
+        """Hold at the station, then land. The flight has succeeded by now (SPEC §2 asks for the
+        arrival): a refused landing is reported, and leaves the vehicle holding, not a failure."""
+        try:
+            await self._hold_and_land()
+        except CompanionError as exc:
+            self.outcome.error = str(exc)
+            self.ctx.report(f"{self.name}: after arrival: {exc}; left in {self.vehicle.status().mode.value}")
+
+    async def _hold_and_land(self) -> None:
         await self._retry("hold", self.vehicle.hold)
         await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.HOLD, wall_for_sim(self.vehicle, 5.0), "HOLD")
         self.outcome.phase = "held"

@@ -145,11 +145,13 @@ def _summary_doc(plan: FlightPlan, summary: RunSummary | None, outcomes: Mapping
     if reason is not None and doc.get("reason") is None:
         doc["success"] = doc["success_strict"] = False
         doc["reason"] = reason
+    # The keys `companion simulate` adds, so that the two summaries compare key for key.
     doc.setdefault("mission", plan.mission.name)
     doc.setdefault("variant", plan.variant)
+    doc["wall_s"] = round(wall_s, 3)
+    doc["speed_factor"] = round(doc["duration_s"] / wall_s, 1) if wall_s > 0 and doc.get("duration_s") else None
     doc["live"] = {
         "message": message,
-        "wall_s": round(wall_s, 3),
         "vehicles": {n: {"phase": o.phase, "landed": o.landed, "ticks": o.ticks,
                          "offboard_reentries": o.offboard_reentries,
                          "interventions": dict(o.interventions), "error": o.error,

@@ -338,5 +338,9 @@ async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frame
                 raise group.exceptions[0] from None
             raise
     finally:
-        # Joins MAVSDK's threads: keep it off the event loop.
-        await asyncio.to_thread(sdk.destroy)
+        # Joins MAVSDK's threads: keep it off the event loop, and do not wait forever for it.
+        try:
+            async with asyncio.timeout(10.0):
+                await asyncio.to_thread(sdk.destroy)
+        except TimeoutError:
+            log.warning("vehicle %s: MAVSDK did not shut down within 10 s", name)

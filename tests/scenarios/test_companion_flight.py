@@ -216,3 +216,20 @@ def test_bad_missions_are_refused_before_anything_is_armed(sitl):
         log = stub.vehicle(name)
         assert log.heartbeats > 0 and not any(log.armed_history), (name, log.armed_history)
         assert stub.modes(name) == [stub.modes(name)[0]]  # no mode was ever commanded
+
+
+def test_upload_stores_the_planned_route_on_each_vehicle(sitl):
+    from companion.app.flight_plan import prepare
+
+    stub = sitl(REFERENCE, speedup=20)
+    result = _run(_companion("upload", str(REFERENCE), *stub.connect_args()), timeout_s=60.0)
+    assert result.returncode == 0, result.stdout + result.stderr
+    plan = prepare(load_mission(REFERENCE))
+    for v in plan.mission.vehicles:
+        # Downloaded by a GCS, independently of MAVSDK: the sparse A* nodes, in order.
+        stored = stub.mission_on_vehicle(v.name)
+        expected = stub.plan_as_geodetic(plan.routes[v.name].sparse_enu_m)
+        assert len(stored) == len(expected) == plan.routes[v.name].nodes_sparse
+        for (lat, lon), (elat, elon) in zip(stored, expected):
+            assert abs(lat - elat) < 2e-7 and abs(lon - elon) < 2e-7
+        assert not any(stub.vehicle(v.name).armed_history)
