@@ -202,7 +202,7 @@ class ObstacleSnapshot:
     """Obstacles as known now, as arrays (ENU m, m/s), ready for the vectorised critics.
 
     Circles are exact (centre + true radius + margin). Every other shape is its true polygon:
-    ``poly_a_m[p, e]`` is the start of edge e of polygon p and ``poly_d_m[p, e]`` its vector.
+    edge e of polygon p runs from ``poly_a_m[p, e]`` to ``poly_b_m[p, e]``.
     Polygons with fewer edges than the largest are padded with zero-length edges at their first
     vertex, which change neither a distance nor a crossing count, so that every reduction over
     a polygon's edges is one reduction over axis 1. The inflated shape is "true shape + margin"
@@ -218,7 +218,7 @@ class ObstacleSnapshot:
     circle_vel_m_s: np.ndarray  # (C, 2)
     poly_ids: tuple[str, ...]
     poly_a_m: np.ndarray  # (P, E, 2) edge start points = the polygon's vertices (padded)
-    poly_d_m: np.ndarray  # (P, E, 2) edge vectors (zero for padding)
+    poly_b_m: np.ndarray  # (P, E, 2) edge end points (= start for padding)
     poly_margin_m: np.ndarray  # (P,)
     poly_centre_m: np.ndarray  # (P, 2) a point and a radius that bound each true polygon
     poly_bound_m: np.ndarray  # (P,)
@@ -229,6 +229,7 @@ class ObstacleSnapshot:
     bound_xy_m: np.ndarray = field(init=False, repr=False)
     bound_radius_m: np.ndarray = field(init=False, repr=False)
     speed_m_s: np.ndarray = field(init=False, repr=False)
+    poly_d_m: np.ndarray = field(init=False, repr=False)  # (P, E, 2) edge vectors
     poly_inv_len2: np.ndarray = field(init=False, repr=False)
     poly_dx_per_dy: np.ndarray = field(init=False, repr=False)
     polygons_move: bool = field(init=False, repr=False)
@@ -242,6 +243,7 @@ class ObstacleSnapshot:
                                               self.poly_bound_m + self.poly_margin_m]))
         vel = np.concatenate([self.circle_vel_m_s, self.poly_vel_m_s])
         put("speed_m_s", np.hypot(vel[:, 0], vel[:, 1]))
+        put("poly_d_m", self.poly_b_m - self.poly_a_m)
         dx, dy = self.poly_d_m[..., 0], self.poly_d_m[..., 1]
         put("poly_inv_len2", 1.0 / np.maximum(dx * dx + dy * dy, 1e-12))
         put("poly_dx_per_dy", dx / np.where(dy == 0.0, 1.0, dy))
@@ -270,17 +272,18 @@ class ObstacleSnapshot:
         verts = [np.asarray(row[1], dtype=float) for row in polygons]
         edges = max((len(v) for v in verts), default=0)
         a = np.zeros((len(verts), edges, 2))
-        d = np.zeros((len(verts), edges, 2))
+        b = np.zeros((len(verts), edges, 2))
         for i, v in enumerate(verts):
             a[i, :len(v)] = v
             a[i, len(v):] = v[0]
-            d[i, :len(v)] = np.roll(v, -1, axis=0) - v
+            b[i] = a[i]
+            b[i, :len(v)] = np.roll(v, -1, axis=0)
         centres = np.asarray([v.mean(axis=0) for v in verts]).reshape(-1, 2)
         return ObstacleSnapshot(
             circle_ids=tuple(str(row[0]) for row in circles),
             circle_xy_m=c[:, 0:2].copy(), circle_radius_m=c[:, 2].copy(),
             circle_margin_m=c[:, 3].copy(), circle_vel_m_s=c[:, 4:6].copy(),
-            poly_ids=tuple(str(row[0]) for row in polygons), poly_a_m=a, poly_d_m=d,
+            poly_ids=tuple(str(row[0]) for row in polygons), poly_a_m=a, poly_b_m=b,
             poly_margin_m=np.asarray([row[2] for row in polygons], dtype=float),
             poly_centre_m=centres,
             poly_bound_m=np.asarray([np.hypot(*(v - m).T).max() for v, m in zip(verts, centres)], dtype=float),
@@ -299,8 +302,8 @@ class ObstacleSnapshot:
             self.circle_ids + other.circle_ids, cat([self.circle_xy_m, other.circle_xy_m]),
             cat([self.circle_radius_m, other.circle_radius_m]), cat([self.circle_margin_m, other.circle_margin_m]),
             cat([self.circle_vel_m_s, other.circle_vel_m_s]), self.poly_ids + other.poly_ids,
-            cat([_pad_edges(self.poly_a_m, edges, True), _pad_edges(other.poly_a_m, edges, True)]),
-            cat([_pad_edges(self.poly_d_m, edges, False), _pad_edges(other.poly_d_m, edges, False)]),
+            cat([_pad_edges(self.poly_a_m, edges), _pad_edges(other.poly_a_m, edges)]),
+            cat([_pad_edges(self.poly_b_m, edges, self.poly_a_m), _pad_edges(other.poly_b_m, edges, other.poly_a_m)]),
             cat([self.poly_margin_m, other.poly_margin_m]), cat([self.poly_centre_m, other.poly_centre_m]),
             cat([self.poly_bound_m, other.poly_bound_m]), cat([self.poly_vel_m_s, other.poly_vel_m_s]))
 
@@ -327,19 +330,21 @@ class ObstacleSnapshot:
             cached = self._subsets[key] = ObstacleSnapshot(
                 tuple(i for i, k in zip(self.circle_ids, kc) if k), self.circle_xy_m[kc],
                 self.circle_radius_m[kc], self.circle_margin_m[kc], self.circle_vel_m_s[kc],
-                tuple(i for i, k in zip(self.poly_ids, kp) if k), self.poly_a_m[kp], self.poly_d_m[kp],
+                tuple(i for i, k in zip(self.poly_ids, kp) if k), self.poly_a_m[kp], self.poly_b_m[kp],
                 self.poly_margin_m[kp], self.poly_centre_m[kp], self.poly_bound_m[kp], self.poly_vel_m_s[kp])
         return cached
 
 
-def _pad_edges(arr: np.ndarray, edges: int, repeat_first: bool) -> np.ndarray:
-    """(P, E, 2) padded to ``edges`` along axis 1: with each polygon's first vertex, or zeros."""
+def _pad_edges(arr: np.ndarray, edges: int, starts: np.ndarray | None = None) -> np.ndarray:
+    """(P, E, 2) padded to ``edges`` along axis 1 with each polygon's first vertex (of
+    ``starts`` when given): zero-length edges."""
     missing = edges - arr.shape[1]
     if missing <= 0:
         return arr
-    fill = np.repeat(arr[:, :1], missing, axis=1) if repeat_first and arr.shape[1] else \
-        np.zeros((arr.shape[0], missing, 2))
-    return np.concatenate([arr, fill], axis=1)
+    if not len(arr):
+        return np.zeros((0, edges, 2))
+    first = (arr if starts is None else starts)[:, :1]
+    return np.concatenate([arr, np.repeat(first, missing, axis=1)], axis=1)
 
 
 NO_OBSTACLES = ObstacleSnapshot.build([], [])
@@ -402,14 +407,16 @@ def _polygon_signed_distance(px: np.ndarray, py: np.ndarray, t_s: np.ndarray,
     """
     a, d = snap.poly_a_m, snap.poly_d_m
     abx, aby = d[..., 0:1], d[..., 1:2]  # (P, E, 1)
-    apx = px - a[..., 0:1]  # (P, E, N)
-    apy = py - a[..., 1:2]
+    qx, qy = px, py
     if snap.polygons_move:
-        apx -= (snap.poly_vel_m_s[:, 0:1] * t_s)[:, None, :]
-        apy -= (snap.poly_vel_m_s[:, 1:2] * t_s)[:, None, :]
+        qx = px - (snap.poly_vel_m_s[:, 0:1] * t_s)[:, None, :]  # (P, 1, N)
+        qy = py - (snap.poly_vel_m_s[:, 1:2] * t_s)[:, None, :]
+    apx = qx - a[..., 0:1]  # (P, E, N)
+    apy = qy - a[..., 1:2]
     # Crossing number (before apx/apy are reused): edges straddling the point's row whose
-    # crossing lies right of the point.
-    straddle = (apy < 0.0) != (apy < aby)
+    # crossing lies right of the point. Compared on the raw coordinates, as the textbook test
+    # does, so a point level with a vertex is counted consistently.
+    straddle = (a[..., 1:2] > qy) != (snap.poly_b_m[..., 1:2] > qy)
     straddle &= apx < apy * snap.poly_dx_per_dy[..., None]
     inside = np.logical_xor.reduce(straddle, axis=1)
     # Distance to each edge segment, then the nearest edge of each polygon.

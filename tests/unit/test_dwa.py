@@ -274,7 +274,7 @@ def test_command_in_window_and_chosen_rollout_never_enters_an_inflated_obstacle(
 @given(world=worlds(), x=st.floats(-500, 500), y=st.floats(-500, 500))
 def test_clearance_matches_shapely(world, x, y):
     snap = ObstacleField.from_world(world).at_time(0.0)
-    got = inflated_clearance(np.array([x]), np.array([y]), np.zeros(1), snap)[0]
+    got = inflated_clearance(np.array([x]), np.array([y]), np.zeros(1), snap)[:, 0]
     p = Point(x, y)
     for value, oid in zip(got, snap.ids):
         o = next(o for o in world.obstacles if o.id == oid)
@@ -284,3 +284,28 @@ def test_clearance_matches_shapely(world, x, y):
             assert value == pytest.approx(true - o.margin_m, abs=1e-6)
         else:
             assert value == pytest.approx(true - o.margin_m, abs=1e-6)
+
+
+def test_point_level_with_a_vertex_is_not_counted_inside():
+    # Found by Hypothesis: a vertex at y = 2.7e-67, the point at y = 0 left of the polygon.
+    ell = make_obstacle("l", "polygon", vertices=[(0, 2.677e-67), (0, 10), (10 / 3, 10), (10 / 3, 10 / 3),
+                                                  (10, 10 / 3), (10, 2.677e-67)])
+    got = inflated_clearance(np.array([-1.0, 2.0]), np.array([0.0, 2.0]), np.zeros(2), snapshot(ell))[0]
+    inner = ell.footprint.exterior.distance(Point(2.0, 2.0))
+    assert got == pytest.approx([1.0 - ell.margin_m, -inner - ell.margin_m])
+
+
+def test_snapshots_with_different_polygon_sizes_merge():
+    tri = make_obstacle("tri", "triangle", center=(0.0, 0.0), circumradius_m=50.0)
+    world = World(-1e4, -1e4, 1e4, 1e4, 0.0, (tri,))
+    field = ObstacleField.from_world(world)
+    merged = field.from_tracks([ObstacleTrack("disc", 300.0, 0.0, 0.0, 0.0)])
+    assert merged.ids == ("disc", "tri")
+    pentagon = ObstacleSnapshot.build([], [("pent", np.array([[500, 0], [600, 0], [650, 80], [550, 150], [450, 80]]),
+                                            10.0, 1.0, 0.0)])
+    both = merged.merged(pentagon)
+    assert both.poly_a_m.shape == (2, 5, 2)
+    assert len(both.vertices(0)) == 3 and len(both.vertices(1)) == 5
+    d = inflated_clearance(np.array([0.0, 550.0]), np.array([0.0, 50.0]), np.zeros(2), both)
+    assert d[1, 0] < 0 and d[1, 1] > 0  # rows: disc, tri, pent. (0, 0) is inside the triangle
+    assert d[2, 0] > 0 and d[2, 1] < 0  # and (550, 50) inside the pentagon
