@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 import shapely
+import shapely.affinity
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import Point
@@ -309,3 +310,17 @@ def test_snapshots_with_different_polygon_sizes_merge():
     d = inflated_clearance(np.array([0.0, 550.0]), np.array([0.0, 50.0]), np.zeros(2), both)
     assert d[1, 0] < 0 and d[1, 1] > 0  # rows: disc, tri, pent. (0, 0) is inside the triangle
     assert d[2, 0] > 0 and d[2, 1] < 0  # and (550, 50) inside the pentagon
+
+
+@settings(max_examples=100, deadline=None)
+@given(x=st.floats(-400, 400), y=st.floats(-400, 400), t=st.floats(0, 11), vx=st.floats(-10, 10), vy=st.floats(-10, 10))
+def test_moving_polygon_is_predicted_at_constant_velocity(x, y, t, vx, vy):
+    cart = make_obstacle("cart", "rectangle", center=(0.0, 0.0), width_m=120.0, height_m=60.0, rotation_deg=25.0)
+    field = ObstacleField.from_world(World(-1e4, -1e4, 1e4, 1e4, 0.0, ()))
+    field = ObstacleField(field.static, {"cart": cart}, 0.2, 150.0)
+    snap = field.from_tracks([ObstacleTrack("cart", 10.0, -20.0, vx, vy)])
+    got = inflated_clearance(np.array([x]), np.array([y]), np.array([t]), snap)[0, 0]
+    moved = shapely.affinity.translate(cart.footprint, 10.0 + vx * t, -20.0 + vy * t)
+    p = Point(x, y)
+    true = moved.exterior.distance(p) * (-1.0 if moved.contains(p) else 1.0)
+    assert got == pytest.approx(true - cart.margin_m, abs=1e-6)
