@@ -28,12 +28,8 @@ from shapely.geometry.base import BaseGeometry
 
 from companion.mission import Mission, parse_mission
 from companion.planning.errors import NoPath
+from companion.planning.routes import Route, plan_routes
 from companion.planning.world import Obstacle, Shuttle
-
-try:
-    from companion.planning.routes import Route, plan_routes
-except ImportError:  # TEMPORARY until routes.py lands (the runner uses the same shim)
-    from companion.planning._shim_routes import Route, plan_routes  # type: ignore[assignment]
 
 REFERENCE_SIDE_M = 4500.0 / math.sqrt(2.0)
 

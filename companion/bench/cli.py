@@ -66,6 +66,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return configure(parser)
 
 
+class BadInput(Exception):
+    """Bench input that cannot be used; ``str()`` is the one line shown to the user."""
+
+
 def _scenario_config(path: Path | None):
     from companion.scenarios import ScenarioConfig, ScenarioError
     if path is None:
@@ -73,18 +77,27 @@ def _scenario_config(path: Path | None):
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError) as exc:
-        raise SystemExit(f"companion bench: cannot read {path}: {str(exc).splitlines()[0]}") from None
+        raise BadInput(f"cannot read {path}: {str(exc).splitlines()[0]}") from None
     if not isinstance(data, dict):
-        raise SystemExit(f"companion bench: {path}: must be a YAML mapping of ScenarioConfig fields")
+        raise BadInput(f"{path}: must be a YAML mapping of ScenarioConfig fields")
     try:
         return ScenarioConfig.from_mapping(data)
     except ScenarioError as exc:
-        raise SystemExit(f"companion bench: {path}: {exc}") from None
+        raise BadInput(f"{path}: {exc}") from None
 
 
 def main(args: argparse.Namespace) -> int:
-    """Run the bench, write every artefact, print the table. Exit 1 when a run was unsafe
-    (collision, separation, geofence) or crashed, 0 otherwise (timeouts are results)."""
+    """Run the bench, write every artefact, print the table. Exit codes as the main CLI: 2 for
+    bad input, 1 when a run was unsafe (collision, separation, geofence) or crashed, else 0
+    (timeouts and holds are results, not errors)."""
+    try:
+        return _bench(args)
+    except BadInput as exc:
+        print(f"companion bench: {exc}", file=sys.stderr)
+        return 2
+
+
+def _bench(args: argparse.Namespace) -> int:
     from companion.bench import execute, figures
     from companion.bench.table import aggregate, format_table, write_runs_csv
     from companion.scenarios import config_dict
@@ -94,7 +107,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise SystemExit(f"companion bench: cannot create output directory {out}: {exc.strerror}") from None
+        raise BadInput(f"cannot create output directory {out}: {exc.strerror}") from None
     execute.clear_failures(out)
     workers = args.workers or os.cpu_count() or 1
     started = time.perf_counter()

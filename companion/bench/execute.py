@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+from companion.bench.diagnose import diagnose, hold_ticks
 from companion.bench.table import run_row
 from companion.planning.errors import NoPath
 from companion.planning.fusion import variant_needs_route
@@ -61,8 +62,10 @@ def run_scenario(task: ScenarioTask) -> list[dict[str, Any]]:
         try:
             routes = scenario.routes if variant_needs_route(variant) else {}
             result = simulate(scenario.mission, variant, routes=routes)
-            row = run_row(task.seed, task.index, scenario.doc["name"], variant, result.summary.summary_dict(),
-                          wall_s=time.perf_counter() - started)
+            summary = result.summary.summary_dict()
+            facts = {"hold_ticks": hold_ticks(result.ticks), **diagnose(result.mission, result.tracks, summary)}
+            row = run_row(task.seed, task.index, scenario.doc["name"], variant, summary,
+                          wall_s=time.perf_counter() - started, facts=facts)
         except NoPath as exc:
             row = run_row(task.seed, task.index, scenario.doc["name"], variant, None,
                           wall_s=time.perf_counter() - started, reason="no_path", error=str(exc))
@@ -185,8 +188,9 @@ def write_failure_index(rows: Sequence[dict[str, Any]], out_dir: Path) -> Path:
     lines = ["# Failed runs", "",
              f"{len(failed)} of {len(rows)} runs failed. Replay one with "
              "`companion simulate failures/<run>/scenario.yaml`.", "",
-             "| run | seed | index | variant | reason | at (s) | min clearance (m) | min separation (m) |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| run | seed | index | variant | reason | who | obstacle hit | at (s) | min clearance (m) "
+             "| min separation (m) | hold ticks |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     names = sorted({k[:-len("_min_obstacle_clearance_m")] for r in rows for k in r
                     if k.endswith("_min_obstacle_clearance_m")})
     for r in failed:
@@ -196,10 +200,15 @@ def write_failure_index(rows: Sequence[dict[str, Any]], out_dir: Path) -> Path:
         fail_t = r.get("failure_t_s")
         sep = r.get("min_separation_m")
         png = f" ([png]({name}/trajectory.png))" if (gallery / name / "trajectory.png").exists() else ""
+        hit = r.get("hit_obstacle") or "-"
+        if r.get("hit_moving"):
+            hit += " (moving" + (", from behind)" if r.get("hit_from_behind") else ")")
         lines.append(f"| [{name}]({name}/scenario.yaml){png} | {r['seed']} | {r['index']} | {r['variant']} | "
                      f"{r['reason']}{' - ' + r['error'] if r.get('error') else ''} | "
+                     f"{r.get('failed_vehicles') or '-'} | {hit} | "
                      f"{'-' if fail_t is None else f'{fail_t:.1f}'} | "
-                     f"{'-' if not clear else f'{min(clear):.1f}'} | {'-' if sep is None else f'{sep:.1f}'} |")
+                     f"{'-' if not clear else f'{min(clear):.1f}'} | {'-' if sep is None else f'{sep:.1f}'} | "
+                     f"{r.get('hold_ticks') if r.get('hold_ticks') is not None else '-'} |")
     path = gallery / "index.md"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from companion.bench.table import vehicle_names
 
@@ -68,6 +69,10 @@ def lines_figure(rows: Sequence[Mapping[str, Any]], *, title: str | None = None)
     names = vehicle_names(rows)
     fig = Figure(figsize=(11.0, 3.2 * max(len(names), 1)), dpi=110)
     FigureCanvasAgg(fig)
+    if not names:  # no run got as far as flying (every one errored): say so instead of crashing
+        ax = fig.add_subplot(1, 1, 1)
+        ax.text(0.5, 0.5, "no run produced flight times", ha="center", va="center", transform=ax.transAxes)
+        return fig
     axes = [fig.add_subplot(len(names), 1, j + 1) for j in range(len(names))]
     indices = sorted({r["index"] for r in rows})
     pos = {i: k for k, i in enumerate(indices)}
@@ -89,6 +94,7 @@ def lines_figure(rows: Sequence[Mapping[str, Any]], *, title: str | None = None)
                 ax.plot(failed, [0.03 + 0.04 * k] * len(failed), ls="none", marker="x", ms=5, color=_color(variant, k),
                         transform=ax.get_xaxis_transform(), clip_on=False)
         ax.set_ylabel(f"UAV {name} flight time (s)")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.grid(True, lw=0.3, alpha=0.6)
         ax.legend(fontsize=7, loc="upper right", ncol=2)
     axes[-1].set_xlabel("scenario index (x at the bottom: failed run)")

@@ -21,6 +21,8 @@ RUN_COLUMNS: tuple[tuple[str, type], ...] = (
     ("success", bool), ("success_strict", bool), ("reason", str), ("failure_t_s", float),
     ("duration_s", float), ("min_separation_m", float), ("los_blocked_fraction", float),
     ("crossing_occluded", bool), ("planner_ms_per_tick", float), ("wall_s", float), ("error", str),
+    ("hold_ticks", int), ("failed_vehicles", str), ("hit_obstacle", str), ("hit_moving", bool),
+    ("hit_from_behind", bool),
 )
 VEHICLE_COLUMNS: tuple[tuple[str, type], ...] = (
     ("arrived", bool), ("flight_time_s", float), ("path_length_m", float), ("lower_bound_s", float),
@@ -29,11 +31,12 @@ VEHICLE_COLUMNS: tuple[tuple[str, type], ...] = (
 
 
 def run_row(seed: int, index: int, scenario: str, variant: str, summary: Mapping[str, Any] | None, *,
-            wall_s: float, reason: str | None = None, error: str | None = None) -> dict[str, Any]:
-    """One CSV row from a run's ``summary_dict()``; without a summary (no_path, error) only
-    the identity, the reason and the error message are filled."""
+            wall_s: float, reason: str | None = None, error: str | None = None,
+            facts: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """One CSV row from a run's ``summary_dict()`` (+ diagnose facts); without a summary
+    (no_path, error) only the identity, the reason and the error message are filled."""
     row: dict[str, Any] = {"seed": seed, "index": index, "scenario": scenario, "variant": variant,
-                           "wall_s": round(wall_s, 3), "error": error}
+                           "wall_s": round(wall_s, 3), "error": error, **(facts or {})}
     if summary is None:
         row.update(success=False, success_strict=False, reason=reason or "error")
         return row
@@ -146,6 +149,8 @@ def aggregate(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
             "strict_rate": round(sum(1 for r in mine if r["success_strict"]) / len(mine), 4) if mine else None,
             "collisions": sum(1 for r in mine if r["reason"] == "collision"),
             "unsafe": sum(1 for r in mine if r["reason"] in UNSAFE_REASONS),
+            "collisions_moving": sum(1 for r in mine if r["reason"] == "collision" and r.get("hit_moving")),
+            "runs_with_holds": sum(1 for r in mine if (r.get("hold_ticks") or 0) > 0),
             "reasons": dict(sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0]))),
             "flight_time_s": {n: _stats([r[f"{n}_flight_time_s"] for r in ok]) for n in names},
             "ratio_to_bound": {n: _stats([r[f"{n}_ratio"] for r in ok if r.get(f"{n}_ratio") is not None])

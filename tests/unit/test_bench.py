@@ -9,14 +9,17 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 import yaml
 
 from companion.bench import aggregate, read_runs_csv
 from companion.bench.cli import run
+from companion.bench.diagnose import diagnose
 from companion.bench.execute import failure_dir_name, run_bench
 from companion.bench.table import format_table, write_runs_csv
-from companion.mission import load_mission
+from companion.mission import load_mission, parse_mission
+from companion.planning.metrics import Track
 from companion.planning.runner import simulate
 from companion.scenarios import ScenarioConfig
 
@@ -131,5 +134,36 @@ def test_bad_arguments_are_one_line_errors(capsys, tmp_path):
     assert "unknown variant(s) warp" in capsys.readouterr().err
     bad = tmp_path / "bad.yaml"
     bad.write_text("side: 5\n")
-    with pytest.raises(SystemExit, match="unknown scenario key.*side"):
-        run(["--scenarios", "1", "--scenario-config", str(bad), "--out", str(tmp_path / "o")])
+    assert run(["--scenarios", "1", "--scenario-config", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("companion bench: ") and "unknown scenario key(s) side" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def _track(points, dt=0.5):
+    xy = np.asarray(points, dtype=float)
+    return Track(dt * np.arange(len(xy)), xy[:, 0], xy[:, 1])
+
+
+def test_diagnose_names_the_vehicle_and_the_obstacle():
+    mission = parse_mission(yaml.safe_dump({
+        "area": {"x_min_m": 0, "y_min_m": 0, "x_max_m": 1000, "y_max_m": 1000},
+        "stations": {"A": [0, 0], "B": [1000, 1000]},
+        "obstacles": [{"id": "rock", "shape": "circle", "center": [500, 200], "radius_m": 50},
+                      {"id": "truck", "shape": "circle", "center": [200, 500], "radius_m": 40,
+                       "motion": {"type": "shuttle", "to": [600, 500], "speed_m_s": 4}}],
+        "vehicles": [{"name": "a", "start": "A", "goal": "B"}, {"name": "b", "start": "B", "goal": "A"}]}))
+    # a flies east along y = 500 at 5 m/s, slower than nothing: the truck (4 m/s, behind it) is
+    # at x = 210 at t = 2.5 s while a sits at x = 212.5 - inside the truck's footprint.
+    a = _track([(200 + 2.5 * k, 500) for k in range(6)])
+    b = _track([(900, 900 - 5 * k) for k in range(6)])
+    summary = {"reason": "collision", "vehicles": {"a": {"arrived": False}, "b": {"arrived": False}}}
+    facts = diagnose(mission, {"a": a, "b": b}, summary)
+    assert facts == {"failed_vehicles": "a", "hit_obstacle": "truck", "hit_moving": True, "hit_from_behind": True}
+    out = _track([(1000, 1000), (1100, 1000), (1250, 1000)])
+    facts = diagnose(mission, {"a": a, "b": out}, {**summary, "reason": "geofence"})
+    assert facts["failed_vehicles"] == "b" and facts["hit_obstacle"] is None
+    facts = diagnose(mission, {"a": a, "b": b},
+                     {"reason": "timeout", "vehicles": {"a": {"arrived": True}, "b": {"arrived": False}}})
+    assert facts["failed_vehicles"] == "b"
+    assert diagnose(mission, {"a": a, "b": b}, {"reason": None})["failed_vehicles"] is None

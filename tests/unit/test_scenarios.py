@@ -16,13 +16,9 @@ from hypothesis import strategies as st
 from shapely.geometry import LineString, Point
 
 from companion.mission import load_mission, parse_mission
+from companion.planning.routes import plan_routes
 from companion.scenarios import (ScenarioConfig, ScenarioError, generate, generate_scenario,
                                  station_clearances_m, with_variant, write_mission_yaml)
-
-try:
-    from companion.planning.routes import plan_routes
-except ImportError:  # TEMPORARY until routes.py lands
-    from companion.planning._shim_routes import plan_routes  # type: ignore[assignment]
 
 CFG = ScenarioConfig()
 ROUND = 0.011  # every number is rounded to 0.01 m
