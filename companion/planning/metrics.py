@@ -109,10 +109,10 @@ class TruthGeometry:
         """Whether the segment a-b at time t crosses any true footprint (N,) bool."""
         ax, ay, bx, by, t_s = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (ax, ay, bx, by, t_s))
         blocked = np.zeros(ax.shape, dtype=bool)
-        for i, o in enumerate(self.circles):
+        for o in self.circles:
             off = o.offset_at(t_s)
-            cx, cy = self._c_xy[i, 0] + off[..., 0], self._c_xy[i, 1] + off[..., 1]
-            blocked |= _origin_to_segment(ax - cx, ay - cy, bx - cx, by - cy) < self._c_r[i]
+            cx, cy = o.center[0] + off[..., 0], o.center[1] + off[..., 1]
+            blocked |= _origin_to_segment(ax - cx, ay - cy, bx - cx, by - cy) < o.size_m
         for o in self.polygons:
             off = o.offset_at(t_s)
             coords = np.stack([np.stack([ax - off[..., 0], ay - off[..., 1]], axis=-1),
