@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from companion.planning.metrics import TruthGeometry
 from companion.planning.world import Shuttle, World, make_obstacle
-from dataclasses import replace
 
 
 def test_sight_blocked_follows_moving_circles():
