@@ -291,21 +291,32 @@ class ObstacleSnapshot:
         )
 
     def merged(self, other: "ObstacleSnapshot") -> "ObstacleSnapshot":
-        """Both snapshots' obstacles in one (e.g. prepared static ones + this tick's moving ones)."""
+        """Both snapshots' obstacles in one (e.g. prepared static ones + this tick's moving ones).
+        The derived arrays are joined too, not derived again: this runs every tick."""
         if not other.count:
             return self
         if not self.count:
             return other
         edges = max(self.poly_a_m.shape[1], other.poly_a_m.shape[1])
         cat = np.concatenate
-        return ObstacleSnapshot(
-            self.circle_ids + other.circle_ids, cat([self.circle_xy_m, other.circle_xy_m]),
-            cat([self.circle_radius_m, other.circle_radius_m]), cat([self.circle_margin_m, other.circle_margin_m]),
-            cat([self.circle_vel_m_s, other.circle_vel_m_s]), self.poly_ids + other.poly_ids,
-            cat([_pad_edges(self.poly_a_m, edges), _pad_edges(other.poly_a_m, edges)]),
-            cat([_pad_edges(self.poly_b_m, edges, self.poly_a_m), _pad_edges(other.poly_b_m, edges, other.poly_a_m)]),
-            cat([self.poly_margin_m, other.poly_margin_m]), cat([self.poly_centre_m, other.poly_centre_m]),
-            cat([self.poly_bound_m, other.poly_bound_m]), cat([self.poly_vel_m_s, other.poly_vel_m_s]))
+        values = {"circle_ids": self.circle_ids + other.circle_ids, "poly_ids": self.poly_ids + other.poly_ids,
+                  "polygons_move": self.polygons_move or other.polygons_move, "_subsets": {}}
+        for name in ("circle_xy_m", "circle_radius_m", "circle_margin_m", "circle_vel_m_s", "poly_margin_m",
+                     "poly_centre_m", "poly_bound_m", "poly_vel_m_s"):
+            values[name] = cat([getattr(self, name), getattr(other, name)])
+        n1, n2 = len(self.circle_ids), len(other.circle_ids)
+        for name in ("bound_xy_m", "bound_radius_m", "speed_m_s"):  # circles first, then polygons
+            a, b = getattr(self, name), getattr(other, name)
+            values[name] = cat([a[:n1], b[:n2], a[n1:], b[n2:]])
+        values["poly_a_m"] = cat([_pad_edges(self.poly_a_m, edges), _pad_edges(other.poly_a_m, edges)])
+        values["poly_b_m"] = cat([_pad_edges(self.poly_b_m, edges, self.poly_a_m),
+                                  _pad_edges(other.poly_b_m, edges, other.poly_a_m)])
+        values["poly_d_m"] = cat([_pad_edges(self.poly_d_m, edges, zeros=True),
+                                  _pad_edges(other.poly_d_m, edges, zeros=True)])
+        for name, fill in (("poly_inv_len2", 1e12), ("poly_dx_per_dy", 0.0)):  # what a zero-length edge gets
+            a, b = getattr(self, name), getattr(other, name)
+            values[name] = cat([_pad_columns(a, edges, fill), _pad_columns(b, edges, fill)])
+        return _assemble(values)
 
     def near(self, x_m: float, y_m: float, reach_m: float, horizon_s: float,
              to_xy: tuple[float, float] | None = None) -> "ObstacleSnapshot":
@@ -325,24 +336,48 @@ class ObstacleSnapshot:
         key = keep.tobytes()
         cached = self._subsets.get(key)
         if cached is None:
-            n_c = len(self.circle_ids)
-            kc, kp = keep[:n_c], keep[n_c:]
-            cached = self._subsets[key] = ObstacleSnapshot(
-                tuple(i for i, k in zip(self.circle_ids, kc) if k), self.circle_xy_m[kc],
-                self.circle_radius_m[kc], self.circle_margin_m[kc], self.circle_vel_m_s[kc],
-                tuple(i for i, k in zip(self.poly_ids, kp) if k), self.poly_a_m[kp], self.poly_b_m[kp],
-                self.poly_margin_m[kp], self.poly_centre_m[kp], self.poly_bound_m[kp], self.poly_vel_m_s[kp])
+            cached = self._subsets[key] = self._take(keep)
         return cached
 
+    def _take(self, keep: np.ndarray) -> "ObstacleSnapshot":
+        """The obstacles where ``keep`` (circles, then polygons) is true. Indexes the derived
+        arrays too instead of deriving them again: this runs every tick for fresh snapshots."""
+        n_c = len(self.circle_ids)
+        kc, kp = keep[:n_c], keep[n_c:]
+        values = {"circle_ids": tuple(i for i, k in zip(self.circle_ids, kc) if k),
+                  "poly_ids": tuple(i for i, k in zip(self.poly_ids, kp) if k),
+                  "polygons_move": self.polygons_move, "_subsets": {},
+                  "bound_xy_m": self.bound_xy_m[keep], "bound_radius_m": self.bound_radius_m[keep],
+                  "speed_m_s": self.speed_m_s[keep]}
+        for name in ("circle_xy_m", "circle_radius_m", "circle_margin_m", "circle_vel_m_s"):
+            values[name] = getattr(self, name)[kc]
+        for name in ("poly_a_m", "poly_b_m", "poly_margin_m", "poly_centre_m", "poly_bound_m", "poly_vel_m_s",
+                     "poly_d_m", "poly_inv_len2", "poly_dx_per_dy"):
+            values[name] = getattr(self, name)[kp]
+        return _assemble(values)
 
-def _pad_edges(arr: np.ndarray, edges: int, starts: np.ndarray | None = None) -> np.ndarray:
+
+def _assemble(values: dict) -> ObstacleSnapshot:
+    """A snapshot from every field, derived ones included (no __post_init__)."""
+    out = object.__new__(ObstacleSnapshot)
+    for name, value in values.items():
+        object.__setattr__(out, name, value)
+    return out
+
+
+def _pad_columns(arr: np.ndarray, edges: int, fill: float) -> np.ndarray:
+    missing = edges - arr.shape[1]
+    return arr if missing <= 0 else np.concatenate([arr, np.full((arr.shape[0], missing), fill)], axis=1)
+
+
+def _pad_edges(arr: np.ndarray, edges: int, starts: np.ndarray | None = None, zeros: bool = False) -> np.ndarray:
     """(P, E, 2) padded to ``edges`` along axis 1 with each polygon's first vertex (of
-    ``starts`` when given): zero-length edges."""
+    ``starts`` when given), or with zeros: zero-length edges."""
     missing = edges - arr.shape[1]
     if missing <= 0:
         return arr
-    if not len(arr):
-        return np.zeros((0, edges, 2))
+    if not len(arr) or zeros:
+        return np.concatenate([arr, np.zeros((len(arr), missing, 2))], axis=1)
     first = (arr if starts is None else starts)[:, :1]
     return np.concatenate([arr, np.repeat(first, missing, axis=1)], axis=1)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -324,3 +325,33 @@ def test_moving_polygon_is_predicted_at_constant_velocity(x, y, t, vx, vy):
     p = Point(x, y)
     true = moved.exterior.distance(p) * (-1.0 if moved.contains(p) else 1.0)
     assert got == pytest.approx(true - cart.margin_m, abs=1e-6)
+
+
+def test_culled_snapshot_keeps_exactly_the_obstacles_in_reach():
+    near_disk = make_obstacle("near", "circle", center=(100.0, 0.0), radius_m=20.0)
+    far_disk = make_obstacle("far", "circle", center=(5000.0, 0.0), radius_m=20.0)
+    near_box = make_obstacle("box", "rectangle", center=(0.0, 120.0), width_m=40.0, height_m=40.0)
+    far_tri = make_obstacle("tri", "triangle", center=(0.0, -5000.0), circumradius_m=40.0)
+    snap = snapshot(near_disk, far_disk, near_box, far_tri)
+    culled = snap.near(0.0, 0.0, 120.0, 11.0)
+    assert culled.ids == ("near", "box")
+    assert snap.near(0.0, 0.0, 120.0, 11.0) is culled  # cached for the next tick
+    pts = np.array([10.0, 50.0, -30.0]), np.array([0.0, 60.0, 90.0])
+    full = inflated_clearance(*pts, np.zeros(3), snap)
+    assert inflated_clearance(*pts, np.zeros(3), culled) == pytest.approx(full[[0, 2]])
+    fresh = snapshot(near_disk, near_box)
+    assert inflated_clearance(*pts, np.zeros(3), fresh) == pytest.approx(full[[0, 2]])
+    assert snap.near(0.0, 0.0, 10.0, 0.0).count == 0
+
+
+def test_merged_snapshot_equals_a_freshly_built_one():
+    tri = ("tri", np.array([[0.0, 0.0], [50.0, 0.0], [25.0, 40.0]]), 8.0, 0.0, 0.0)
+    pent = ("pent", np.array([[500, 0], [600, 0], [650, 80], [550, 150], [450, 80]], dtype=float), 10.0, 1.0, -2.0)
+    c1 = ("c1", 100.0, 100.0, 20.0, 4.0, 0.0, 0.0)
+    c2 = ("c2", -300.0, 50.0, 30.0, 6.0, 3.0, 1.0)
+    merged = ObstacleSnapshot.build([c1], [tri]).merged(ObstacleSnapshot.build([c2], [pent]))
+    fresh = ObstacleSnapshot.build([c1, c2], [tri, pent])
+    for f in dataclasses.fields(ObstacleSnapshot):
+        if f.name != "_subsets":
+            a, b = getattr(merged, f.name), getattr(fresh, f.name)
+            assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b, f.name
