@@ -68,6 +68,15 @@ def _probability(text: str) -> float:
     return value
 
 
+def _blackout(text: str) -> str:
+    from sim_bridge.faults import Blackout, FaultSpecError
+    try:
+        Blackout.parse(text)
+    except FaultSpecError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register run, validate, plan, upload and schema on the ``companion`` parser."""
     p = sub.add_parser("run", help="fly the mission over MAVLink (embedded stub unless --connect)",
@@ -82,6 +91,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speedup", type=_positive, default=1.0, help="embedded stub: sim seconds per wall second")
     p.add_argument("--loss", type=_probability, default=0.0, metavar="P", help="embedded stub: API packet loss")
     p.add_argument("--latency-ms", type=float, default=0.0, metavar="MS", help="embedded stub: added API latency")
+    p.add_argument("--blackout", type=_blackout, action="append", default=[], metavar="START:DURATION",
+                   help="embedded stub: API link blackout in sim seconds (repeatable), e.g. 150:3")
     p.add_argument("--seed", type=int, default=0, help="embedded stub: fault-injection seed")
     p.add_argument("--port-base", type=_port, default=14540,
                    help="embedded stub: vehicle i talks to PORT_BASE + i (default 14540)")
@@ -279,10 +290,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     stub = None
     if conns is None:
         stub = StubOptions(speedup=args.speedup, api_port_base=args.port_base, gcs_port=args.gcs_port,
-                           loss=args.loss, latency_ms=args.latency_ms, seed=args.seed, tlog_dir=out,
+                           loss=args.loss, latency_ms=args.latency_ms, seed=args.seed,
+                           blackouts=tuple(args.blackout), tlog_dir=out,
                            log_path=None if out is None else out / "sim_bridge.log")
-    elif args.speedup != 1.0 or args.loss or args.latency_ms:
-        print("companion: note: --speedup/--loss/--latency-ms only apply to the embedded stub; "
+    elif args.speedup != 1.0 or args.loss or args.latency_ms or args.blackout:
+        print("companion: note: --speedup/--loss/--latency-ms/--blackout only apply to the embedded stub; "
               "ignored with --connect", file=sys.stderr)
     try:
         result = asyncio.run(_run(plan, conns, stub, settings, out))

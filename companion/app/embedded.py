@@ -34,6 +34,7 @@ class StubOptions:
     loss: float = 0.0
     latency_ms: float = 0.0
     seed: int = 0
+    blackouts: tuple[str, ...] = ()  # START:DURATION in sim seconds, as sim-bridge --blackout takes them
     tlog_dir: Path | None = None
     log_path: Path | None = None  # the child's output; None: discarded
 
@@ -45,6 +46,8 @@ class StubOptions:
             out += ["--loss", f"{self.loss:g}"]
         if self.latency_ms:
             out += ["--latency-ms", f"{self.latency_ms:g}"]
+        for b in self.blackouts:
+            out += ["--blackout", b]
         if self.tlog_dir is not None:
             out += ["--tlog", str(self.tlog_dir)]
         return out

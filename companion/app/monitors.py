@@ -101,7 +101,7 @@ def is_stale(pose_t_sim_s: float, clock_t_sim_s: float | None, timeout_s: float)
     return clock_t_sim_s is not None and clock_t_sim_s - pose_t_sim_s > timeout_s
 
 
-def wall_bound_s(sim_timeout_s: float, sim_rate: float | None, *, floor_s: float = 0.25,
+def wall_bound_s(sim_timeout_s: float, sim_rate: float | None, *, floor_s: float = 0.1,
                  ceiling_s: float = 5.0) -> float:
     """How long (wall) to wait for fresh telemetry: the sim timeout at the measured speed factor.
 

@@ -211,16 +211,20 @@ class Pilot:
 
     async def _engage_and_fly(self) -> None:
         await self.vehicle.send_setpoint(self.setpoint)
+        # Mission time starts when the companion asks for control (the headless runner's t = 0):
+        # the OFFBOARD heartbeat arrives a link latency after the vehicle has started to move.
+        depart = self.vehicle.latest_pose()
+        assert depart is not None
         await self._retry("offboard start", lambda: self.vehicle.start_offboard(self.setpoint))
         await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.OFFBOARD,
                                       wall_for_sim(self.vehicle, 5.0), "OFFBOARD mode")
         self.outcome.phase = "offboard"
+        self.outcome.t_depart_sim_s = depart.t_sim_s
+        self._record(depart)
         pose = self.vehicle.latest_pose()
         assert pose is not None
-        # Mission time starts when the companion has control: the headless runner's t = 0.
-        self.outcome.t_depart_sim_s = pose.t_sim_s
         self._record(pose)
-        self.ctx.report(f"{self.name}: OFFBOARD, departing at t_sim={pose.t_sim_s:.1f} s")
+        self.ctx.report(f"{self.name}: OFFBOARD, departed at t_sim={depart.t_sim_s:.1f} s")
         await self._control_loop(pose)
 
     async def _keepalive(self) -> None:

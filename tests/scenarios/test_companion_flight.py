@@ -146,6 +146,24 @@ def test_reference_mission_survives_loss_and_latency(tmp_path):
     assert summary["live"]["loss"] == 0.05 and summary["live"]["latency_ms"] == 100.0
 
 
+def test_a_telemetry_blackout_makes_the_vehicles_hover_then_resume(tmp_path):
+    # 3 s (sim) of silence on both API links, mid-flight: no position, no setpoint gets through.
+    result, _ = _embedded_run(REFERENCE, tmp_path, "--blackout", "150:3")
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["success"]
+    rows = _rows(tmp_path / "flight.csv")
+    for name in ("a", "b"):
+        assert summary["live"]["vehicles"][name]["interventions"].get("stale", 0) >= 1
+        stale = [r for r in rows if r["vehicle"] == name and r["note"].startswith("stale")]
+        assert stale and all(r["action"] == "hover" for r in stale)
+        # Logged at the last clock heard, i.e. just before the silence began.
+        assert 149.0 < float(stale[0]["t_sim_s"]) <= 150.0
+        flown = [float(r["t_sim_s"]) for r in rows if r["vehicle"] == name and r["action"] == "fly"]
+        assert not any(150.0 < t < 153.0 for t in flown)  # nothing planned on data from the silence
+        assert max(flown) > 400.0  # and the flight went on
+
+
 def _start_companion(sitl, out: Path) -> subprocess.Popen:
     return subprocess.Popen(_companion("run", str(sitl.mission_path), *sitl.connect_args(), "--out", str(out)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
