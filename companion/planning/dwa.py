@@ -25,10 +25,12 @@ Legality (a rollout that fails is discarded, never scored):
   deeper than it is now, so the planner leads it out instead of freezing it there;
 - no rollout point closer than ``min_separation_m`` to the other UAV predicted at constant
   velocity (same relaxation when already closer). A hard rule rather than a penalty, because
-  separation is a success criterion and a penalty can always be outbid by the other critics.
+  separation is a success criterion and a penalty can always be outbid by the other critics;
+- no rollout point outside the geofence box (same relaxation when already outside).
 
 When every rollout is illegal the result is :class:`NoLegalRollout`; the caller holds (a
-multicopter can hover). Obstacle knowledge comes in as an :class:`ObstacleSnapshot`: what is
+multicopter can hover), unless the result carries an ``escape``: a rollout that stays legal
+longer than hovering would, when something is coming at the vehicle. Obstacle knowledge comes in as an :class:`ObstacleSnapshot`: what is
 known *now*, predicted forward at constant velocity, identically in the headless runner and the
 live companion.
 """
@@ -79,9 +81,11 @@ class Command:
 
 @dataclass(frozen=True, slots=True)
 class NoLegalRollout:
-    """Every sampled rollout was illegal. The vehicle must hold this tick."""
+    """Every sampled rollout breaks a rule within the horizon. The vehicle holds (hovers) this
+    tick, unless ``escape`` is given: a rollout that stays legal longer than hovering would."""
 
     reason: str
+    escape: Command | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,6 +129,7 @@ class DwaConfig:
     with 0 / 10 / 30 / 60 m: the larger it is, the further the vehicle keeps off its route.
     ``min_separation_m``: the planning separation from the other UAV (see from_settings).
     ``turnaround_deg``: see :func:`_commit_turn`; 180 disables the rule.
+    ``fence_m``: the geofence box; rollout points must stay inside it (legality, like obstacles).
     """
 
     speed_m_s: float
@@ -139,6 +144,7 @@ class DwaConfig:
     distance_saturation_m: float = 10.0
     min_separation_m: float = 0.0
     turnaround_deg: float = 90.0
+    fence_m: tuple[float, float, float, float] | None = None  # keep-in box (x0, y0, x1, y1)
 
     yaw_rates_rad_s: np.ndarray = field(init=False, repr=False)  # (S,)
     times_s: np.ndarray = field(init=False, repr=False)  # (K + 1,) 0, dt, ..., p
@@ -561,37 +567,39 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     pts, final_heading = rollouts(pose, config)
     px, py = pts[..., 0], pts[..., 1]
     times = config.times_s
-    legal = np.ones(config.samples, dtype=bool)
-    reasons = []
+    shape = (config.samples, config.steps + 1)
+    ok_by_rule: dict[str, np.ndarray] = {}  # (S, K + 1) per rule; column 0 is the pose itself
 
     near = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, float(times[-1]))
     if near.count:
         clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)  # (O, S * (K + 1))
-        floor = np.minimum(clear[:, 0:1], 0.0)  # point 0 is the pose. Already inside: never deeper
-        shape = (config.samples, config.steps + 1)
-        ok = (clear >= floor - 1e-9).all(axis=0).reshape(shape)[:, 1:].all(axis=1)
-        if not ok.any():
-            reasons.append("every rollout enters an inflated obstacle")
-        legal &= ok
+        floor = np.minimum(clear[:, 0:1], 0.0)  # already inside: never deeper than now
+        ok_by_rule["obstacle"] = (clear >= floor - 1e-9).all(axis=0).reshape(shape)
         nearest = clear.min(axis=0).reshape(shape)[:, 1:].min(axis=1)
         distance = np.clip(nearest, 0.0, config.distance_saturation_m)
     else:
         distance = np.full(config.samples, config.distance_saturation_m)
 
     if other is not None and config.min_separation_m > 0:
-        sep2 = np.min((px - (other.x_m + other.vx_m_s * times)) ** 2
-                      + (py - (other.y_m + other.vy_m_s * times)) ** 2, axis=1)
+        ox = other.x_m + other.vx_m_s * times
+        oy = other.y_m + other.vy_m_s * times
         limit = min(config.min_separation_m, math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m))
-        ok = sep2 >= (limit - 1e-6) ** 2
-        if not ok.any():
-            reasons.append(f"every rollout comes within {config.min_separation_m:g} m of the other UAV")
-        legal &= ok
+        ok_by_rule["separation"] = (px - ox) ** 2 + (py - oy) ** 2 >= (limit - 1e-6) ** 2
 
-    if not legal.any():
-        reason = "; ".join(reasons) or "no rollout satisfies all constraints at once"
-        return NoLegalRollout(f"all {config.samples} rollouts illegal: {reason}")
+    fence = config.fence_m
+    if fence is not None:
+        here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
+        if here < config.reach_m:  # otherwise no rollout can reach the fence
+            inside = np.minimum(np.minimum(px - fence[0], fence[2] - px), np.minimum(py - fence[1], fence[3] - py))
+            ok_by_rule["geofence"] = inside >= min(here, 0.0) - 1e-9
 
+    ok_pts = None
+    for ok in ok_by_rule.values():
+        ok_pts = ok if ok_pts is None else ok_pts & ok
+    legal = np.ones(config.samples, dtype=bool) if ok_pts is None else ok_pts[:, 1:].all(axis=1)
     heading = heading_scores(pts, final_heading, goals)
+    if not legal.any():
+        return _no_legal_rollout(pose, other, near, config, ok_by_rule, ok_pts, heading)
     legal = _commit_turn(pose, goals, legal, config)
 
     sightline = None
@@ -606,10 +614,48 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     total = _weights(config) @ _normalised(critics, legal)
     total[~legal] = -np.inf
     best = int(np.argmax(total))
-    return Command(yaw_rate_rad_s=float(config.yaw_rates_rad_s[best]), speed_m_s=config.speed_m_s,
-                   heading_score=float(heading[best]), distance_score=float(distance[best]),
-                   sightline_score=0.0 if sightline is None else float(sightline[best]),
-                   eval_score=float(total[best]), legal_count=int(np.count_nonzero(legal)))
+    return _command(config, best, heading, distance, sightline, float(total[best]), int(np.count_nonzero(legal)))
+
+
+def _command(config: DwaConfig, i: int, heading: np.ndarray, distance: np.ndarray, sightline: np.ndarray | None,
+             total: float, legal_count: int) -> Command:
+    return Command(yaw_rate_rad_s=float(config.yaw_rates_rad_s[i]), speed_m_s=config.speed_m_s,
+                   heading_score=float(heading[i]), distance_score=float(distance[i]),
+                   sightline_score=0.0 if sightline is None else float(sightline[i]),
+                   eval_score=total, legal_count=legal_count)
+
+
+def _no_legal_rollout(pose: Pose, other: OtherUav | None, near: ObstacleSnapshot, config: DwaConfig,
+                      ok_by_rule: dict[str, np.ndarray], ok_pts: np.ndarray, heading: np.ndarray) -> NoLegalRollout:
+    """Every rollout breaks a rule within the horizon. Say which rules, and offer an escape.
+
+    Hovering is the default, but it is no refuge from a moving obstacle or the other UAV
+    heading this way: if some rollout stays legal for longer than hovering would (both judged on
+    the same constant-velocity prediction), that rollout is the escape, and the vehicle flies it.
+    Among the longest-lasting rollouts the one heading best toward the goal wins.
+    """
+    blocking = [rule for rule, ok in ok_by_rule.items() if not ok[:, 1:].all(axis=1).any()]
+    what = ", ".join(blocking) if blocking else "no rollout satisfies all rules at once"
+    reason = f"all {config.samples} rollouts break a rule within {config.prediction_time_s:g} s ({what})"
+    steps = config.steps
+    lasts = np.where(ok_pts[:, 1:].all(axis=1), steps, np.argmin(ok_pts[:, 1:], axis=1))  # legal steps flown
+    times = config.times_s
+    hold_ok = np.ones(steps + 1, dtype=bool)
+    if near.count:
+        xs, ys = np.full(steps + 1, pose.x_m), np.full(steps + 1, pose.y_m)
+        clear = inflated_clearance(xs, ys, times, near)
+        hold_ok &= (clear >= np.minimum(clear[:, 0:1], 0.0) - 1e-9).all(axis=0)
+    if "separation" in ok_by_rule and other is not None:
+        d2 = (other.x_m + other.vx_m_s * times - pose.x_m) ** 2 + (other.y_m + other.vy_m_s * times - pose.y_m) ** 2
+        hold_ok &= d2 >= (min(config.min_separation_m, math.sqrt(d2[0])) - 1e-6) ** 2
+    hold_lasts = steps if hold_ok[1:].all() else int(np.argmin(hold_ok[1:]))
+    best_last = int(lasts.max())
+    if best_last <= hold_lasts:
+        return NoLegalRollout(reason)
+    i = int(np.argmax(np.where(lasts == best_last, heading, -np.inf)))
+    escape = _command(config, i, heading, np.zeros(config.samples), None, 0.0, 0)
+    return NoLegalRollout(f"{reason}; escaping: legal for {best_last * config.dt_s:g} s, "
+                          f"hovering for {hold_lasts * config.dt_s:g} s", escape)
 
 
 def _commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaConfig) -> np.ndarray:

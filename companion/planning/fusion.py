@@ -192,7 +192,8 @@ class TickResult:
     goal_index: int
     arrived: bool
     planner_ms: float
-    hold_reason: str | None = None
+    hold_reason: str | None = None  # why command is None
+    escape_reason: str | None = None  # no rollout was legal for the whole horizon: flying the longest-lasting
 
     @property
     def yaw_rate_rad_s(self) -> float:
@@ -232,7 +233,8 @@ class VehiclePlanner:
             raise ValueError(f"variant {variant!r} needs an A* route for vehicle {vehicle.name!r}")
         else:
             nodes = route.sparse_enu_m if goals_from == "sparse" else route.raw_enu_m
-        config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline)
+        fence = tuple(float(v) for v in mission.world.geofence.bounds)
+        config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline, fence_m=fence)
         tracker = LocalGoalTracker(nodes, mission.planner.acceptance_radius_m)
         return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m)
 
@@ -258,5 +260,7 @@ class VehiclePlanner:
         decision = plan_step(own, goals, other, snapshot, self.config)
         ms = (time.perf_counter() - started) * 1e3
         if isinstance(decision, NoLegalRollout):
+            if decision.escape is not None:
+                return TickResult(t_s, decision.escape, goal, self.tracker.index, False, ms, None, decision.reason)
             return TickResult(t_s, None, goal, self.tracker.index, False, ms, decision.reason)
         return TickResult(t_s, decision, goal, self.tracker.index, False, ms)

@@ -86,13 +86,34 @@ def test_boxed_in_is_a_typed_result_not_an_exception():
     wall = make_obstacle("wall", "circle", center=(40.0, 0.0), radius_m=30.0)
     result = plan_step(Pose(0.0, 0.0, 0.0), (1000.0, 0.0), None, snapshot(wall), config())
     assert isinstance(result, NoLegalRollout)
-    assert "inflated obstacle" in result.reason
+    assert "(obstacle)" in result.reason
+    assert result.escape is None  # hovering in front of a static disk is safe: hold
 
 
 def test_boxed_in_by_the_other_uav_is_reported():
     other = OtherUav(20.0, 0.0, 0.0, 0.0)  # already inside the separation, and nothing gets further
     result = plan_step(Pose(0.0, 0.0, 0.0), (1000.0, 0.0), other, EMPTY, config(samples=1))
-    assert isinstance(result, NoLegalRollout) and "other UAV" in result.reason
+    assert isinstance(result, NoLegalRollout) and "separation" in result.reason
+
+
+def test_escape_when_hovering_would_be_hit_by_a_moving_obstacle():
+    field = ObstacleField.from_world(World(-1e4, -1e4, 1e4, 1e4, 0.0, ()))
+    # An unknown intruder (a 150 m disc + 20 %) 300 m behind, closing at 30 m/s: it catches every
+    # rollout within the horizon, a hovering vehicle after 4 s, one flying straight on after 6 s.
+    snap = field.from_tracks([ObstacleTrack("intruder", -300.0, 0.0, 30.0, 0.0)])
+    result = plan_step(Pose(0.0, 0.0, 0.0), (1000.0, 0.0), None, snap, config())
+    assert isinstance(result, NoLegalRollout) and result.escape is not None
+    assert "escaping: legal for 6 s, hovering for 4 s" in result.reason
+    assert result.escape.yaw_rate_rad_s == 0.0 and result.escape.speed_m_s == V
+
+
+def test_geofence_is_a_keep_in_rule():
+    cfg = config(fence_m=(-1000.0, -1000.0, 60.0, 1000.0))  # the fence 60 m ahead
+    result = plan_step(Pose(0.0, 0.0, 0.0), (5000.0, 0.0), None, EMPTY, cfg)
+    assert isinstance(result, Command) and abs(result.yaw_rate_rad_s) > 0.1
+    pts, _ = rollouts(Pose(0.0, 0.0, 0.0), cfg)
+    chosen = pts[int(np.argmin(np.abs(cfg.yaw_rates_rad_s - result.yaw_rate_rad_s)))]
+    assert chosen[:, 0].max() <= 60.0
 
 
 def test_a_vehicle_inside_the_margin_may_leave_but_not_go_deeper():

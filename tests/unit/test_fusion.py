@@ -154,3 +154,12 @@ def test_live_snapshot_from_tracks_places_known_shapes_and_guards_unknown_intrud
     assert snap.circle_radius_m[j] == 150.0 and snap.circle_margin_m[j] == pytest.approx(30.0)
     assert "drone" not in snap.ids  # not reported, not known: the static world only
     assert snapshot_at(MOVING.world, 40.0).ids == ObstacleField.from_world(MOVING.world).at_time(40.0).ids
+
+
+def test_tick_flies_the_escape_when_hovering_is_worse():
+    planner = VehiclePlanner.build(REF, REF.vehicle("a"), None, "dwa")
+    field = ObstacleField.from_world(REF.world)
+    snap = field.from_tracks([ObstacleTrack("intruder", 1000.0, 2300.0, 0.0, -30.0)])  # from behind, fast
+    result = planner.tick(Pose(1000.0, 2000.0, -np.pi / 2), None, snap, 0.0)
+    assert result.command is not None and result.hold_reason is None
+    assert result.escape_reason is not None and "escaping" in result.escape_reason
