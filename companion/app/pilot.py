@@ -101,19 +101,9 @@ class FlightContext:
         return t_sim_s - (pilot.outcome.t_depart_sim_s or 0.0)
 
 
-def _sim_rate(vehicle: Vehicle) -> float | None:
-    board = getattr(vehicle, "board", None)
-    return None if board is None else board.sim_rate
-
-
-def _clock(vehicle: Vehicle) -> float | None:
-    board = getattr(vehicle, "board", None)
-    return None if board is None else board.latest_clock_s
-
-
 def wall_for_sim(vehicle: Vehicle, sim_s: float, slack_s: float = 5.0) -> float:
     """A wall-clock bound for something that takes ``sim_s`` of the vehicle's sim time."""
-    rate = _sim_rate(vehicle)
+    rate = vehicle.sim_rate()
     rate = rate if rate is not None and rate > 0.05 else 1.0
     return sim_s / rate + slack_s
 
@@ -129,6 +119,7 @@ class Pilot:
         self.setpoint: VelocityYawRateSetpoint = HOVER
         self._offboard_live = False  # the keep-alive resends only while this is set
         self._next_progress_s = 0.0
+        self._snapshot = ctx.field.from_tracks(())  # the obstacles as last seen by a tick
 
     # -- the whole flight ------------------------------------------------------------------
     async def fly(self) -> PilotOutcome:
@@ -229,7 +220,7 @@ class Pilot:
 
     async def _keepalive(self) -> None:
         while True:
-            rate = _sim_rate(self.vehicle) or 1.0
+            rate = self.vehicle.sim_rate() or 1.0
             period = min(0.1, max(0.01, self.ctx.settings.keepalive_sim_s / rate))
             await asyncio.sleep(period)
             if self._offboard_live:
@@ -239,19 +230,18 @@ class Pilot:
                     pass  # the next tick or resend tries again; a dead link is the control loop's call
 
     async def _control_loop(self, pose: PoseSample) -> None:
-        s = self.ctx.settings
         dt = self.ctx.mission.planner.dt_s
         timeout = self.ctx.mission.safety.telemetry_timeout_s
         next_tick = pose.t_sim_s + dt
         stale_since: float | None = None
         seq = pose.seq
         while True:
-            bound = monitors.wall_bound_s(timeout, _sim_rate(self.vehicle))
+            bound = monitors.wall_bound_s(timeout, self.vehicle.sim_rate())
             watch_clock = stale_since is None  # once stale, only a new sample ends it
 
             def news(st, p) -> bool:
                 return p is not None and (p.seq > seq or (
-                    watch_clock and monitors.is_stale(p.t_sim_s, _clock(self.vehicle), timeout)))
+                    watch_clock and monitors.is_stale(p.t_sim_s, self.vehicle.clock_s(), timeout)))
             try:
                 await self.vehicle.wait_until(news, bound, "fresh position")
                 fresh = self.vehicle.latest_pose()
@@ -259,11 +249,12 @@ class Pilot:
                 if fresh.seq == seq:
                     raise TelemetryLost("position stopped while the clock ran on", vehicle=self.name)
                 seq = fresh.seq
-                if monitors.is_stale(fresh.t_sim_s, _clock(self.vehicle), timeout):
+                if monitors.is_stale(fresh.t_sim_s, self.vehicle.clock_s(), timeout):
                     raise TelemetryLost("position lags the vehicle clock", vehicle=self.name)
             except TelemetryLost as exc:
-                stale_since = stale_since if stale_since is not None else time.monotonic()
-                await self._on_stale(exc, time.monotonic() - stale_since)
+                first = stale_since is None
+                stale_since = time.monotonic() if stale_since is None else stale_since
+                await self._on_stale(exc, first, time.monotonic() - stale_since)
                 continue
             if stale_since is not None:
                 self.ctx.report(f"{self.name}: telemetry fresh again after {time.monotonic() - stale_since:.2f} s wall")
@@ -294,10 +285,9 @@ class Pilot:
                 self.outcome.interventions[f"setpoint not sent: {exc.result}"] += 1
             self._log_tick(pose, t_mission, result, setpoint, action)
 
-    async def _on_stale(self, exc: TelemetryLost, stale_wall_s: float) -> None:
+    async def _on_stale(self, exc: TelemetryLost, first: bool, stale_wall_s: float) -> None:
         """Never fly on old data: hover, and give up when the silence lasts too long."""
         s = self.ctx.settings
-        first = self.setpoint is not HOVER
         self.setpoint = HOVER
         self.outcome.interventions["stale"] += 1
         try:
@@ -306,7 +296,7 @@ class Pilot:
             pass
         if first:
             self.ctx.report(f"{self.name}: telemetry stale ({exc.message}); hovering")
-            self.ctx.log.row(t_sim_s=_clock(self.vehicle), vehicle=self.name, phase="offboard",
+            self.ctx.log.row(t_sim_s=self.vehicle.clock_s(), vehicle=self.name, phase="offboard",
                              action="hover", note=f"stale: {exc.message}")
         limit_wall = wall_for_sim(self.vehicle, s.link_lost_after_s, slack_s=1.0)
         if stale_wall_s > limit_wall:
@@ -392,11 +382,16 @@ class Pilot:
         if same_link or self.ctx.settings.shared_clock:
             age = at.t_sim_s - t_sim_s
         else:
-            age = (at.t_wall_s - t_wall_s) * (_sim_rate(self.vehicle) or 1.0)
+            age = (at.t_wall_s - t_wall_s) * (self.vehicle.sim_rate() or 1.0)
         return min(max(age, 0.0), 5.0) if math.isfinite(age) else 0.0
 
     def _other(self, pose: PoseSample) -> OtherUav | None:
-        best, best_d = None, math.inf
+        return self._nearest_other(pose)[1]
+
+    def _nearest_other(self, pose: PoseSample) -> tuple[str | None, OtherUav | None]:
+        """The nearest other vehicle, from its own telemetry, extrapolated to this pose's time."""
+        best: tuple[str | None, OtherUav | None] = (None, None)
+        best_d = math.inf
         for name, v in self.ctx.vehicles.items():
             p = v.latest_pose() if name != self.name else None
             if p is None:
@@ -405,7 +400,7 @@ class Pilot:
             x, y = p.x_east_m + p.vx_east_m_s * age, p.y_north_m + p.vy_north_m_s * age
             d = math.hypot(x - pose.x_east_m, y - pose.y_north_m)
             if d < best_d:
-                best, best_d = OtherUav(x, y, p.vx_east_m_s, p.vy_north_m_s), d
+                best, best_d = (name, OtherUav(x, y, p.vx_east_m_s, p.vy_north_m_s)), d
         return best
 
     def _traffic(self) -> dict[str, TrafficReport]:
@@ -437,11 +432,12 @@ class Pilot:
         dt = self.ctx.mission.planner.dt_s
         own = monitors.Kinematic2D(pose.x_east_m, pose.y_north_m, pose.heading_enu_rad,
                                    pose.vx_east_m_s, pose.vy_north_m_s)
-        other = self._other(pose)
+        other_name, other = self._nearest_other(pose)
         other_k = None if other is None else monitors.Kinematic2D(other.x_m, other.y_m, 0.0, other.vx_m_s, other.vy_m_s)
+        priority = other_name is None or self.ctx.rank[self.name] < self.ctx.rank[other_name]
         for verdict in (
             monitors.check_separation(own, v, w, other_k, min_separation_m=self.ctx.mission.safety.min_separation_m,
-                                      own_has_priority=self.ctx.rank[self.name] == 0,
+                                      own_has_priority=priority,
                                       horizon_s=s.lookahead_s, step_s=dt / 2),
             monitors.check_geofence(self.ctx.mission.world, own, v, w, horizon_s=s.lookahead_s, step_s=dt / 2),
         ):

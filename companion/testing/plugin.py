@@ -147,9 +147,13 @@ class Sitl:
         self.telemetry.wait_until(lambda r: r.heard(sysid) and r.log(sysid).last_mode == mode,
                                   timeout_s=timeout_s, what=f"vehicle {name!r} in {mode}")
 
-    def report(self) -> RunSummary:
-        """SPEC §2 success and metrics, from the recorded telemetry tracks."""
-        tracks = {v.name: self.vehicle(v.name).track() for v in self.mission.vehicles
+    def report(self, since_mode: str | None = "OFFBOARD") -> RunSummary:
+        """SPEC §2 success and metrics, from the recorded telemetry tracks.
+
+        Tracks start when each vehicle first enters ``since_mode`` (departure), so flight times
+        compare with ``companion simulate``; ``None`` scores everything recorded.
+        """
+        tracks = {v.name: self.vehicle(v.name).track(since_mode) for v in self.mission.vehicles
                   if self.recorder.heard(v.system_id) and self.vehicle(v.name).t_s}
         return summarize(self.mission, tracks)
 

@@ -38,6 +38,7 @@ class VehicleLog:
 
     system_id: int
     modes: list[str] = field(default_factory=list)  # mode sequence, consecutive repeats folded
+    mode_times_s: list[float] = field(default_factory=list)  # sim time of the last sample at each change
     armed_history: list[bool] = field(default_factory=list)
     last_mode: str | None = None
     armed: bool = False
@@ -51,13 +52,24 @@ class VehicleLog:
     landed_state: int | None = None
     battery_pct: float | None = None
 
-    def track(self) -> Track:
-        """The ENU ground track from LOCAL_POSITION_NED, strictly increasing in sim time."""
+    def track(self, since_mode: str | None = None) -> Track:
+        """The ENU ground track from LOCAL_POSITION_NED, strictly increasing in sim time.
+
+        ``since_mode="OFFBOARD"`` starts it at the first sample of the first OFFBOARD stretch,
+        so flight time counts from departure, not from power-on and take-off.
+        """
         t = np.asarray(self.t_s)
-        keep = np.concatenate([[True], np.diff(t) > 0]) if len(t) else np.zeros(0, bool)
-        # Out-of-order or duplicated datagrams (lossy links) are dropped, not re-sorted into the past.
-        keep &= t >= np.maximum.accumulate(t) if len(t) else keep
-        return Track(t[keep], np.asarray(self.x_m)[keep], np.asarray(self.y_m)[keep])
+        start = 0
+        if since_mode is not None:
+            if since_mode not in self.modes:
+                raise ValueError(f"system {self.system_id} never reported mode {since_mode}")
+            t_mode = self.mode_times_s[self.modes.index(since_mode)]
+            start = int(np.searchsorted(t, t_mode, side="left"))
+        t = t[start:]
+        # Late or duplicated datagrams (lossy links) are dropped, not re-sorted into the past.
+        prev_max = np.concatenate([[-np.inf], np.maximum.accumulate(t)[:-1]]) if len(t) else t
+        keep = t > prev_max
+        return Track(t[keep], np.asarray(self.x_m)[start:][keep], np.asarray(self.y_m)[start:][keep])
 
     @property
     def position_enu_m(self) -> tuple[float, float] | None:
@@ -138,6 +150,7 @@ class TelemetryRecorder:
             armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
             if name != log.last_mode:
                 log.modes.append(name)
+                log.mode_times_s.append(log.t_s[-1] if log.t_s else 0.0)
                 log.last_mode = name
             if not log.armed_history or log.armed_history[-1] != armed:
                 log.armed_history.append(armed)

@@ -133,6 +133,12 @@ class MavsdkVehicle:
     def latest_pose(self) -> PoseSample | None:
         return self._board.pose()
 
+    def clock_s(self) -> float | None:
+        return self._board.latest_clock_s
+
+    def sim_rate(self) -> float | None:
+        return self._board.sim_rate
+
     def status(self) -> VehicleStatus:
         return self._board.status()
 

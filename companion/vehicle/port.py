@@ -126,6 +126,14 @@ class Vehicle(Protocol):
 
     def latest_pose(self) -> PoseSample | None: ...
 
+    def clock_s(self) -> float | None:
+        """The vehicle's clock as last heard (sim seconds), from any stamped message."""
+        ...
+
+    def sim_rate(self) -> float | None:
+        """Measured sim seconds per wall second, None until known."""
+        ...
+
     def status(self) -> VehicleStatus: ...
 
     def traffic(self) -> Mapping[str, TrafficReport]:
