@@ -175,6 +175,8 @@ class Pilot:
     async def _take_off(self) -> None:
         await self._retry("arm", self.vehicle.arm)
         self.outcome.phase = "armed"
+        # Nobody leaves the ground unless everybody could arm: a refusal then only disarms.
+        await self._barrier("all vehicles armed", self.ctx.settings.ready_timeout_s)
         alt = self.spec.cruise_alt_m
         await self._retry("takeoff", lambda: self.vehicle.takeoff(alt))
         self.outcome.phase = "takeoff"

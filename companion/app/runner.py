@@ -175,7 +175,9 @@ def summary_table(plan: FlightPlan, result: RunResult) -> str:
              f"{'min clear m':>11} {'nodes':>9} {'plan ms':>8} {'phase':<9}"]
 
     def f(v, fmt):
-        return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+        width = int(fmt.split(".")[0]) if fmt[:1].isdigit() else 0
+        text = "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+        return text.rjust(width)
     for spec in plan.mission.by_priority:
         v = doc.get("vehicles", {}).get(spec.name, {})
         o = result.outcomes.get(spec.name)

@@ -599,7 +599,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     legal = np.ones(config.samples, dtype=bool) if ok_pts is None else ok_pts[:, 1:].all(axis=1)
     heading = heading_scores(pts, final_heading, goals)
     if not legal.any():
-        return _no_legal_rollout(pose, other, near, config, ok_by_rule, ok_pts, heading)
+        return _no_legal_rollout(pose, other, near, config, ok_by_rule, heading, clear if near.count else None)
     legal = _commit_turn(pose, goals, legal, config)
 
     sightline = None
@@ -626,35 +626,43 @@ def _command(config: DwaConfig, i: int, heading: np.ndarray, distance: np.ndarra
 
 
 def _no_legal_rollout(pose: Pose, other: OtherUav | None, near: ObstacleSnapshot, config: DwaConfig,
-                      ok_by_rule: dict[str, np.ndarray], ok_pts: np.ndarray, heading: np.ndarray) -> NoLegalRollout:
+                      ok_by_rule: dict[str, np.ndarray], heading: np.ndarray,
+                      clear: np.ndarray | None) -> NoLegalRollout:
     """Every rollout breaks a rule within the horizon. Say which rules, and offer an escape.
 
-    Hovering is the default, but it is no refuge from a moving obstacle or the other UAV
-    heading this way: if some rollout stays legal for longer than hovering would (both judged on
-    the same constant-velocity prediction), that rollout is the escape, and the vehicle flies it.
-    Among the longest-lasting rollouts the one heading best toward the goal wins.
+    Hovering is the default, but it is no refuge from a moving obstacle or the other UAV coming
+    this way. So the fallback judges each rollout, and hovering, by how long it stays clear of
+    the TRUE footprints (the inflation margin is the reserve an emergency may use), the
+    separation and the fence, on the same constant-velocity prediction. If some rollout lasts
+    longer than hovering, it is the escape and the vehicle flies it; among the longest-lasting
+    ones, the one heading best toward the goal wins.
     """
     blocking = [rule for rule, ok in ok_by_rule.items() if not ok[:, 1:].all(axis=1).any()]
     what = ", ".join(blocking) if blocking else "no rollout satisfies all rules at once"
     reason = f"all {config.samples} rollouts break a rule within {config.prediction_time_s:g} s ({what})"
-    steps = config.steps
-    lasts = np.where(ok_pts[:, 1:].all(axis=1), steps, np.argmin(ok_pts[:, 1:], axis=1))  # legal steps flown
-    times = config.times_s
+    steps, times = config.steps, config.times_s
+    ok_pts = np.ones((config.samples, steps + 1), dtype=bool)
     hold_ok = np.ones(steps + 1, dtype=bool)
-    if near.count:
-        xs, ys = np.full(steps + 1, pose.x_m), np.full(steps + 1, pose.y_m)
-        clear = inflated_clearance(xs, ys, times, near)
-        hold_ok &= (clear >= np.minimum(clear[:, 0:1], 0.0) - 1e-9).all(axis=0)
+    for rule, ok in ok_by_rule.items():
+        if rule != "obstacle":
+            ok_pts &= ok
+    if clear is not None:
+        margins = np.concatenate([near.circle_margin_m, near.poly_margin_m])[:, None]
+        true_clear = clear + margins
+        ok_pts &= (true_clear >= np.minimum(true_clear[:, 0:1], 0.0) - 1e-9).all(axis=0).reshape(ok_pts.shape)
+        hold = inflated_clearance(np.full(steps + 1, pose.x_m), np.full(steps + 1, pose.y_m), times, near) + margins
+        hold_ok &= (hold >= np.minimum(hold[:, 0:1], 0.0) - 1e-9).all(axis=0)
     if "separation" in ok_by_rule and other is not None:
         d2 = (other.x_m + other.vx_m_s * times - pose.x_m) ** 2 + (other.y_m + other.vy_m_s * times - pose.y_m) ** 2
         hold_ok &= d2 >= (min(config.min_separation_m, math.sqrt(d2[0])) - 1e-6) ** 2
+    lasts = np.where(ok_pts[:, 1:].all(axis=1), steps, np.argmin(ok_pts[:, 1:], axis=1))  # legal steps flown
     hold_lasts = steps if hold_ok[1:].all() else int(np.argmin(hold_ok[1:]))
     best_last = int(lasts.max())
     if best_last <= hold_lasts:
         return NoLegalRollout(reason)
     i = int(np.argmax(np.where(lasts == best_last, heading, -np.inf)))
     escape = _command(config, i, heading, np.zeros(config.samples), None, 0.0, 0)
-    return NoLegalRollout(f"{reason}; escaping: legal for {best_last * config.dt_s:g} s, "
+    return NoLegalRollout(f"{reason}; escaping: clear for {best_last * config.dt_s:g} s, "
                           f"hovering for {hold_lasts * config.dt_s:g} s", escape)
 
 

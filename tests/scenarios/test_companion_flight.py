@@ -251,3 +251,23 @@ def test_upload_stores_the_planned_route_on_each_vehicle(sitl):
         for (lat, lon), (elat, elon) in zip(stored, expected):
             assert abs(lat - elat) < 2e-7 and abs(lon - elon) < 2e-7
         assert not any(stub.vehicle(v.name).armed_history)
+
+
+def test_a_refused_arm_aborts_cleanly_and_nobody_takes_off(sitl, tmp_path):
+    # The stub refuses to arm below BAT_CRIT_THR (7 %), as PX4 does: vehicle b is nearly empty.
+    text = REFERENCE.read_text().replace("battery_pct: 35.0", "battery_pct: 5.0")
+    assert "battery_pct: 5.0" in text
+    mission_path = tmp_path / "weak_battery.yaml"
+    mission_path.write_text(text)
+    stub = sitl(mission_path, speedup=20)
+    result = _run(_companion("run", str(mission_path), *stub.connect_args(), "--out", str(tmp_path / "out")),
+                  timeout_s=90.0)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "vehicle 'b': arm refused" in result.stdout
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["reason"] == "command_refused"
+    time.sleep(0.5)
+    for name in ("a", "b"):
+        log = stub.vehicle(name)
+        assert not log.armed, name  # a armed, then was disarmed again; b never armed
+        assert max(log.z_m, default=0.0) < 1.0  # nobody left the ground
+    assert not any(stub.vehicle("b").armed_history)
