@@ -22,6 +22,8 @@ before anything connects, and the CLI exits 2 on them.
 
 from __future__ import annotations
 
+import asyncio
+
 
 class CompanionError(Exception):
     """Base of every runtime error of the companion. ``vehicle`` names the vehicle, if any."""
@@ -77,3 +79,21 @@ class MissionAborted(CompanionError):
     def __init__(self, reason: str, message: str, *, vehicle: str | None = None):
         self.reason = reason
         super().__init__(message, vehicle=vehicle)
+
+
+def primary_error(group: BaseExceptionGroup) -> BaseException:
+    """The error that matters in a task group's failure: the first leaf that is not a
+    cancellation (the others were cancelled because of it)."""
+    leaves: list[BaseException] = []
+
+    def walk(e: BaseException) -> None:
+        if isinstance(e, BaseExceptionGroup):
+            for sub in e.exceptions:
+                walk(sub)
+        else:
+            leaves.append(e)
+    walk(group)
+    for e in leaves:
+        if not isinstance(e, asyncio.CancelledError):
+            return e
+    return leaves[0] if leaves else group

@@ -29,7 +29,8 @@ import numpy as np
 from companion.app import monitors
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan, verify_readback
-from companion.errors import CommandRefused, CompanionError, MissionAborted, MissionUploadError, TelemetryLost
+from companion.errors import (CommandRefused, CompanionError, MissionAborted, MissionUploadError, TelemetryLost,
+                              primary_error)
 from companion.mission import VehicleSpec
 from companion.planning.dwa import OtherUav, Pose, inflated_clearance
 from companion.planning.fusion import ObstacleField, ObstacleTrack, TickResult, VehiclePlanner
@@ -198,7 +199,7 @@ class Pilot:
                 control = tg.create_task(self._engage_and_fly(), name=f"{self.name}:control")
                 control.add_done_callback(lambda _: keepalive.cancel())
         except BaseExceptionGroup as group:
-            raise _primary(group) from None
+            raise primary_error(group) from None
         finally:
             self._offboard_live = False
 
@@ -477,20 +478,3 @@ class Pilot:
             self._next_progress_s = t_mission + self.ctx.settings.progress_every_s
             self.ctx.report(f"t={t_mission:7.1f} s  {self.name:>3} {mode:<8} to go {to_go:7.0f} m  "
                             f"clearance {clear_m:6.0f} m  separation {sep_m:6.0f} m  {action}")
-
-
-def _primary(group: BaseExceptionGroup) -> BaseException:
-    """The error that matters in a task group's failure: the first that is not a cancellation."""
-    leaves: list[BaseException] = []
-
-    def walk(e: BaseException) -> None:
-        if isinstance(e, BaseExceptionGroup):
-            for sub in e.exceptions:
-                walk(sub)
-        else:
-            leaves.append(e)
-    walk(group)
-    for e in leaves:
-        if not isinstance(e, asyncio.CancelledError):
-            return e
-    return leaves[0] if leaves else group

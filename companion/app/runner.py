@@ -25,9 +25,9 @@ import numpy as np
 
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan
-from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings, _primary
+from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings
 from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
-                              VehicleNotReady)
+                              VehicleNotReady, primary_error)
 from companion.planning.metrics import RunSummary, Track, summarize
 from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
 
@@ -88,7 +88,7 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
                         for f in flights:
                             f.add_done_callback(done)
                 except BaseExceptionGroup as group:
-                    raise _primary(group) from None
+                    raise primary_error(group) from None
         except MissionAborted as exc:
             reason, message = exc.reason, str(exc)
         except CompanionError as exc:

@@ -80,3 +80,13 @@ def test_board_measures_the_speed_factor_from_the_vehicle_clock():
         assert board.latest_clock_s == t_sim
         assert board.sim_rate == pytest.approx(20.0, rel=0.15)
     asyncio.run(scenario())
+
+
+def test_primary_error_is_the_cause_not_the_cancellations():
+    from companion.errors import CommandRefused, primary_error
+    cause = CommandRefused("arm", "COMMAND_DENIED", vehicle="b")
+    group = BaseExceptionGroup("tg", [asyncio.CancelledError(), ExceptionGroup("inner", [cause])])
+    assert primary_error(group) is cause
+    assert str(cause) == "vehicle 'b': arm refused: COMMAND_DENIED"
+    only_cancel = BaseExceptionGroup("tg", [asyncio.CancelledError()])
+    assert isinstance(primary_error(only_cancel), asyncio.CancelledError)
