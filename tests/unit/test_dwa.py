@@ -98,12 +98,12 @@ def test_boxed_in_by_the_other_uav_is_reported():
 
 def test_escape_when_hovering_would_be_hit_by_a_moving_obstacle():
     field = ObstacleField.from_world(World(-1e4, -1e4, 1e4, 1e4, 0.0, ()))
-    # An unknown intruder (a 150 m disc + 20 %) 300 m behind, closing at 30 m/s: it catches every
-    # rollout within the horizon, a hovering vehicle after 4 s, one flying straight on after 6 s.
-    snap = field.from_tracks([ObstacleTrack("intruder", -300.0, 0.0, 30.0, 0.0)])
+    # An unknown intruder (a 150 m disc) 270 m behind, closing at 30 m/s: its true body catches
+    # every rollout within the horizon, a hovering vehicle after 4 s, one flying straight on after 6 s.
+    snap = field.from_tracks([ObstacleTrack("intruder", -270.0, 0.0, 30.0, 0.0)])
     result = plan_step(Pose(0.0, 0.0, 0.0), (1000.0, 0.0), None, snap, config())
     assert isinstance(result, NoLegalRollout) and result.escape is not None
-    assert "escaping: legal for 6 s, hovering for 4 s" in result.reason
+    assert "escaping: clear for 6 s, hovering for 4 s" in result.reason
     assert result.escape.yaw_rate_rad_s == 0.0 and result.escape.speed_m_s == V
 
 
