@@ -206,7 +206,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         return _bad(exc)
     from companion.planning.bounds import lower_bound_s
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return _bad(BadInput(f"--out {out}: cannot create the directory ({exc.strerror})"))
     doc: dict = {"mission": plan.mission.name, "variant": plan.variant, "vehicles": {}}
     for v in plan.mission.by_priority:
         nodes = plan.nodes_enu_m(v)
@@ -284,6 +287,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     except (MissionError, BadInput) as exc:
         return _bad(exc)
     out: Path | None = args.out
+    try:
+        if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return _bad(BadInput(f"--out {out}: cannot create the directory ({exc.strerror})"))
     _quiet_mavsdk(out)
     settings = RunSettings(shared_clock=conns is None, connect_timeout_s=args.connect_timeout,
                            progress_every_s=args.progress_every, land=not args.no_land)

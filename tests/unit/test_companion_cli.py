@@ -79,3 +79,11 @@ def test_plan_writes_routes_and_a_plot(tmp_path, capsys):
     assert a["nodes_sparse"] == len(a["waypoints_enu_m"]) == len(a["waypoints_geodetic"])
     assert a["lower_bound_s"] == pytest.approx(473.8, abs=0.1)
     assert (tmp_path / "trajectory.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("command", ["run", "plan"])
+def test_an_output_directory_that_cannot_exist_is_bad_input(command, tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert main([command, str(REFERENCE), "--out", str(blocker / "out")]) == 2
+    assert "cannot create the directory" in _one_line(capsys.readouterr().err)
