@@ -181,7 +181,7 @@ class Pilot:
         alt = self.spec.cruise_alt_m
         await self._retry("takeoff", lambda: self.vehicle.takeoff(alt))
         self.outcome.phase = "takeoff"
-        target = alt - max(1.0, 0.05 * alt)
+        target = alt - 1.0  # PX4 ends TAKEOFF within a few decimetres of MIS_TAKEOFF_ALT
         await self.vehicle.wait_until(lambda s, p: p is not None and p.alt_rel_m >= target,
                                       wall_for_sim(self.vehicle, self._climb_sim_s()), f"take-off to {alt:g} m")
         self.outcome.phase = "airborne"
@@ -447,7 +447,9 @@ class Pilot:
             if verdict.hover:
                 self.outcome.interventions[verdict.reason] += 1
                 return HOVER, f"hover ({verdict.reason} monitor)"
-        return VelocityYawRateSetpoint(forward_m_s=v, yaw_rate_enu_rad_s=w), "fly"
+        # The planner is planar; hold the cruise altitude with a gentle proportional climb rate.
+        climb = max(-1.0, min(1.0, 0.5 * (self.spec.cruise_alt_m - pose.alt_rel_m)))
+        return VelocityYawRateSetpoint(forward_m_s=v, yaw_rate_enu_rad_s=w, climb_m_s=climb), "fly"
 
     # -- logging ----------------------------------------------------------------------------
     def _record(self, pose: PoseSample) -> None:
