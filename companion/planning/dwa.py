@@ -29,10 +29,11 @@ Legality (a rollout that fails is discarded, never scored):
 - no rollout point outside the geofence box (same relaxation when already outside).
 
 When every rollout is illegal the result is :class:`NoLegalRollout`; the caller holds (a
-multicopter can hover), unless the result carries an ``escape``: a rollout that stays legal
-longer than hovering would, when something is coming at the vehicle. Obstacle knowledge comes in as an :class:`ObstacleSnapshot`: what is
-known *now*, predicted forward at constant velocity, identically in the headless runner and the
-live companion.
+multicopter can hover), unless the result carries an ``escape``: a rollout that stays clear
+longer than hovering would, when something is coming at the vehicle.
+
+Obstacle knowledge comes in as an :class:`ObstacleSnapshot`: what is known *now*, predicted
+forward at constant velocity, identically in the headless runner and the live companion.
 """
 
 from __future__ import annotations

@@ -255,7 +255,7 @@ class VehiclePlanner:
             return TickResult(t_s, None, (sx, sy), self.tracker.index, True,
                               (time.perf_counter() - started) * 1e3, "arrived")
         goal = self.tracker.update(own.x_m, own.y_m)
-        reach = self.config.speed_m_s * self.config.prediction_time_s + self.tracker.acceptance_radius_m
+        reach = self.config.reach_m + self.tracker.acceptance_radius_m
         goals = self.tracker.window(own.x_m, own.y_m, reach, self.arrival_radius_m)
         decision = plan_step(own, goals, other, snapshot, self.config)
         ms = (time.perf_counter() - started) * 1e3
