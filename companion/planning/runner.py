@@ -149,6 +149,9 @@ def simulate(mission: Mission, variant: str | None = None, *,
         tracks[name] = Track(dt * np.arange(end + 1), xy[:end + 1, i, 0], xy[:end + 1, i, 1])
     planner_ms = {n: [r.planner_ms for r in ticks[n] if not r.arrived] for n in ticks}
     summary = summarize(mission, tracks, routes=routes, planner_ms=planner_ms, geometry=truth)
+    summary.extra.update(  # how often the fail-safe fallbacks acted, per vehicle
+        planner_holds={n: sum(r.command is None and not r.arrived for r in ticks[n]) for n in names},
+        planner_escapes={n: sum(r.escape_reason is not None for r in ticks[n]) for n in names})
     return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started)
 
 

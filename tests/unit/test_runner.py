@@ -150,6 +150,7 @@ def test_cli_simulate_writes_summary_and_plot(tmp_path, capsys):
     assert code == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["success"] is True and summary["vehicles"]["a"]["arrived"] is True
+    assert summary["planner_holds"] == {"a": 0, "b": 0}
     assert (tmp_path / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     out = capsys.readouterr().out
     assert "SUCCESS" in out and "ratio" in out
