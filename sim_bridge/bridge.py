@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import logging
+import math
 import time
 from collections import Counter, OrderedDict
 from dataclasses import dataclass, field
@@ -66,6 +67,9 @@ class SimOptions:
     api_profile: StreamProfile = API_PROFILE
     gcs_profile: StreamProfile = GCS_PROFILE
     min_tick_wall_s: float = 0.004  # the loop wakes at most this often and runs the steps due
+    # Behind by more than this (the process was not scheduled), sim time slips instead of
+    # jumping: a jump would run the offboard-loss clock over setpoints still queued in the socket.
+    max_catchup_sim_s: float = 0.4
 
     def api_port(self, index: int) -> int:
         """The port vehicle ``index`` sends its API link to."""
@@ -197,7 +201,8 @@ class SimBridge:
             raise SimBridgeError(f"cannot open UDP sockets on {bind}: {exc}") from None
         if o.tlog_dir is not None:
             self._tlog = TlogWriter.create(Path(o.tlog_dir), self.mission.name)
-        self._clock = SimClock(o.speedup, o.physics_dt_s, loop.time())
+        self._clock = SimClock(o.speedup, o.physics_dt_s, loop.time(),
+                               max_lag_steps=max(1, math.ceil(o.max_catchup_sim_s / o.physics_dt_s)))
         self._cpu_start = time.process_time()
         self._wall_start = loop.time()
         self._running = True
@@ -369,6 +374,11 @@ class SimBridge:
         return self._clock.achieved_speedup(asyncio.get_running_loop().time())
 
     @property
+    def slipped_s(self) -> float:
+        """Sim seconds given up because the stub fell behind the wall clock (see max_catchup_sim_s)."""
+        return self._clock.slipped_s if self._clock is not None else 0.0
+
+    @property
     def cpu_fraction(self) -> float:
         """Process CPU time over wall time since start (all vehicles together)."""
         if not self._running:
@@ -428,6 +438,7 @@ class SimBridge:
                 for direction, f in (("out", link.faults_out), ("in", link.faults_in)):
                     if f is not None:
                         out[f"{v.name}/{link.name}/{direction}/dropped"] = f.dropped
+                        out[f"{v.name}/{link.name}/{direction}/passed"] = f.passed
         return out
 
     async def wait_for(self, predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.01) -> bool:

@@ -29,6 +29,28 @@ def free_udp_ports(n: int) -> tuple[int, ...]:
             s.close()
 
 
+def free_udp_port_block(n: int, attempts: int = 200) -> int:
+    """A base port with ``n`` consecutive free UDP ports (for ``--api-port-base``)."""
+    import random
+
+    rng = random.Random()
+    for _ in range(attempts):
+        base = rng.randint(20000, 60000 - n)
+        socks = []
+        try:
+            for port in range(base, base + n):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(s)
+                s.bind(("0.0.0.0", port))
+            return base
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise OSError(f"no block of {n} free UDP ports found")
+
+
 def sim_connection_url(sim: SimBridge, index: int) -> str:
     """The MAVSDK connection URL on which vehicle ``index`` of a running stub talks."""
     return f"udpin://0.0.0.0:{sim.options.api_port(index)}"
@@ -68,3 +90,43 @@ class GcsCodec:
         """A COMMAND_LONG; missing params are 0."""
         p = list(params) + [0.0] * (7 - len(params))
         return self.wire(self.enc.command_long_encode(target, component, command, 0, *p))
+
+
+_INT_RANGES = {
+    "uint8_t": (0, 2**8 - 1), "int8_t": (-(2**7), 2**7 - 1), "uint16_t": (0, 2**16 - 1),
+    "int16_t": (-(2**15), 2**15 - 1), "uint32_t": (0, 2**32 - 1), "int32_t": (-(2**31), 2**31 - 1),
+    "uint64_t": (0, 2**64 - 1), "int64_t": (-(2**63), 2**63 - 1),
+}
+_NASTY_FLOATS = (float("nan"), float("inf"), float("-inf"), 0.0, -0.0, 1e38, -1e38, 1e-45)
+
+
+def random_message(rng, *, target_system: int | None = None, message_ids=None):
+    """A well-formed message of a random common-dialect type with random (often hostile) fields.
+
+    Floats are often NaN or infinite, integers span their whole range, targets are usually
+    0, 1 or 2 (so that many messages reach a vehicle) unless ``target_system`` fixes them.
+    """
+    from pymavlink.dialects.v20 import common as mavlink
+
+    ids = sorted(mavlink.mavlink_map) if message_ids is None else list(message_ids)
+    cls = mavlink.mavlink_map[rng.choice(ids)]
+    values = []
+    for name, ftype in zip(cls.fieldnames, cls.fieldtypes):
+        length = cls.array_lengths[cls.ordered_fieldnames.index(name)]
+        if ftype == "char":
+            n = rng.randint(0, max(1, length))
+            values.append(bytes(rng.randint(32, 126) for _ in range(n)))
+            continue
+
+        def one() -> float | int:
+            if ftype in ("float", "double"):
+                return rng.choice(_NASTY_FLOATS) if rng.random() < 0.3 else rng.uniform(-1e4, 1e4)
+            lo, hi = _INT_RANGES[ftype]
+            if name == "target_system":
+                return target_system if target_system is not None else rng.choice((0, 1, 2, rng.randint(lo, hi)))
+            if name == "target_component":
+                return rng.choice((0, 1, rng.randint(lo, hi)))
+            return rng.choice((lo, hi, 0, 1, rng.randint(lo, hi), rng.randint(0, min(hi, 600))))
+
+        values.append([one() for _ in range(length)] if length else one())
+    return cls(*values)
