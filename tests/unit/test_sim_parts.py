@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.mission import parse_mission
@@ -124,3 +126,59 @@ def test_moving_obstacle_is_checked_where_it_is_at_that_time(checker):
     # A hovering vehicle the disc sweeps over within one (long) step is hit, though it is clear
     # of the disc at both ends of the step.
     assert checker.hits(400.0, 800.0, 400.0, 800.0, 25.0, 35.0) == ["mover"]
+
+
+ENVELOPE_YAML = """
+area: {x_min_m: 0, y_min_m: 0, x_max_m: 1000, y_max_m: 1000}
+stations: {A: [0, 0], B: [1000, 1000]}
+obstacles:
+  - {id: still, shape: triangle, center: [500, 500], circumradius_m: 60, rotation_deg: 17}
+  - id: shuttle
+    shape: rectangle
+    center: [200, 300]
+    width_m: 40
+    height_m: 80
+    rotation_deg: 30
+    motion: {type: shuttle, to: [700, 450], speed_m_s: 7}
+  - id: orbit
+    shape: circle
+    center: [600, 800]
+    radius_m: 35
+    motion: {type: orbit, pivot: [500, 750], speed_m_s: 6, clockwise: true}
+  - id: patrol
+    shape: polygon
+    vertices: [[820, 150], [880, 170], [860, 230], [800, 210]]
+    motion: {type: patrol, waypoints: [[900, 500], [700, 600]], speed_m_s: 5}
+vehicles:
+  - {name: a, start: A, goal: B}
+"""
+
+
+@settings(max_examples=300, deadline=None)
+@given(x0=st.floats(-100, 1100), y0=st.floats(-100, 1100), dx=st.floats(-30, 30), dy=st.floats(-30, 30),
+       t=st.floats(0, 2000), dt=st.floats(0.001, 2.0))
+def test_fast_collision_check_agrees_with_the_plain_geometry(x0, y0, dx, dy, t, dt):
+    """The envelope shortcut and the offset cache never change an answer."""
+    from shapely.geometry import LineString, Point
+
+    world = _envelope_world()
+    fast = CollisionChecker(world)
+    fast.hits(x0, y0, x0, y0, t - dt, t)  # warm the offset cache at t, as the previous step would
+    got = fast.hits(x0, y0, x0 + dx, y0 + dy, t, t + dt)
+    want = []
+    for o in world.obstacles:
+        a, b = o.offset_at(t), o.offset_at(t + dt)
+        p0, p1 = (x0 - a[0], y0 - a[1]), (x0 + dx - b[0], y0 + dy - b[1])
+        geom = Point(p0) if p0 == p1 else LineString([p0, p1])
+        if o.footprint.intersects(geom):
+            want.append(o.id)
+    assert got == want
+
+
+_WORLD_CACHE: list = []
+
+
+def _envelope_world():
+    if not _WORLD_CACHE:
+        _WORLD_CACHE.append(parse_mission(ENVELOPE_YAML, "envelope.yaml").world)
+    return _WORLD_CACHE[0]
