@@ -126,7 +126,7 @@ class DwaConfig:
     obstacle is in reach, yet says nothing useful: A* puts every node where the route turns right
     on the inflated edge, and the inflation margin already is the keep-out distance. Saturated,
     D only says "do not skim the edge" and is indifferent beyond. Default 10 m (one grid cell,
-    two steps of travel). On the reference mission UAV a needs 477.5 / 478.0 / 479.5 / 481.0 s
+    two steps of travel). On the reference mission UAV a needs 477.1 / 477.8 / 479.1 / 480.7 s
     with 0 / 10 / 30 / 60 m: the larger it is, the further the vehicle keeps off its route.
     ``min_separation_m``: the planning separation from the other UAV (see from_settings).
     ``turnaround_deg``: see :func:`_commit_turn`; 180 disables the rule.
