@@ -8,7 +8,8 @@ a PX4 yawspeed converted by :mod:`companion.frames`), and the same scoring as ev
 
 The loop ticks at the planner's dt. All vehicles decide from the state at t, then all step.
 A vehicle inside its arrival radius has arrived: it is frozen there and its track ends. A
-vehicle whose planner finds no legal rollout hovers that tick. The run stops at the first
+vehicle whose planner finds no legal rollout hovers that tick, or flies the escape the planner
+offers. The run stops at the first
 collision (checked along each step's segment against the true footprints, moving ones where
 they really are), separation or geofence violation, when everyone has arrived, or at the time
 limit.
@@ -22,15 +23,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.frames import enu_heading_to_ned_yaw, enu_yaw_rate_to_ned, ned_yaw_to_enu_heading
+from companion.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to_ned, ned_to_enu, ned_yaw_to_enu_heading
 from companion.mission import Mission
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.fusion import ObstacleField, TickResult, VehiclePlanner, variant_needs_route
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
-from sim_bridge.kinematics import HOVER, KinematicState, VehicleLimits, VelocityCommand, VelocityFrame, step
-
 from companion.planning.routes import Route, plan_routes
+from sim_bridge.kinematics import HOVER, KinematicState, VehicleLimits, VelocityCommand, VelocityFrame, step
 
 
 @dataclass(frozen=True)
@@ -64,12 +64,18 @@ def body_command(yaw_rate_enu_rad_s: float, speed_m_s: float) -> VelocityCommand
                            enu_yaw_rate_to_ned(yaw_rate_enu_rad_s))
 
 
+def _xy(s: KinematicState) -> tuple[float, float]:
+    x, y, _ = ned_to_enu(s.north_m, s.east_m)
+    return x, y
+
+
 def _pose(s: KinematicState) -> Pose:
-    return Pose(s.east_m, s.north_m, ned_yaw_to_enu_heading(s.yaw_rad))
+    return Pose(*_xy(s), ned_yaw_to_enu_heading(s.yaw_rad))
 
 
 def _other(s: KinematicState) -> OtherUav:
-    return OtherUav(s.east_m, s.north_m, s.ve_m_s, s.vn_m_s)
+    vx, vy, _ = ned_to_enu(s.vn_m_s, s.ve_m_s)
+    return OtherUav(*_xy(s), vx, vy)
 
 
 def simulate(mission: Mission, variant: str | None = None, *,
@@ -92,9 +98,9 @@ def simulate(mission: Mission, variant: str | None = None, *,
     for v in vehicles:
         h = v.initial_heading_rad
         # Already at cruise speed on the initial heading: the paper's UAVs depart at constant v.
-        states[v.name] = KinematicState(north_m=v.start_enu_m[1], east_m=v.start_enu_m[0],
-                                        down_m=-v.cruise_alt_m, vn_m_s=v.speed_m_s * math.sin(h),
-                                        ve_m_s=v.speed_m_s * math.cos(h),
+        north, east, down = enu_to_ned(v.start_enu_m[0], v.start_enu_m[1], v.cruise_alt_m)
+        vn, ve, _ = enu_to_ned(v.speed_m_s * math.cos(h), v.speed_m_s * math.sin(h))
+        states[v.name] = KinematicState(north_m=north, east_m=east, down_m=down, vn_m_s=vn, ve_m_s=ve,
                                         yaw_rad=enu_heading_to_ned_yaw(h))
     field = ObstacleField.from_world(mission.world)
     truth = TruthGeometry(mission.world)
@@ -102,7 +108,7 @@ def simulate(mission: Mission, variant: str | None = None, *,
     n_ticks = int(math.floor(mission.safety.time_limit_s / dt + 1e-9))
     names = [v.name for v in vehicles]
     # rows[i] = every vehicle's (x, y) at t = i * dt; an arrived vehicle repeats its last row.
-    rows = [[(states[n].east_m, states[n].north_m) for n in names]]
+    rows = [[_xy(states[n]) for n in names]]
     last_row = {n: None for n in names}  # the row of arrival
     ticks: dict[str, list[TickResult]] = {n: [] for n in names}
     active = list(names)
@@ -129,7 +135,7 @@ def simulate(mission: Mission, variant: str | None = None, *,
             break
         for name, command in commands.items():
             states[name] = step(states[name], command, limits[name], dt)
-        rows.append([(states[n].east_m, states[n].north_m) for n in names])
+        rows.append([_xy(states[n]) for n in names])
         if len(rows) - 1 - checked >= _CHECK_EVERY_TICKS:
             bad = _first_violation(mission, truth, rows, checked, dt)
             if bad is not None:
