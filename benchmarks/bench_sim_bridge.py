@@ -17,7 +17,6 @@ import contextlib
 import json
 import socket
 import statistics
-import subprocess
 import sys
 import time
 

@@ -286,12 +286,14 @@ class SimBridge:
             msgs = parser.parse_buffer(data) or []
         except Exception:  # noqa: BLE001 - pymavlink raises on some malformed frames
             self.stats["garbage"] += 1
+            log.debug("sim_bridge: undecodable datagram from %s on %s", addr, ep.socket_name, exc_info=True)
             parser.buf = bytearray()  # resynchronise on the next datagram
             parser.buf_index = 0
             return
         for msg in msgs:
             if msg.get_type() == "BAD_DATA":
                 self.stats["garbage"] += 1
+                log.debug("sim_bridge: garbage from %s on %s: %s", addr, ep.socket_name, getattr(msg, "reason", ""))
                 continue
             self.stats["rx_messages"] += 1
             if self._tlog is not None and ep.socket_name == GCS_LINK:

@@ -426,12 +426,8 @@ class SimVehicle:
             rel = alt if cmd.frame in RELATIVE_ALT_FRAMES else alt - self._origin.alt_m
         else:
             rel = self._params["MIS_TAKEOFF_ALT"]
-        if not (0.5 <= rel <= self._max_alt_m):
+        if not (0.5 <= rel <= self._max_alt_m) or math.isinf(yaw_deg):  # NaN yaw: keep the heading
             return mavlink.MAV_RESULT_DENIED, []
-        if not (math.isnan(yaw_deg) or math.isfinite(yaw_deg)):
-            return mavlink.MAV_RESULT_DENIED, []
-        if self.mode in (FlightMode.LAND, FlightMode.RTL) and self._in_air:
-            pass  # PX4 lets a takeoff command interrupt a landing
         s = self._state
         return self._enter_mode(FlightMode.TAKEOFF, takeoff_ned=(s.north_m, s.east_m, -rel)), self._mode_emits()
 
