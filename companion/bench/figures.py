@@ -24,6 +24,28 @@ def _color(variant: str, k: int) -> str:
     return VARIANT_COLORS.get(variant, f"C{k}")
 
 
+def _upper_limit(values: Sequence[float]) -> float | None:
+    """A y limit that keeps the bulk readable: the max, unless a few far outliers (beyond 1.6x
+    the 95th percentile) would squash everything; those are then marked at the top instead."""
+    if not values:
+        return None
+    p95 = float(np.percentile(values, 95))
+    top = float(max(values))
+    return top * 1.03 if top <= 1.6 * p95 else 1.3 * p95
+
+
+def _mark_clipped(ax, xs: Sequence[float], ys: Sequence[float], limit: float | None, color: str) -> None:
+    """Label the values above ``limit`` at the top edge, one label per x."""
+    above: dict[float, list[float]] = {}
+    for x, y in zip(xs, ys):
+        if limit is not None and y > limit:
+            above.setdefault(x, []).append(y)
+    for x, ys_above in above.items():
+        text = f"{max(ys_above):.0f} s" if len(ys_above) == 1 else f"{len(ys_above)} up to {max(ys_above):.0f} s"
+        ax.annotate(text, (x, limit), xytext=(0, -12), textcoords="offset points", ha="center",
+                    fontsize=6, color=color, arrowprops={"arrowstyle": "->", "color": color, "lw": 0.6})
+
+
 def _variants(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     return list(dict.fromkeys(r["variant"] for r in rows))
 
@@ -37,10 +59,13 @@ def violin_figure(rows: Sequence[Mapping[str, Any]], *, title: str | None = None
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
     positions, labels = [], []
+    everything = [r[f"{n}_flight_time_s"] for r in rows if r["success"] for n in names]
+    limit = _upper_limit(everything)
     pos = 0.0
     for k, variant in enumerate(variants):
         for j, name in enumerate(names):
             times = [r[f"{name}_flight_time_s"] for r in rows if r["variant"] == variant and r["success"]]
+            _mark_clipped(ax, [pos] * len(times), times, limit, _color(variant, k))
             labels.append(f"{variant}\nUAV {name} (n={len(times)})")
             positions.append(pos)
             if len(times) >= 2:
@@ -55,6 +80,8 @@ def violin_figure(rows: Sequence[Mapping[str, Any]], *, title: str | None = None
             pos += 1.0
         pos += 0.5
     ax.set_xticks(positions, labels, fontsize=7)
+    if limit is not None:
+        ax.set_ylim(top=limit)
     ax.set_ylabel("flight time of successful runs (s)")
     ax.set_title(title or "Flight-time distributions per variant and UAV (cf. paper Fig. 13b)")
     ax.grid(True, axis="y", lw=0.3, alpha=0.6)
@@ -77,6 +104,7 @@ def lines_figure(rows: Sequence[Mapping[str, Any]], *, title: str | None = None)
     indices = sorted({r["index"] for r in rows})
     pos = {i: k for k, i in enumerate(indices)}
     for ax, name in zip(axes, names):
+        limit = _upper_limit([r[f"{name}_flight_time_s"] for r in rows if r["success"]])
         for k, variant in enumerate(variants):
             y = np.full(len(indices), np.nan)
             failed = []
@@ -88,11 +116,14 @@ def lines_figure(rows: Sequence[Mapping[str, Any]], *, title: str | None = None)
                 else:
                     failed.append(r["index"])
             ok = int(np.count_nonzero(~np.isnan(y)))
+            _mark_clipped(ax, indices, list(y), limit, _color(variant, k))
             ax.plot(indices, y, lw=1.0, marker=".", ms=3, color=_color(variant, k),
                     label=f"{variant} ({ok}/{len(indices)} ok, {len(failed)} failed)")
             if failed:  # stacked per variant just above the bottom axis
                 ax.plot(failed, [0.03 + 0.04 * k] * len(failed), ls="none", marker="x", ms=5, color=_color(variant, k),
                         transform=ax.get_xaxis_transform(), clip_on=False)
+        if limit is not None:
+            ax.set_ylim(top=limit)
         ax.set_ylabel(f"UAV {name} flight time (s)")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.grid(True, lw=0.3, alpha=0.6)
