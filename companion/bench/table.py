@@ -157,6 +157,9 @@ def aggregate(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
                                for n in names},
             "common_scenarios": len(common),
             "flight_time_common_s": {n: _stats([r[f"{n}_flight_time_s"] for r in ok_common]) for n in names},
+            "los_blocked_fraction": _stats([r["los_blocked_fraction"] for r in ok
+                                            if r.get("los_blocked_fraction") is not None]),
+            "min_separation_m": _stats([r["min_separation_m"] for r in ok if r.get("min_separation_m") is not None]),
             "planner_ms_per_tick": round(statistics.fmean(ms), 4) if ms else None,
             "wall_s": round(sum(r["wall_s"] for r in mine), 3),
         }
