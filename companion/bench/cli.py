@@ -99,7 +99,7 @@ def main(args: argparse.Namespace) -> int:
 
 def _bench(args: argparse.Namespace) -> int:
     from companion.bench import execute, figures
-    from companion.bench.table import aggregate, format_table, write_runs_csv
+    from companion.bench.table import aggregate, format_table, markdown_table, write_runs_csv
     from companion.scenarios import config_dict
 
     config = _scenario_config(args.scenario_config)
@@ -118,6 +118,7 @@ def _bench(args: argparse.Namespace) -> int:
     summary = aggregate(rows)
     write_runs_csv(rows, out / "runs.csv")
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    (out / "table.md").write_text(markdown_table(summary) + "\n", encoding="utf-8")
     command = (f"companion bench --scenarios {args.scenarios} --seed {args.seed} "
                f"--variants {','.join(args.variants)} --workers {workers} --out {out}")
     meta = {"command": command,

@@ -190,3 +190,37 @@ def format_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
         reasons = ", ".join(f"{k} {v}" for k, v in s["reasons"].items()) or "none"
         lines.append(f"failures {variant}: {reasons}")
     return "\n".join(lines)
+
+
+# The paper's Table IV (successes / runs) and the mean flight times it quotes (section VI.C).
+PAPER_TABLE_IV: dict[str, dict[str, Any]] = {
+    "astar-bdwa": {"successes": 106, "runs": 120, "t_a_s": 570.0, "t_b_s": 662.0},
+    "astar-bdwa-nosparse": {"successes": 78, "runs": 120, "t_a_s": None, "t_b_s": None},
+    "bdwa": {"successes": 52, "runs": 120, "t_a_s": 871.0, "t_b_s": 938.0},
+}
+
+
+def markdown_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
+    """Our Table IV beside the paper's, as Markdown (written to table.md by the bench)."""
+    names = list(next(iter(summary.values()))["flight_time_s"])[:2] if summary else []
+
+    def ft(s: Mapping[str, Any], n: str) -> str:
+        st = s["flight_time_s"][n]
+        ratio = s["ratio_to_bound"][n]["mean"]
+        if st["mean"] is None:
+            return "-"
+        return f"{st['mean']:.0f} / {st['median']:.0f} ({ratio:.2f})" if ratio is not None else f"{st['mean']:.0f}"
+
+    head = ["variant", "paper success", "our success", "strict", "collisions", "failures"]
+    head += [f"{n}: mean / median s (x bound)" for n in names] + ["paper mean a / b s"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for variant, s in summary.items():
+        paper = PAPER_TABLE_IV.get(variant)
+        p_ok = "-" if paper is None else f"{paper['successes']}/{paper['runs']} ({100 * paper['successes'] / paper['runs']:.1f} %)"
+        p_t = "-" if paper is None or paper["t_a_s"] is None else f"{paper['t_a_s']:.0f} / {paper['t_b_s']:.0f}"
+        fails = ", ".join(f"{k} {v}" for k, v in s["reasons"].items()) or "none"
+        cells = [f"`{variant}`", p_ok, f"**{s['successes']}/{s['runs']} ({100 * s['success_rate']:.1f} %)**",
+                 f"{s['strict_successes']}/{s['runs']} ({100 * s['strict_rate']:.1f} %)", str(s["collisions"]), fails]
+        cells += [ft(s, n) for n in names] + [p_t]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)

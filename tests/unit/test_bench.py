@@ -57,7 +57,7 @@ def test_summary_json_is_the_aggregate_of_runs_csv(small_bench):
 
 def test_bench_writes_every_artefact(small_bench):
     out, _ = small_bench
-    for name in ("runs.csv", "summary.json", "meta.json", "violin.png", "lines.png",
+    for name in ("runs.csv", "summary.json", "table.md", "meta.json", "violin.png", "lines.png",
                  "trajectory_example.png", "failures/index.md"):
         assert (out / name).stat().st_size > 0, name
     meta = json.loads((out / "meta.json").read_text())
