@@ -180,6 +180,10 @@ def run_bench(seed: int, count: int, variants: Sequence[str], *, workers: int | 
     return sorted(rows, key=lambda r: (r["index"], order[r["variant"]]))
 
 
+def _dash(value: Any) -> str:
+    return "-" if value is None else str(value)
+
+
 def write_failure_index(rows: Sequence[dict[str, Any]], out_dir: Path) -> Path:
     """failures/index.md: one line per failed run, linking its replayable scenario."""
     gallery = out_dir / "failures"
@@ -189,7 +193,7 @@ def write_failure_index(rows: Sequence[dict[str, Any]], out_dir: Path) -> Path:
              f"{len(failed)} of {len(rows)} runs failed. Replay one with "
              "`companion simulate failures/<run>/scenario.yaml`.", "",
              "| run | seed | index | variant | reason | who | obstacle hit | at (s) | min clearance (m) "
-             "| min separation (m) | hold ticks |",
+             "| min separation (m) | hold / escape ticks |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     names = sorted({k[:-len("_min_obstacle_clearance_m")] for r in rows for k in r
                     if k.endswith("_min_obstacle_clearance_m")})
@@ -208,7 +212,7 @@ def write_failure_index(rows: Sequence[dict[str, Any]], out_dir: Path) -> Path:
                      f"{r.get('failed_vehicles') or '-'} | {hit} | "
                      f"{'-' if fail_t is None else f'{fail_t:.1f}'} | "
                      f"{'-' if not clear else f'{min(clear):.1f}'} | {'-' if sep is None else f'{sep:.1f}'} | "
-                     f"{r.get('hold_ticks') if r.get('hold_ticks') is not None else '-'} |")
+                     f"{_dash(r.get('hold_ticks'))} / {_dash(r.get('escape_ticks'))} |")
     path = gallery / "index.md"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

@@ -21,7 +21,7 @@ RUN_COLUMNS: tuple[tuple[str, type], ...] = (
     ("success", bool), ("success_strict", bool), ("reason", str), ("failure_t_s", float),
     ("duration_s", float), ("min_separation_m", float), ("los_blocked_fraction", float),
     ("crossing_occluded", bool), ("planner_ms_per_tick", float), ("wall_s", float), ("error", str),
-    ("hold_ticks", int), ("failed_vehicles", str), ("hit_obstacle", str), ("hit_moving", bool),
+    ("hold_ticks", int), ("escape_ticks", int), ("failed_vehicles", str), ("hit_obstacle", str), ("hit_moving", bool),
     ("hit_from_behind", bool),
 )
 VEHICLE_COLUMNS: tuple[tuple[str, type], ...] = (
@@ -43,6 +43,8 @@ def run_row(seed: int, index: int, scenario: str, variant: str, summary: Mapping
     for key, _ in RUN_COLUMNS:
         if key in summary:
             row[key] = summary[key]
+    if isinstance(summary.get("planner_escapes"), Mapping):  # ticks flown on the escape fallback
+        row["escape_ticks"] = int(sum(summary["planner_escapes"].values()))
     for name, metrics in summary.get("vehicles", {}).items():
         for key, _ in VEHICLE_COLUMNS:
             row[f"{name}_{key}"] = metrics.get(key)
@@ -151,6 +153,7 @@ def aggregate(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
             "unsafe": sum(1 for r in mine if r["reason"] in UNSAFE_REASONS),
             "collisions_moving": sum(1 for r in mine if r["reason"] == "collision" and r.get("hit_moving")),
             "runs_with_holds": sum(1 for r in mine if (r.get("hold_ticks") or 0) > 0),
+            "runs_with_escapes": sum(1 for r in mine if (r.get("escape_ticks") or 0) > 0),
             "reasons": dict(sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0]))),
             "flight_time_s": {n: _stats([r[f"{n}_flight_time_s"] for r in ok]) for n in names},
             "ratio_to_bound": {n: _stats([r[f"{n}_ratio"] for r in ok if r.get(f"{n}_ratio") is not None])
