@@ -60,7 +60,7 @@ class PilotOutcome:
     """What happened to one vehicle (mutable while it flies; read when it is done)."""
 
     name: str
-    phase: str = "connected"  # connected, uploaded, armed, takeoff, airborne, offboard, arrived, landed, held, ...
+    phase: str = "connected"  # connected, uploaded, arming, armed, takeoff, airborne, offboard, arrived, landed, held, ...
     t_depart_sim_s: float | None = None
     arrival_t_mission_s: float | None = None
     landed: bool = False
@@ -174,6 +174,7 @@ class Pilot:
         return self.spec.cruise_alt_m / 0.5 + 30.0  # PX4 climbs at >= 0.5 m/s (MPC_TKO_SPEED)
 
     async def _take_off(self) -> None:
+        self.outcome.phase = "arming"  # from here on the vehicle may be armed, even if we are cancelled
         await self._retry("arm", self.vehicle.arm)
         self.outcome.phase = "armed"
         # Nobody leaves the ground unless everybody could arm: a refusal then only disarms.
@@ -358,7 +359,7 @@ class Pilot:
                     await self.vehicle.hold()
                     self.outcome.phase = "held"
                     self.ctx.report(f"{self.name}: holding position (offboard stopped)")
-                elif phase == "armed":
+                elif phase in ("arming", "armed"):  # disarming a disarmed vehicle is a no-op
                     await self.vehicle.disarm()
                     self.outcome.phase = "disarmed"
         except (TimeoutError, CompanionError) as exc:
