@@ -100,6 +100,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--progress-every", type=_positive, default=20.0, metavar="S",
                    help="a progress line per vehicle every S sim seconds (default 20)")
     p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
+    p.add_argument("--shared-clock", action="store_true",
+                   help="with --connect: every vehicle stamps telemetry with one sim clock, the one that moves the "
+                        "mission's obstacles (an external sim-bridge); tracks and scoring then use it, as with the "
+                        "embedded stub")
     p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S", help="wall seconds (default 15)")
     p.set_defaults(func=cmd_run)
 
@@ -293,7 +297,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except OSError as exc:
         return _bad(BadInput(f"--out {out}: cannot create the directory ({exc.strerror})"))
     _quiet_mavsdk(out)
-    settings = RunSettings(shared_clock=conns is None, connect_timeout_s=args.connect_timeout,
+    settings = RunSettings(shared_clock=conns is None or args.shared_clock, connect_timeout_s=args.connect_timeout,
                            progress_every_s=args.progress_every, land=not args.no_land)
     stub = None
     if conns is None:
