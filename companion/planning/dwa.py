@@ -83,10 +83,13 @@ class Command:
 @dataclass(frozen=True, slots=True)
 class NoLegalRollout:
     """Every sampled rollout breaks a rule within the horizon. The vehicle holds (hovers) this
-    tick, unless ``escape`` is given: a rollout that stays legal longer than hovering would."""
+    tick, unless ``recovery`` is given (yaw in place toward a heading from which a rollout is
+    legal: a Command with speed 0) or ``escape`` (a rollout that stays clear longer than
+    hovering would, when the hover point is not safe). At most one of the two is set."""
 
     reason: str
     escape: Command | None = None
+    recovery: Command | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -146,12 +149,20 @@ class DwaConfig:
     min_separation_m: float = 0.0
     turnaround_deg: float = 90.0
     fence_m: tuple[float, float, float, float] | None = None  # keep-in box (x0, y0, x1, y1)
+    recovery_samples: int = 11  # yaw-rate samples per heading in the spin recovery; 0 disables it
 
     yaw_rates_rad_s: np.ndarray = field(init=False, repr=False)  # (S,)
     times_s: np.ndarray = field(init=False, repr=False)  # (K + 1,) 0, dt, ..., p
     body_xy_m: np.ndarray = field(init=False, repr=False)  # (S, K + 1, 2) from the origin, heading +x
     final_dheading_rad: np.ndarray = field(init=False, repr=False)  # (S,) heading change at p
     point_times_s: np.ndarray = field(init=False, repr=False)  # (S * (K + 1),) times of body_xy_m's points
+    # Spin recovery: rollouts (R = J headings x recovery samples) that start after yawing in place
+    # by rec_turn_rad (J headings one tick of full-rate yaw apart, all round), rec_delay_s later.
+    rec_body_xy_m: np.ndarray = field(init=False, repr=False)  # (R, K + 1, 2)
+    rec_turn_rad: np.ndarray = field(init=False, repr=False)  # (R,)
+    rec_delay_s: np.ndarray = field(init=False, repr=False)  # (R,)
+    rec_final_dheading_rad: np.ndarray = field(init=False, repr=False)  # (R,)
+    rec_point_times_s: np.ndarray = field(init=False, repr=False)  # (R * (K + 1),)
 
     def __post_init__(self) -> None:
         if self.samples < 1 or self.dt_s <= 0 or self.prediction_time_s < self.dt_s or self.speed_m_s <= 0:
@@ -166,8 +177,10 @@ class DwaConfig:
         body = np.zeros((len(w), steps + 1, 2))
         body[:, 1:, 0] = np.cumsum(np.cos(dheading), axis=1) * step_m
         body[:, 1:, 1] = np.cumsum(np.sin(dheading), axis=1) * step_m
+        rec = _recovery_shapes(body, dheading[:, -1], t, self.max_yaw_rate_rad_s, self.dt_s, self.recovery_samples)
         for name, value in (("yaw_rates_rad_s", w), ("times_s", t), ("body_xy_m", body),
-                            ("final_dheading_rad", dheading[:, -1].copy()), ("point_times_s", np.tile(t, len(w)))):
+                            ("final_dheading_rad", dheading[:, -1].copy()), ("point_times_s", np.tile(t, len(w))),
+                            *rec.items()):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
 
@@ -199,9 +212,40 @@ class DwaConfig:
         return int(self.times_s.shape[0]) - 1
 
     @property
+    def spin_time_s(self) -> float:
+        """The longest yaw in place the recovery may ask for (half a turn)."""
+        return float(self.rec_delay_s.max()) if self.rec_delay_s.size else 0.0
+
+    @property
     def reach_m(self) -> float:
         """How far a rollout goes: v * p."""
         return self.speed_m_s * float(self.times_s[-1])
+
+
+def _recovery_shapes(body: np.ndarray, final_dheading: np.ndarray, t: np.ndarray, max_yaw_rate: float,
+                     dt: float, samples: int) -> dict[str, np.ndarray]:
+    """The spin recovery's fixed shapes: a subset of the rollouts (the straight one included),
+    turned by every heading a full-rate yaw reaches in whole ticks, up to half a turn each way
+    (at most 72 headings: a slow-turning vehicle gets coarser steps)."""
+    if samples <= 0 or max_yaw_rate <= 0:
+        return {"rec_body_xy_m": np.zeros((0,) + body.shape[1:]), "rec_turn_rad": np.zeros(0),
+                "rec_delay_s": np.zeros(0), "rec_final_dheading_rad": np.zeros(0), "rec_point_times_s": np.zeros(0)}
+    idx = np.unique(np.round(np.linspace(0, len(body) - 1, min(samples, len(body)))).astype(int))
+    idx = np.union1d(idx, [len(body) // 2])
+    step = max(max_yaw_rate * dt, math.pi / 36)
+    n = math.ceil(math.pi / step - 1e-9)
+    j = np.concatenate([-np.arange(n, 0, -1), np.arange(1, n + 1)])
+    j = j[np.abs(j * step) <= math.pi + 1e-9]
+    turn = j * step
+    delay = np.ceil(np.abs(turn) / (max_yaw_rate * dt) - 1e-9) * dt
+    c, s = np.cos(turn)[:, None, None], np.sin(turn)[:, None, None]
+    bx, by = body[idx, :, 0][None], body[idx, :, 1][None]
+    shapes = np.stack([c * bx - s * by, s * bx + c * by], axis=-1).reshape(-1, body.shape[1], 2)
+    turn_r = np.repeat(turn, len(idx))
+    delay_r = np.repeat(delay, len(idx))
+    return {"rec_body_xy_m": shapes, "rec_turn_rad": turn_r, "rec_delay_s": delay_r,
+            "rec_final_dheading_rad": turn_r + np.tile(final_dheading[idx], len(j)),
+            "rec_point_times_s": (np.tile(t, len(turn_r)).reshape(len(turn_r), -1) + delay_r[:, None]).ravel()}
 
 
 @dataclass(frozen=True, eq=False)
@@ -406,8 +450,7 @@ def _to_segment(px: np.ndarray, py: np.ndarray, x_m: float, y_m: float, to_xy: t
 def rollouts(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
     """All rollouts for ``pose``: points (S, K + 1, 2) at config.times_s (the first is the pose
     itself) and the headings (S,) at the prediction point."""
-    c, s = math.cos(pose.heading_rad), math.sin(pose.heading_rad)
-    pts = config.body_xy_m @ np.array([[c, s], [-s, c]])
+    pts = config.body_xy_m @ _rotation(pose.heading_rad)
     pts += (pose.x_m, pose.y_m)
     return pts, pose.heading_rad + config.final_dheading_rad
 
@@ -600,17 +643,11 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     legal = np.ones(config.samples, dtype=bool) if ok_pts is None else ok_pts[:, 1:].all(axis=1)
     heading = heading_scores(pts, final_heading, goals)
     if not legal.any():
-        return _no_legal_rollout(pose, other, near, config, ok_by_rule, heading, clear if near.count else None)
+        return _no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading,
+                                 clear if near.count else None)
     legal = _commit_turn(pose, goals, legal, config)
 
-    sightline = None
-    if other is not None and config.w_s > 0 and snapshot.count:
-        t_p = float(times[-1])
-        q = (other.x_m + other.vx_m_s * t_p, other.y_m + other.vy_m_s * t_p)
-        # Sight lines run from somewhere within reach of the pose to q: skip obstacles far from both.
-        seen = snapshot.near(pose.x_m, pose.y_m, config.reach_m, t_p, to_xy=q)
-        if seen.count:
-            sightline = np.minimum(config.sightline_cap_m, sightline_scores(pts[:, -1], q, t_p, seen))
+    sightline = _sightline(pose, other, snapshot, config, pts[:, -1])
     critics = np.stack([heading, distance, sightline if sightline is not None else np.zeros_like(heading)])
     total = _weights(config) @ _normalised(critics, legal)
     total[~legal] = -np.inf
@@ -626,45 +663,136 @@ def _command(config: DwaConfig, i: int, heading: np.ndarray, distance: np.ndarra
                    eval_score=total, legal_count=legal_count)
 
 
-def _no_legal_rollout(pose: Pose, other: OtherUav | None, near: ObstacleSnapshot, config: DwaConfig,
-                      ok_by_rule: dict[str, np.ndarray], heading: np.ndarray,
-                      clear: np.ndarray | None) -> NoLegalRollout:
-    """Every rollout breaks a rule within the horizon. Say which rules, and offer an escape.
+def _no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
+                      near: ObstacleSnapshot, config: DwaConfig, ok_by_rule: dict[str, np.ndarray],
+                      heading: np.ndarray, clear: np.ndarray | None) -> NoLegalRollout:
+    """Every rollout at cruise speed breaks a rule within the horizon: recover, hold or escape.
 
-    Hovering is the default, but it is no refuge from a moving obstacle or the other UAV coming
-    this way. So the fallback judges each rollout, and hovering, by how long it stays clear of
-    the TRUE footprints (the inflation margin is the reserve an emergency may use), the
-    separation and the fence, on the same constant-velocity prediction. If some rollout lasts
-    longer than hovering, it is the escape and the vehicle flies it; among the longest-lasting
-    ones, the one heading best toward the goal wins.
+    1. Spin recovery (nav2's spin behaviour; a multicopter can yaw in place): the rollouts that
+       start here after a yaw in place to another heading, under the same rules and critics,
+       with moving obstacles and the other UAV predicted over the yaw time too and the hover
+       point safe while yawing. The best one's heading is the target: yaw toward it, speed 0.
+       Without this a vehicle in a pocket hovers with a fixed heading for ever.
+    2. Hold, if the hover point stays clear of the inflated obstacles (moving ones predicted at
+       constant velocity) and of the other UAV for a full spin plus a horizon.
+    3. The hover point is going to be hit: the recovery judged on the TRUE footprints (the
+       inflation margin is the reserve an emergency may use); else
+    4. the rollout from the current heading that stays clear of the true footprints longest,
+       if it lasts longer than hovering (the escape); else hold.
     """
     blocking = [rule for rule, ok in ok_by_rule.items() if not ok[:, 1:].all(axis=1).any()]
     what = ", ".join(blocking) if blocking else "no rollout satisfies all rules at once"
     reason = f"all {config.samples} rollouts break a rule within {config.prediction_time_s:g} s ({what})"
-    steps, times = config.steps, config.times_s
+    dt, steps = config.dt_s, config.steps
+    hover_steps = steps + round(config.spin_time_s / dt)
+    t_hover = dt * np.arange(hover_steps + 1)
+    field_h = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, float(t_hover[-1]))
+    margins = np.concatenate([field_h.circle_margin_m, field_h.poly_margin_m])[:, None]
+
+    # The hover point over the long horizon, inflated and true; separation is never relaxed.
+    hover_inf = np.ones(hover_steps + 1, dtype=bool)
+    hover_true = hover_inf.copy()
+    if field_h.count:
+        hc = inflated_clearance(np.full(hover_steps + 1, pose.x_m), np.full(hover_steps + 1, pose.y_m), t_hover, field_h)
+        floor_inf = np.minimum(hc[:, 0:1], 0.0)
+        floor_true = np.minimum(hc[:, 0:1] + margins, 0.0)
+        hover_inf &= (hc >= floor_inf - 1e-9).all(axis=0)
+        hover_true &= (hc + margins >= floor_true - 1e-9).all(axis=0)
+    sep_limit = None
+    if other is not None and config.min_separation_m > 0:
+        sep_limit = min(config.min_separation_m, math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m)) - 1e-6
+        d2 = (other.x_m + other.vx_m_s * t_hover - pose.x_m) ** 2 + (other.y_m + other.vy_m_s * t_hover - pose.y_m) ** 2
+        hover_inf &= d2 >= sep_limit ** 2
+        hover_true &= d2 >= sep_limit ** 2
+    hover_inf = np.logical_and.accumulate(hover_inf)  # clear up to step k
+    hover_true = np.logical_and.accumulate(hover_true)
+
+    if config.rec_delay_s.size:
+        pts = config.rec_body_xy_m @ _rotation(pose.heading_rad)
+        pts += (pose.x_m, pose.y_m)
+        px, py = pts[..., 0], pts[..., 1]
+        n_r = len(pts)
+        delay_k = np.rint(config.rec_delay_s / dt).astype(int)
+        ok_inf = hover_inf[delay_k]
+        ok_true = hover_true[delay_k]
+        if field_h.count:
+            rc = inflated_clearance(px.ravel(), py.ravel(), config.rec_point_times_s, field_h)
+            ok_inf = ok_inf & (rc >= floor_inf - 1e-9).all(axis=0).reshape(n_r, -1)[:, 1:].all(axis=1)
+            ok_true = ok_true & (rc + margins >= floor_true - 1e-9).all(axis=0).reshape(n_r, -1)[:, 1:].all(axis=1)
+            distance = np.clip(rc.min(axis=0).reshape(n_r, -1)[:, 1:].min(axis=1), 0.0, config.distance_saturation_m)
+        else:
+            distance = np.full(n_r, config.distance_saturation_m)
+        rules = np.ones(px.shape, dtype=bool)
+        if sep_limit is not None:
+            t = config.rec_point_times_s.reshape(n_r, -1)
+            rules &= (px - other.x_m - other.vx_m_s * t) ** 2 + (py - other.y_m - other.vy_m_s * t) ** 2 >= sep_limit ** 2
+        fence = config.fence_m
+        if fence is not None:
+            here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
+            inside = np.minimum(np.minimum(px - fence[0], fence[2] - px), np.minimum(py - fence[1], fence[3] - py))
+            rules &= inside >= min(here, 0.0) - 1e-9
+        rules = rules[:, 1:].all(axis=1)
+        for legal, how in ((ok_inf & rules, "recovering"), (None, None), (ok_true & rules, "recovering on the margin")):
+            if legal is None:  # between the two recoveries: a hover that stays clear is the better wait
+                if hover_inf[-1]:
+                    return NoLegalRollout(f"{reason}; holding: no heading has a legal rollout")
+                continue
+            if not legal.any():
+                continue
+            scores = heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals)
+            sight = _sightline(pose, other, snapshot, config, pts[:, -1])
+            critics = np.stack([scores, distance, sight if sight is not None else np.zeros_like(scores)])
+            total = _weights(config) @ _normalised(critics, legal)
+            total[~legal] = -np.inf
+            i = int(np.argmax(total))
+            turn = float(config.rec_turn_rad[i])
+            yaw_rate = max(-config.max_yaw_rate_rad_s, min(config.max_yaw_rate_rad_s, turn / dt))
+            command = Command(yaw_rate_rad_s=yaw_rate, speed_m_s=0.0, heading_score=float(scores[i]),
+                              distance_score=float(distance[i]),
+                              sightline_score=0.0 if sight is None else float(sight[i]),
+                              eval_score=float(total[i]), legal_count=int(np.count_nonzero(legal)))
+            return NoLegalRollout(f"{reason}; {how}: yaw {math.degrees(turn):+.0f} deg in place", recovery=command)
+    elif hover_inf[-1]:
+        return NoLegalRollout(reason)
+
+    # Hovering will be hit and no heading helps: fly what stays clear of the true footprints longest.
     ok_pts = np.ones((config.samples, steps + 1), dtype=bool)
-    hold_ok = np.ones(steps + 1, dtype=bool)
     for rule, ok in ok_by_rule.items():
         if rule != "obstacle":
             ok_pts &= ok
     if clear is not None:
-        margins = np.concatenate([near.circle_margin_m, near.poly_margin_m])[:, None]
-        true_clear = clear + margins
+        true_clear = clear + np.concatenate([near.circle_margin_m, near.poly_margin_m])[:, None]
         ok_pts &= (true_clear >= np.minimum(true_clear[:, 0:1], 0.0) - 1e-9).all(axis=0).reshape(ok_pts.shape)
-        hold = inflated_clearance(np.full(steps + 1, pose.x_m), np.full(steps + 1, pose.y_m), times, near) + margins
-        hold_ok &= (hold >= np.minimum(hold[:, 0:1], 0.0) - 1e-9).all(axis=0)
-    if "separation" in ok_by_rule and other is not None:
-        d2 = (other.x_m + other.vx_m_s * times - pose.x_m) ** 2 + (other.y_m + other.vy_m_s * times - pose.y_m) ** 2
-        hold_ok &= d2 >= (min(config.min_separation_m, math.sqrt(d2[0])) - 1e-6) ** 2
-    lasts = np.where(ok_pts[:, 1:].all(axis=1), steps, np.argmin(ok_pts[:, 1:], axis=1))  # legal steps flown
-    hold_lasts = steps if hold_ok[1:].all() else int(np.argmin(hold_ok[1:]))
+    # legal steps flown; a rollout clear for the whole horizon outlasts any hover
+    lasts = np.where(ok_pts[:, 1:].all(axis=1), hover_steps + 1, np.argmin(ok_pts[:, 1:], axis=1))
+    hold_lasts = hover_steps if hover_true[-1] else int(np.argmin(hover_true[1:]))
     best_last = int(lasts.max())
     if best_last <= hold_lasts:
-        return NoLegalRollout(reason)
+        return NoLegalRollout(f"{reason}; holding: nothing lasts longer than hovering ({hold_lasts * dt:g} s)")
     i = int(np.argmax(np.where(lasts == best_last, heading, -np.inf)))
     escape = _command(config, i, heading, np.zeros(config.samples), None, 0.0, 0)
-    return NoLegalRollout(f"{reason}; escaping: clear for {best_last * config.dt_s:g} s, "
-                          f"hovering for {hold_lasts * config.dt_s:g} s", escape)
+    clear_for = "the horizon" if best_last > hover_steps else f"{min(best_last, steps) * dt:g} s"
+    return NoLegalRollout(f"{reason}; escaping: clear for {clear_for}, hovering for {hold_lasts * dt:g} s", escape)
+
+
+def _rotation(heading_rad: float) -> np.ndarray:
+    """Right-multiplying (N, 2) body points by this turns them to ``heading_rad``."""
+    c, s = math.cos(heading_rad), math.sin(heading_rad)
+    return np.array([[c, s], [-s, c]])
+
+
+def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig,
+               ends: np.ndarray) -> np.ndarray | None:
+    """S (capped) for prediction points ``ends``, or None when the term is off."""
+    if other is None or config.w_s <= 0 or not snapshot.count:
+        return None
+    t_p = float(config.times_s[-1])
+    q = (other.x_m + other.vx_m_s * t_p, other.y_m + other.vy_m_s * t_p)
+    # Sight lines run from somewhere within reach of the pose to q: skip obstacles far from both.
+    seen = snapshot.near(pose.x_m, pose.y_m, config.reach_m, t_p, to_xy=q)
+    if not seen.count:
+        return None
+    return np.minimum(config.sightline_cap_m, sightline_scores(ends, q, t_p, seen))
 
 
 def _commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaConfig) -> np.ndarray:

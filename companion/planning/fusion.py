@@ -184,7 +184,8 @@ class LocalGoalTracker:
 
 @dataclass(frozen=True, slots=True)
 class TickResult:
-    """What one vehicle does this tick. ``command`` is None when it must hold (zero speed)."""
+    """What one vehicle does this tick. ``command`` is None when it must hold (zero speed); a
+    recovery command has speed 0 and a yaw rate (yaw in place: BODY velocity 0 + yawspeed)."""
 
     t_s: float
     command: Command | None
@@ -194,6 +195,7 @@ class TickResult:
     planner_ms: float
     hold_reason: str | None = None  # why command is None
     escape_reason: str | None = None  # no rollout was legal for the whole horizon: flying the longest-lasting
+    recovery_reason: str | None = None  # no rollout legal from this heading: yawing in place (speed 0) to one
 
     @property
     def yaw_rate_rad_s(self) -> float:
@@ -260,6 +262,9 @@ class VehiclePlanner:
         decision = plan_step(own, goals, other, snapshot, self.config)
         ms = (time.perf_counter() - started) * 1e3
         if isinstance(decision, NoLegalRollout):
+            if decision.recovery is not None:
+                return TickResult(t_s, decision.recovery, goal, self.tracker.index, False, ms,
+                                  recovery_reason=decision.reason)
             if decision.escape is not None:
                 return TickResult(t_s, decision.escape, goal, self.tracker.index, False, ms, None, decision.reason)
             return TickResult(t_s, None, goal, self.tracker.index, False, ms, decision.reason)

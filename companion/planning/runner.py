@@ -8,8 +8,9 @@ a PX4 yawspeed converted by :mod:`companion.frames`), and the same scoring as ev
 
 The loop ticks at the planner's dt. All vehicles decide from the state at t, then all step.
 A vehicle inside its arrival radius has arrived: it is frozen there and its track ends. A
-vehicle whose planner finds no legal rollout hovers that tick, or flies the escape the planner
-offers. The run stops at the first
+vehicle whose planner finds no legal rollout yaws in place toward a heading that has one (BODY
+velocity 0 + yawspeed: the plant brakes within its acceleration limit while it yaws), hovers that
+tick, or flies the escape the planner offers. The run stops at the first
 collision (checked along each step's segment against the true footprints, moving ones where
 they really are), separation or geofence violation, when everyone has arrived, or at the time
 limit.
@@ -121,9 +122,10 @@ def simulate(mission: Mission, variant: str | None = None, *,
         commands = {}
         for name in list(active):
             own = states[name]
-            nearest = min((states[n] for n in names if n != name), default=None,
-                          key=lambda s: (s.east_m - own.east_m) ** 2 + (s.north_m - own.north_m) ** 2)
-            result = planners[name].tick(_pose(own), None if nearest is None else _other(nearest), snapshot, t)
+            nearest = min((n for n in names if n != name), default=None,
+                          key=lambda n: (states[n].east_m - own.east_m) ** 2 + (states[n].north_m - own.north_m) ** 2)
+            other = None if nearest is None else _other(states[nearest])
+            result = planners[name].tick(_pose(own), other, snapshot, t)
             ticks[name].append(result)
             if result.arrived:
                 active.remove(name)
@@ -157,7 +159,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
     summary = summarize(mission, tracks, routes=routes, planner_ms=planner_ms, geometry=truth)
     summary.extra.update(  # how often the fail-safe fallbacks acted, per vehicle
         planner_holds={n: sum(r.command is None and not r.arrived for r in ticks[n]) for n in names},
-        planner_escapes={n: sum(r.escape_reason is not None for r in ticks[n]) for n in names})
+        planner_escapes={n: sum(r.escape_reason is not None for r in ticks[n]) for n in names},
+        planner_recoveries={n: sum(r.recovery_reason is not None for r in ticks[n]) for n in names})
     return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started)
 
 

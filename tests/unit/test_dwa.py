@@ -376,3 +376,52 @@ def test_merged_snapshot_equals_a_freshly_built_one():
         if f.name != "_subsets":
             a, b = getattr(merged, f.name), getattr(fresh, f.name)
             assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b, f.name
+
+
+# --- when no rollout is legal: spin recovery, hold, escape -----------------------------------------
+
+def test_boxed_in_by_a_static_wall_yaws_in_place_toward_a_free_heading_then_flies():
+    # The disk ahead blocks every cruise rollout. A multicopter turns round on the spot (speed 0,
+    # full yaw rate, the plant's own model) until a heading has a legal rollout, then flies it.
+    wall = make_obstacle("wall", "circle", center=(60.0, 0.0), radius_m=40.0)
+    snap, cfg = snapshot(wall), config()
+    pose = Pose(0.0, 0.0, 0.0)
+    state = KinematicState(north_m=0.0, east_m=0.0, down_m=-50.0, yaw_rad=enu_heading_to_ned_yaw(0.0))
+    limits = VehicleLimits(max_speed_m_s=V, max_yaw_rate_rad_s=V / R, max_accel_m_s2=8.0)
+    spins = 0
+    for _ in range(40):
+        result = plan_step(pose, (-1000.0, 300.0), None, snap, cfg)
+        if isinstance(result, Command):
+            break
+        assert isinstance(result, NoLegalRollout) and result.recovery is not None and result.escape is None
+        assert result.recovery.speed_m_s == 0.0 and abs(result.recovery.yaw_rate_rad_s) == pytest.approx(V / R)
+        assert "recovering" in result.reason
+        spins += 1
+        state = step(state, body_command(result.recovery.yaw_rate_rad_s, 0.0), limits, cfg.dt_s)
+        pose = Pose(state.east_m, state.north_m, ned_yaw_to_enu_heading(state.yaw_rad))
+    assert isinstance(result, Command) and result.speed_m_s == V
+    assert spins >= 2 and math.hypot(pose.x_m, pose.y_m) < 1e-6  # turned where it stood (it started at rest)
+    assert abs(pose.heading_rad) > math.radians(20)  # no longer facing the wall
+
+
+def test_no_recovery_when_disabled_holds_as_before():
+    wall = make_obstacle("wall", "circle", center=(60.0, 0.0), radius_m=40.0)
+    result = plan_step(Pose(0.0, 0.0, 0.0), (-1000.0, 300.0), None, snapshot(wall), config(recovery_samples=0))
+    assert isinstance(result, NoLegalRollout) and result.recovery is None and result.escape is None
+
+
+def test_a_hover_point_on_a_moving_obstacles_path_is_not_a_hold():
+    # Boxed in by a static wall ahead, and an unknown intruder (a 150 m disc) coming from the
+    # left at 15 m/s: its inflated body is clear of the hover point for longer than the 11 s
+    # horizon, so the old rule held; it reaches the hover point within a spin plus a horizon.
+    wall = make_obstacle("wall", "circle", center=(60.0, 0.0), radius_m=40.0)
+    world = World(-1e4, -1e4, 1e4, 1e4, 0.0, (wall,))
+    snap = ObstacleField.from_world(world).from_tracks([ObstacleTrack("intruder", 0.0, 420.0, 0.0, -15.0)])
+    hover = inflated_clearance(np.zeros(23), np.zeros(23), np.arange(23) * 0.5, snap)
+    assert hover.min() > 0.0  # the hover point is clear for the whole 11 s horizon ...
+    result = plan_step(Pose(0.0, 0.0, 0.0), (1000.0, 0.0), None, snap, config())
+    assert isinstance(result, NoLegalRollout)
+    assert result.recovery is not None or result.escape is not None  # ... but holding is not safe
+    calm = plan_step(Pose(0.0, 0.0, 0.0), (1000.0, 0.0), None, snapshot(wall), config(recovery_samples=0))
+    assert isinstance(calm, NoLegalRollout) and calm.escape is None  # without the intruder: hold
+

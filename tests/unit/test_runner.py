@@ -203,3 +203,29 @@ def test_sweep_rows_vary_the_reference_as_the_paper_does():
         assert math.hypot(*o.center) == pytest.approx(float(label))
         assert np.hypot(*(b - o.center)) == pytest.approx(1000.0)
         assert o.footprint.centroid.distance(Point(o.center)) < 1e-6
+
+
+POCKET = """
+name: pocket
+area: {x_min_m: 0, y_min_m: -600, x_max_m: 1500, y_max_m: 600}
+stations: {A: [0, 0], B: [700, 0]}
+obstacles:
+  # a corridor 56 m wide between the inflated walls: too narrow for a 30 m-radius U-turn
+  - {id: cup, shape: polygon, vertices: [[500, -300], [900, -300], [900, 300], [500, 300], [500, 100],
+                                         [840, 100], [840, -100], [500, -100]]}
+vehicles:
+  # starts deep inside the cup, facing its closed end: no cruise rollout is legal
+  - {name: a, start: B, goal: A, initial_heading_deg: 0}
+planner: {variant: dwa}
+safety: {time_limit_s: 400}
+"""
+
+
+def test_a_vehicle_in_a_pocket_yaws_in_place_and_leaves():
+    run = simulate(parse_mission(POCKET, "pocket"))
+    s = run.summary
+    assert s.success, s.reason
+    recovering = [r for r in run.ticks["a"] if r.recovery_reason is not None]
+    assert recovering and all(r.speed_m_s == 0.0 and r.yaw_rate_rad_s != 0.0 for r in recovering)
+    assert s.extra["planner_recoveries"]["a"] == len(recovering)
+    assert s.vehicles["a"].min_obstacle_clearance_m > 0.0
