@@ -84,6 +84,7 @@ class FlightContext:
         self.report = report
         self.field = ObstacleField.from_world(plan.mission.world)
         self.barrier = asyncio.Barrier(len(self.vehicles))
+        self.arrived: set[str] = set()  # vehicles parked at their station: others drop the sightline term
         self.rank = {v.name: i for i, v in enumerate(plan.mission.by_priority)}
         # ADS-B callsigns hold 8 characters: match them to the mission's moving obstacles.
         moving = [o.id for o in plan.mission.world.moving_obstacles]
@@ -279,6 +280,7 @@ class Pilot:
             if result.arrived:
                 self.outcome.arrival_t_mission_s = t_mission
                 self.outcome.phase = "arrived"
+                self.ctx.arrived.add(self.name)
                 self.ctx.report(f"{self.name}: arrived at {self.spec.goal} after {t_mission:.1f} s")
                 return
             setpoint, action = self._setpoint(pose, result)
@@ -404,7 +406,8 @@ class Pilot:
             x, y = p.x_east_m + p.vx_east_m_s * age, p.y_north_m + p.vy_north_m_s * age
             d = math.hypot(x - pose.x_east_m, y - pose.y_north_m)
             if d < best_d:
-                best, best_d = (name, OtherUav(x, y, p.vx_east_m_s, p.vy_north_m_s)), d
+                parked = name in self.ctx.arrived
+                best, best_d = (name, OtherUav(x, y, p.vx_east_m_s, p.vy_north_m_s, arrived=parked)), d
         return best
 
     def _traffic(self) -> dict[str, TrafficReport]:
@@ -450,7 +453,11 @@ class Pilot:
                 return HOVER, f"hover ({verdict.reason} monitor)"
         # The planner is planar; hold the cruise altitude with a gentle proportional climb rate.
         climb = max(-1.0, min(1.0, 0.5 * (self.spec.cruise_alt_m - pose.alt_rel_m)))
-        return VelocityYawRateSetpoint(forward_m_s=v, yaw_rate_enu_rad_s=w, climb_m_s=climb), "fly"
+        action = "fly"
+        if result.recovery_reason is not None:  # speed 0 + yaw rate: the autopilot yaws in place
+            self.outcome.interventions["planner: spin recovery"] += 1
+            action = "recover (yaw in place)"
+        return VelocityYawRateSetpoint(forward_m_s=v, yaw_rate_enu_rad_s=w, climb_m_s=climb), action
 
     # -- logging ----------------------------------------------------------------------------
     def _record(self, pose: PoseSample) -> None:

@@ -65,6 +65,7 @@ class OtherUav:
     y_m: float
     vx_m_s: float
     vy_m_s: float
+    arrived: bool = False  # parked at its station: still kept clear of, no longer hidden from
 
 
 @dataclass(frozen=True, slots=True)
@@ -783,8 +784,10 @@ def _rotation(heading_rad: float) -> np.ndarray:
 
 def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig,
                ends: np.ndarray) -> np.ndarray | None:
-    """S (capped) for prediction points ``ends``, or None when the term is off."""
-    if other is None or config.w_s <= 0 or not snapshot.count:
+    """S (capped) for prediction points ``ends``, or None when the term is off: no other UAV,
+    w_s = 0, or the other UAV has arrived (a parked UAV is no one to hide from, and a term that
+    is non-zero for few candidates would outbid the heading critic under sum normalisation)."""
+    if other is None or other.arrived or config.w_s <= 0 or not snapshot.count:
         return None
     t_p = float(config.times_s[-1])
     q = (other.x_m + other.vx_m_s * t_p, other.y_m + other.vy_m_s * t_p)

@@ -74,7 +74,9 @@ def _pose(s: KinematicState) -> Pose:
     return Pose(*_xy(s), ned_yaw_to_enu_heading(s.yaw_rad))
 
 
-def _other(s: KinematicState) -> OtherUav:
+def _other(s: KinematicState, parked: bool = False) -> OtherUav:
+    if parked:
+        return OtherUav(*_xy(s), 0.0, 0.0, arrived=True)
     vx, vy, _ = ned_to_enu(s.vn_m_s, s.ve_m_s)
     return OtherUav(*_xy(s), vx, vy)
 
@@ -124,7 +126,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
             own = states[name]
             nearest = min((n for n in names if n != name), default=None,
                           key=lambda n: (states[n].east_m - own.east_m) ** 2 + (states[n].north_m - own.north_m) ** 2)
-            other = None if nearest is None else _other(states[nearest])
+            # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
+            other = None if nearest is None else _other(states[nearest], parked=nearest not in active)
             result = planners[name].tick(_pose(own), other, snapshot, t)
             ticks[name].append(result)
             if result.arrived:

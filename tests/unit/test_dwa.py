@@ -425,3 +425,16 @@ def test_a_hover_point_on_a_moving_obstacles_path_is_not_a_hold():
     calm = plan_step(Pose(0.0, 0.0, 0.0), (1000.0, 0.0), None, snapshot(wall), config(recovery_samples=0))
     assert isinstance(calm, NoLegalRollout) and calm.escape is None  # without the intruder: hold
 
+
+def test_sightline_is_dropped_once_the_other_uav_has_arrived():
+    # The same geometry as test_bdwa_prefers_keeping_the_sight_line_blocked, with the other UAV
+    # parked at its station: nothing to hide from, so the planner flies as plain DWA would ...
+    disk = make_obstacle("d", "circle", center=(200.0, -250.0), radius_m=60.0)
+    snap = snapshot(disk)
+    parked = OtherUav(600.0, -600.0, 0.0, 0.0, arrived=True)
+    result = plan_step(Pose(0.0, 0.0, 0.0), (2000.0, 0.0), parked, snap, config(w_s=0.8))
+    assert result.sightline_score == 0.0 and result.yaw_rate_rad_s == 0.0
+    # ... but the parked UAV is still kept clear of (separation is not dropped).
+    blocking = OtherUav(60.0, 0.0, 0.0, 0.0, arrived=True)
+    boxed = plan_step(Pose(0.0, 0.0, 0.0), (2000.0, 0.0), blocking, EMPTY, config(samples=1, recovery_samples=0))
+    assert isinstance(boxed, NoLegalRollout) and "separation" in boxed.reason
