@@ -118,9 +118,10 @@ def simulate(mission: Mission, variant: str | None = None, *,
     checked = 0  # rows[0..checked] are known to be safe
     bad = None
 
+    snapshots = field.at_times(dt * np.arange(n_ticks))
     for k in range(n_ticks):
         t = k * dt
-        snapshot = field.at_time(t)
+        snapshot = next(snapshots)
         commands = {}
         for name in list(active):
             own = states[name]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from companion.mission import load_mission, parse_mission
-from companion.planning.dwa import Command, OtherUav, Pose
+from companion.planning.dwa import Command, OtherUav, Pose, inflated_clearance
 from companion.planning.fusion import (LocalGoalTracker, ObstacleField, ObstacleTrack, VehiclePlanner,
                                        snapshot_at, snapshot_from_tracks)
 
@@ -142,6 +142,20 @@ def test_headless_snapshot_is_the_true_state_now():
     j = snap.circle_ids.index("drone")
     assert tuple(snap.circle_xy_m[j]) == pytest.approx(MOVING.world.obstacles[2].center_at(40.0))
     assert tuple(snap.circle_vel_m_s[j]) == pytest.approx(MOVING.world.obstacles[2].motion.velocity_at(40.0))
+
+
+def test_snapshots_for_all_tick_times_equal_one_snapshot_per_time():
+    field = ObstacleField.from_world(MOVING.world)
+    times = 0.5 * np.arange(0, 900, 37)  # both shuttle legs, the orbit all round
+    for t, fast in zip(times, field.at_times(times)):
+        slow = field.at_time(float(t))
+        assert fast.ids == slow.ids and fast.polygons_move == slow.polygons_move
+        for name in ("circle_xy_m", "circle_vel_m_s", "poly_a_m", "poly_b_m", "poly_d_m", "poly_centre_m",
+                     "poly_vel_m_s", "bound_xy_m", "bound_radius_m", "speed_m_s"):
+            assert getattr(fast, name) == pytest.approx(getattr(slow, name), abs=1e-9), (t, name)
+        probe = np.array([500.0, 900.0, 1500.0]), np.array([1500.0, 1000.0, 700.0])
+        assert inflated_clearance(*probe, np.full(3, 3.0), fast) == pytest.approx(
+            inflated_clearance(*probe, np.full(3, 3.0), slow), abs=1e-9)
 
 
 def test_live_snapshot_from_tracks_places_known_shapes_and_guards_unknown_intruders():
