@@ -451,7 +451,8 @@ def _to_segment(px: np.ndarray, py: np.ndarray, x_m: float, y_m: float, to_xy: t
 def rollouts(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
     """All rollouts for ``pose``: points (S, K + 1, 2) at config.times_s (the first is the pose
     itself) and the headings (S,) at the prediction point."""
-    pts = config.body_xy_m @ _rotation(pose.heading_rad)
+    body = config.body_xy_m
+    pts = (body.reshape(-1, 2) @ _rotation(pose.heading_rad)).reshape(body.shape)  # one (N, 2) @ (2, 2)
     pts += (pose.x_m, pose.y_m)
     return pts, pose.heading_rad + config.final_dheading_rad
 
@@ -544,8 +545,16 @@ def sightline_scores(ends: np.ndarray, other_xy: tuple[float, float], t_s: float
         d_o = np.where(crosses, r - np.abs(cx * nx + cy * ny), 0.0)
         best = np.maximum(best, d_o.max(axis=0))
     if snap.poly_ids:
-        a = snap.poly_a_m + (snap.poly_vel_m_s * t_s)[:, None, :]
-        ddx, ddy = snap.poly_d_m[..., 0:1], snap.poly_d_m[..., 1:2]  # (P, E, 1)
+        # Only polygons whose bounding disc some sight segment meets can be crossed (cheap test first).
+        shift = snap.poly_vel_m_s * t_s
+        rx = (snap.poly_centre_m[:, 0:1] + shift[:, 0:1]) - ex  # (P, S)
+        ry = (snap.poly_centre_m[:, 1:2] + shift[:, 1:2]) - ey
+        u = np.clip((rx * dx + ry * dy) / len2, 0.0, 1.0)
+        rows = (np.hypot(rx - u * dx, ry - u * dy) < snap.poly_bound_m[:, None]).any(axis=1)
+    if snap.poly_ids and rows.any():
+        a = snap.poly_a_m[rows] + shift[rows][:, None, :]
+        d = snap.poly_d_m[rows]
+        ddx, ddy = d[..., 0:1], d[..., 1:2]  # (P, E, 1)
         ax = a[..., 0:1] - ex  # (P, E, S), relative to the ends
         ay = a[..., 1:2] - ey
         sa = ax * nx + ay * ny  # signed distance of each vertex from each sight line
@@ -625,7 +634,10 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     else:
         distance = np.full(config.samples, config.distance_saturation_m)
 
-    if other is not None and config.min_separation_m > 0:
+    # Separation can only bind when the other UAV's predicted path comes within reach.
+    if other is not None and config.min_separation_m > 0 and (
+            math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m) <= config.reach_m + config.min_separation_m
+            + math.hypot(other.vx_m_s, other.vy_m_s) * float(times[-1]) + 1.0):
         ox = other.x_m + other.vx_m_s * times
         oy = other.y_m + other.vy_m_s * times
         limit = min(config.min_separation_m, math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m))
@@ -709,7 +721,8 @@ def _no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, sna
     hover_true = np.logical_and.accumulate(hover_true)
 
     if config.rec_delay_s.size:
-        pts = config.rec_body_xy_m @ _rotation(pose.heading_rad)
+        body = config.rec_body_xy_m
+        pts = (body.reshape(-1, 2) @ _rotation(pose.heading_rad)).reshape(body.shape)
         pts += (pose.x_m, pose.y_m)
         px, py = pts[..., 0], pts[..., 1]
         n_r = len(pts)

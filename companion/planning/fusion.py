@@ -264,6 +264,7 @@ class VehiclePlanner:
         self.tracker = tracker
         self.arrival_radius_m = arrival_radius_m
         self.arrived = False
+        self._station_xy = (float(tracker.nodes[-1][0]), float(tracker.nodes[-1][1]))
 
     @classmethod
     def build(cls, mission: "Mission", vehicle: "VehicleSpec", route: "Route | None",
@@ -291,8 +292,7 @@ class VehiclePlanner:
 
     @property
     def station_xy(self) -> tuple[float, float]:
-        x, y = self.tracker.nodes[-1]
-        return float(x), float(y)
+        return self._station_xy
 
     def tick(self, own: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, t_s: float) -> TickResult:
         """Decide this tick's command from the current own pose, other UAV and obstacles.
