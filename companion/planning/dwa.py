@@ -661,9 +661,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     legal = _commit_turn(pose, goals, legal, config)
 
     sightline = _sightline(pose, other, snapshot, config, pts[:, -1])
-    critics = np.stack([heading, distance, sightline if sightline is not None else np.zeros_like(heading)])
-    total = _weights(config) @ _normalised(critics, legal)
-    total[~legal] = -np.inf
+    total = _evaluate(config, legal, heading, distance, sightline)
     best = int(np.argmax(total))
     return _command(config, best, heading, distance, sightline, float(total[best]), int(np.count_nonzero(legal)))
 
@@ -755,9 +753,7 @@ def _no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, sna
                 continue
             scores = heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals)
             sight = _sightline(pose, other, snapshot, config, pts[:, -1])
-            critics = np.stack([scores, distance, sight if sight is not None else np.zeros_like(scores)])
-            total = _weights(config) @ _normalised(critics, legal)
-            total[~legal] = -np.inf
+            total = _evaluate(config, legal, scores, distance, sight)
             i = int(np.argmax(total))
             turn = float(config.rec_turn_rad[i])
             yaw_rate = max(-config.max_yaw_rate_rad_s, min(config.max_yaw_rate_rad_s, turn / dt))
@@ -831,12 +827,18 @@ def _commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaCo
     return toward if toward.any() else legal
 
 
-def _weights(config: DwaConfig) -> np.ndarray:
-    return np.array([config.w_h, config.w_d, config.w_s])
-
-
-def _normalised(critics: np.ndarray, legal: np.ndarray) -> np.ndarray:
-    """Fox et al. 1997: each critic (row) divided by its sum over the candidates (here: the
-    legal ones); a critic that is zero for all of them contributes nothing."""
-    sums = (critics if legal.all() else critics[:, legal]).sum(axis=1, keepdims=True)
-    return np.divide(critics, sums, out=np.zeros_like(critics), where=sums > 0)
+def _evaluate(config: DwaConfig, legal: np.ndarray, heading: np.ndarray, distance: np.ndarray,
+              sightline: np.ndarray | None) -> np.ndarray:
+    """Eval = w_h H + w_d D + w_s S, each critic normalised by its sum over the legal candidates
+    (Fox et al. 1997; a critic that is zero for all of them contributes nothing); -inf where
+    illegal. Term by term on (S,) rows: this runs every tick."""
+    total = np.zeros(len(heading))
+    everyone = bool(legal.all())
+    for weight, critic in ((config.w_h, heading), (config.w_d, distance), (config.w_s, sightline)):
+        if critic is None or weight == 0.0:
+            continue
+        norm = float(critic.sum() if everyone else critic[legal].sum())
+        if norm > 0.0:
+            total += critic * (weight / norm)
+    total[~legal] = -np.inf
+    return total

@@ -14,6 +14,7 @@ them at constant velocity, so the live and headless planners see exactly the sam
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 import time
@@ -196,11 +197,13 @@ class LocalGoalTracker:
         self.acceptance_radius_m = float(acceptance_radius_m)
         self.index = 1
         self._along_m = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(nodes, axis=0).T))])
+        self._along = self._along_m.tolist()  # plain floats: window() runs every tick
+        self._xy = [(float(x), float(y)) for x, y in nodes]
+        self._windows: dict[tuple, LocalGoals] = {}
 
     @property
     def goal_xy(self) -> tuple[float, float]:
-        x, y = self.nodes[self.index]
-        return float(x), float(y)
+        return self._xy[self.index]
 
     @property
     def is_last(self) -> bool:
@@ -209,20 +212,24 @@ class LocalGoalTracker:
     def window(self, x_m: float, y_m: float, reach_m: float, station_radius_m: float) -> LocalGoals:
         """The current goal and every node after it that a rollout of length ``reach_m`` from
         (x, y) could make the target (it must reach the node before it first)."""
-        nodes = self.nodes[self.index:]
-        gx, gy = nodes[0]
-        # path length from (x, y) to each remaining node, via the current goal
-        to_node = math.hypot(gx - x_m, gy - y_m) + self._along_m[self.index:] - self._along_m[self.index]
-        count = min(len(nodes), int(np.searchsorted(to_node, reach_m, side="right")) + 1)
-        px, py = self.nodes[self.index - 1]
-        return LocalGoals(nodes[:count], (float(px), float(py)), self.acceptance_radius_m,
-                          station_radius_m, ends_at_station=self.index + count == len(self.nodes))
+        i = self.index
+        gx, gy = self._xy[i]
+        # path length from (x, y) to each remaining node, via the current goal: within reach?
+        to_goal = math.hypot(gx - x_m, gy - y_m)
+        count = min(len(self._xy) - i, bisect.bisect_right(self._along, reach_m - to_goal + self._along[i], lo=i) - i + 1)
+        key = (i, count, station_radius_m)
+        goals = self._windows.get(key)
+        if goals is None:  # a few distinct windows per flight: built once each
+            goals = self._windows[key] = LocalGoals(
+                self.nodes[i:i + count], self._xy[i - 1], self.acceptance_radius_m, station_radius_m,
+                ends_at_station=i + count == len(self._xy))
+        return goals
 
     def update(self, x_m: float, y_m: float) -> tuple[float, float]:
         """Advance past every node already reached or passed; return the current goal."""
         while not self.is_last:
-            gx, gy = self.nodes[self.index]
-            px, py = self.nodes[self.index - 1]
+            gx, gy = self._xy[self.index]
+            px, py = self._xy[self.index - 1]
             reached = math.hypot(x_m - gx, y_m - gy) <= self.acceptance_radius_m
             passed = (x_m - gx) * (gx - px) + (y_m - gy) * (gy - py) > 0.0
             if not (reached or passed):
