@@ -80,8 +80,9 @@ def test_moving_obstacles(sitl, companion):
         o, t = moving[r["callsign"]], float(r["t_sim_s"])
         x, y = o.center_at(t)
         errors.append(math.hypot(float(r["x_m"]) - x, float(r["y_m"]) - y))
-        v_now, v_before = np.array(o.motion.velocity_at(t)), np.array(o.motion.velocity_at(t - 0.5))
-        if np.allclose(v_now, v_before, atol=0.05):  # skip the instants a shuttle turns round
+        v_now = np.array(o.motion.velocity_at(t))
+        # Skip reports that may have been sent before a shuttle turned round (a loaded machine delays them).
+        if all(np.allclose(v_now, o.motion.velocity_at(t - lag), atol=0.05) for lag in (0.5, 1.0, 1.5)):
             vel_errors.append(float(np.hypot(*(np.array([float(r["vx_m_s"]), float(r["vy_m_s"])]) - v_now))))
     assert len(rows) > 200
     # Stamped with the receiving vehicle's latest clock: at most one API stream period late.
