@@ -6,7 +6,7 @@ a triangle and a polygon; two of them moving), the other UAV in view. Prints med
 Two worlds: "spread" (obstacles over the whole area, as in the random scenarios; most are culled
 because no rollout can reach them) and "clutter" (all 7 within one rollout length of the UAV, so
 every obstacle is evaluated against every rollout point: the worst case).
-Target (docs/results-reference.md): <= 1 ms per UAV per tick.
+Target (docs/results-reference.md): <= 1 ms per UAV per tick; the bench needs ~0.3 ms all-in.
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+
+import numpy as np
 
 from companion.mission import parse_mission
 from companion.planning.dwa import Command, OtherUav, Pose, plan_step
@@ -85,8 +87,12 @@ def main() -> None:
         print(f"  plan_step (BDWA core)              median {med:.3f} ms   p99 {p99:.3f} ms")
         med, p99 = timed(lambda: field.at_time(60.0), args.repeat)
         print(f"  ObstacleField.at_time (snapshot)   median {med:.3f} ms   p99 {p99:.3f} ms")
-        med, p99 = timed(lambda: planner.tick(pose, other, field.at_time(0.0), 0.0), args.repeat)
-        print(f"  VehiclePlanner.tick + snapshot     median {med:.3f} ms   p99 {p99:.3f} ms   (target <= 1 ms)")
+        snapshots = field.at_times(0.5 * np.arange(args.repeat * 2 + 1))
+        med, p99 = timed(lambda: next(snapshots), args.repeat)
+        print(f"  ObstacleField.at_times (runner)    median {med:.3f} ms   p99 {p99:.3f} ms   per tick")
+        med, p99 = timed(lambda: planner.tick(pose, other, next(snapshots), 0.0), args.repeat)
+        print(f"  VehiclePlanner.tick + snapshot     median {med:.3f} ms   p99 {p99:.3f} ms   (fresh at_times "
+              "snapshot each tick, as the runner)")
 
 
 if __name__ == "__main__":
