@@ -113,6 +113,19 @@ class LocalGoals:
     station_radius_m: float
     ends_at_station: bool  # whether nodes_xy[-1] is the station
 
+    # Derived once (a tracker reuses its windows across ticks): each node's predecessor and
+    # squared reach radius, for heading_scores.
+    prev_nodes_xy: np.ndarray = field(init=False, repr=False)  # (G, 2)
+    radius2_m2: np.ndarray = field(init=False, repr=False)  # (G,)
+
+    def __post_init__(self) -> None:
+        nodes = np.asarray(self.nodes_xy, dtype=float)
+        radius = np.full(len(nodes), self.acceptance_radius_m)
+        if self.ends_at_station:
+            radius[-1] = self.station_radius_m
+        object.__setattr__(self, "prev_nodes_xy", np.vstack([self.prev_xy, nodes[:-1]]))
+        object.__setattr__(self, "radius2_m2", radius * radius)
+
     @classmethod
     def single(cls, goal_xy: tuple[float, float]) -> "LocalGoals":
         """One goal and nothing after it: the paper's heading critic exactly."""
@@ -592,13 +605,11 @@ def heading_scores(pts: np.ndarray, final_heading: np.ndarray, goals: LocalGoals
         flat = pts.reshape(-1, 2)
         near2 = (((flat[:, 0] - gx[:, None]) ** 2 + (flat[:, 1] - gy[:, None]) ** 2)
                  .reshape(count, *pts.shape[:2]).min(axis=2).T)  # (S, G)
-        radius = np.full(count, goals.acceptance_radius_m)
-        prev = np.vstack([goals.prev_xy, nodes[:-1]])
+        prev = goals.prev_nodes_xy
         passed = (ex[:, None] - gx) * (gx - prev[:, 0]) + (ey[:, None] - gy) * (gy - prev[:, 1]) > 0.0
         if goals.ends_at_station:
-            radius[-1] = goals.station_radius_m
             passed[:, -1] = False  # the station is reached, never passed
-        reached = (near2 <= radius * radius) | passed
+        reached = (near2 <= goals.radius2_m2) | passed
         n_reached = np.cumprod(reached, axis=1).sum(axis=1)
         if goals.ends_at_station:
             at_station = n_reached == count
