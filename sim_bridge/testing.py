@@ -29,26 +29,37 @@ def free_udp_ports(n: int) -> tuple[int, ...]:
             s.close()
 
 
-def free_udp_port_block(n: int, attempts: int = 200) -> int:
-    """A base port with ``n`` consecutive free UDP ports (for ``--api-port-base``)."""
-    import random
+def bind_udp_port_block(count: int, host: str = "127.0.0.1", attempts: int = 200) -> list[socket.socket]:
+    """``count`` sockets bound to consecutive free UDP ports (vehicle i talks to base + i).
 
-    rng = random.Random()
+    The caller holds them until the ports are handed over, so nothing else can take them.
+    """
     for _ in range(attempts):
-        base = rng.randint(20000, 60000 - n)
-        socks = []
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            probe.bind((host, 0))
+            base = probe.getsockname()[1]
+        if base + count > 65535:
+            continue
+        socks: list[socket.socket] = []
         try:
-            for port in range(base, base + n):
+            for port in range(base, base + count):
                 s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
                 socks.append(s)
-                s.bind(("0.0.0.0", port))
-            return base
+                s.bind((host, port))
+            return socks
         except OSError:
-            continue
-        finally:
             for s in socks:
                 s.close()
-    raise OSError(f"no block of {n} free UDP ports found")
+    raise RuntimeError(f"no block of {count} free UDP ports found")
+
+
+def free_udp_port_block(n: int, host: str = "127.0.0.1") -> int:
+    """A base port with ``n`` consecutive free UDP ports (for ``--api-port-base``)."""
+    socks = bind_udp_port_block(n, host)
+    base = socks[0].getsockname()[1]
+    for s in socks:
+        s.close()
+    return base
 
 
 def sim_connection_url(sim: SimBridge, index: int) -> str:

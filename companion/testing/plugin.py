@@ -52,6 +52,7 @@ from companion.planning.metrics import RunSummary, Track, TruthGeometry, arrival
     pair_min_distance, summarize
 from companion.testing.recorder import GCS_COMPONENT_ID, GCS_SYSTEM_ID, TelemetryRecorder, VehicleLog
 from companion.vehicle.port import GeoWaypoint
+from sim_bridge.testing import bind_udp_port_block, free_udp_port_block
 
 HARNESS_ENV = "ASTAR_BDWA_HARNESS"  # tag in the environment of every process the fixtures start
 # What a telemetry freeze stops on the API link: every position source (heartbeats, attitude go on).
@@ -65,34 +66,6 @@ def free_udp_port(host: str = "127.0.0.1") -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind((host, 0))
         return s.getsockname()[1]
-
-
-def _bind_port_block(count: int, host: str = "127.0.0.1") -> list[socket.socket]:
-    """``count`` bound sockets on consecutive free UDP ports (vehicle i talks to base + i)."""
-    for _ in range(200):
-        base = free_udp_port(host)
-        if base + count > 65535:
-            continue
-        socks: list[socket.socket] = []
-        try:
-            for i in range(count):
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                socks.append(s)
-                s.bind((host, base + i))
-            return socks
-        except OSError:
-            for s in socks:
-                s.close()
-    raise RuntimeError(f"no block of {count} free UDP ports found")
-
-
-def free_udp_port_block(count: int, host: str = "127.0.0.1") -> int:
-    """A base port with ``count`` consecutive free UDP ports."""
-    socks = _bind_port_block(count, host)
-    base = socks[0].getsockname()[1]
-    for s in socks:
-        s.close()
-    return base
 
 
 # =========================================================================== processes ======
@@ -541,7 +514,7 @@ class _SitlFactory:
         mission = load_mission(mission_path)
         recorder = BackgroundRecorder(port=0)
         self._recorders.append(recorder)
-        api_socks = _bind_port_block(len(mission.vehicles))  # held until the stub is heard on them
+        api_socks = bind_udp_port_block(len(mission.vehicles))  # held until the stub is heard on them
         try:
             api_base = api_socks[0].getsockname()[1]
             log_path = self._tmp / f"sim_bridge{len(self._running)}.log"

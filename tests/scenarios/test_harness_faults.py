@@ -61,7 +61,10 @@ def test_link_blackout_mid_flight_holds_then_resumes(companion):
         stub.assert_modes_in_order(name, "OFFBOARD", "HOLD", "OFFBOARD")
         holds = [t for t in stub.mode_times(name, "HOLD") if t > start_s - 1]
         resumed = [t for t in stub.mode_times(name, "OFFBOARD") if t > start_s]
-        assert start_s + 0.9 <= holds[0] <= start_s + duration_s, (name, holds)  # the autopilot's failsafe
+        # The autopilot's failsafe: COM_OF_LOSS_T (1 s) after the last setpoint that got through,
+        # which may predate the blackout by a keep-alive gap, and mode times are stamped to the
+        # nearest position sample (0.2 s): so not before start + 0.5 s, and within the blackout.
+        assert start_s + 0.5 <= holds[0] <= start_s + duration_s, (name, holds)
         assert start_s + duration_s <= resumed[0] <= start_s + duration_s + 5.0, (name, resumed)
         track = stub.track(name)
         assert _moved_m(track, resumed[0] + 5.0, resumed[0] + 25.0) > 150.0  # flying again at ~10 m/s
