@@ -117,6 +117,7 @@ class LocalGoals:
     # squared reach radius, for heading_scores.
     prev_nodes_xy: np.ndarray = field(init=False, repr=False)  # (G, 2)
     radius2_m2: np.ndarray = field(init=False, repr=False)  # (G,)
+    first_xy: tuple[float, float] = field(init=False, repr=False)  # nodes_xy[0] as floats
 
     def __post_init__(self) -> None:
         nodes = np.asarray(self.nodes_xy, dtype=float)
@@ -125,6 +126,7 @@ class LocalGoals:
             radius[-1] = self.station_radius_m
         object.__setattr__(self, "prev_nodes_xy", np.vstack([self.prev_xy, nodes[:-1]]))
         object.__setattr__(self, "radius2_m2", radius * radius)
+        object.__setattr__(self, "first_xy", (float(nodes[0, 0]), float(nodes[0, 1])))
 
     @classmethod
     def single(cls, goal_xy: tuple[float, float]) -> "LocalGoals":
@@ -170,6 +172,10 @@ class DwaConfig:
     body_xy_m: np.ndarray = field(init=False, repr=False)  # (S, K + 1, 2) from the origin, heading +x
     final_dheading_rad: np.ndarray = field(init=False, repr=False)  # (S,) heading change at p
     point_times_s: np.ndarray = field(init=False, repr=False)  # (S * (K + 1),) times of body_xy_m's points
+    # body_xy_m as homogeneous columns (3, S * (K + 1)): [x; y; 1]. One (2, 3) @ (3, N) product
+    # places every rollout point (see _placement), x and y each coming out contiguous.
+    body_hom_m: np.ndarray = field(init=False, repr=False)
+    end_hom_m: np.ndarray = field(init=False, repr=False)  # (3, S): the prediction points only
     # Spin recovery: rollouts (R = J headings x recovery samples) that start after yawing in place
     # by rec_turn_rad (J headings one tick of full-rate yaw apart, all round), rec_delay_s later.
     rec_body_xy_m: np.ndarray = field(init=False, repr=False)  # (R, K + 1, 2)
@@ -194,7 +200,8 @@ class DwaConfig:
         rec = _recovery_shapes(body, dheading[:, -1], t, self.max_yaw_rate_rad_s, self.dt_s, self.recovery_samples)
         for name, value in (("yaw_rates_rad_s", w), ("times_s", t), ("body_xy_m", body),
                             ("final_dheading_rad", dheading[:, -1].copy()), ("point_times_s", np.tile(t, len(w))),
-                            *rec.items()):
+                            ("body_hom_m", _homogeneous(body.reshape(-1, 2))),
+                            ("end_hom_m", _homogeneous(body[:, -1])), *rec.items()):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
 
@@ -234,6 +241,18 @@ class DwaConfig:
     def reach_m(self) -> float:
         """How far a rollout goes: v * p."""
         return self.speed_m_s * float(self.times_s[-1])
+
+
+def _homogeneous(xy: np.ndarray) -> np.ndarray:
+    """(N, 2) points as (3, N) homogeneous columns."""
+    return np.ascontiguousarray(np.vstack([xy.T, np.ones(len(xy))]))
+
+
+def _placement(pose: Pose) -> np.ndarray:
+    """(2, 3): left-multiplying homogeneous body points by this turns them to the pose's heading
+    and moves them to its position."""
+    c, s = math.cos(pose.heading_rad), math.sin(pose.heading_rad)
+    return np.array([[c, -s, pose.x_m], [s, c, pose.y_m]])
 
 
 def _recovery_shapes(body: np.ndarray, final_dheading: np.ndarray, t: np.ndarray, max_yaw_rate: float,
@@ -299,6 +318,11 @@ class ObstacleSnapshot:
     poly_dx_per_dy: np.ndarray = field(init=False, repr=False)
     polygons_move: bool = field(init=False, repr=False)
     _subsets: dict = field(init=False, repr=False)  # near() results by keep-mask: a cache
+    # (rows that move, names of the fields that differ, cache) shared by snapshots that differ
+    # only in those rows and fields (the headless runner's per-tick snapshots: the moving
+    # obstacles translated). _take then builds a subset of unmoved obstacles once for all of
+    # them, and otherwise indexes only the fields that differ. None: not shared.
+    _shared: tuple[np.ndarray, frozenset, dict] | None = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -314,6 +338,7 @@ class ObstacleSnapshot:
         put("poly_dx_per_dy", dx / np.where(dy == 0.0, 1.0, dy))
         put("polygons_move", bool(np.any(self.poly_vel_m_s)))
         put("_subsets", {})
+        put("_shared", None)
 
     @property
     def count(self) -> int:
@@ -365,7 +390,7 @@ class ObstacleSnapshot:
         edges = max(self.poly_a_m.shape[1], other.poly_a_m.shape[1])
         cat = np.concatenate
         values = {"circle_ids": self.circle_ids + other.circle_ids, "poly_ids": self.poly_ids + other.poly_ids,
-                  "polygons_move": self.polygons_move or other.polygons_move, "_subsets": {}}
+                  "polygons_move": self.polygons_move or other.polygons_move, "_subsets": {}, "_shared": None}
         for name in ("circle_xy_m", "circle_radius_m", "circle_margin_m", "circle_vel_m_s", "poly_margin_m",
                      "poly_centre_m", "poly_bound_m", "poly_vel_m_s"):
             values[name] = cat([getattr(self, name), getattr(other, name)])
@@ -390,36 +415,63 @@ class ObstacleSnapshot:
         ``to_xy``: within ``reach_m`` of the segment (x, y) -> to_xy (sight lines)."""
         bx, by = self.bound_xy_m[:, 0], self.bound_xy_m[:, 1]
         if to_xy is None:
-            d = np.hypot(bx - x_m, by - y_m)
+            dx, dy = bx - x_m, by - y_m
+            d = np.sqrt(dx * dx + dy * dy)
         else:
             d = _to_segment(bx, by, x_m, y_m, to_xy)
         keep = d - self.bound_radius_m - self.speed_m_s * horizon_s <= reach_m
-        if keep.all():
+        kept = int(np.count_nonzero(keep))
+        if kept == len(keep):
             return self
-        if not keep.any():
+        if not kept:
             return NO_OBSTACLES
         key = keep.tobytes()
         cached = self._subsets.get(key)
         if cached is None:
-            cached = self._subsets[key] = self._take(keep)
+            cached = self._subsets[key] = self._take(keep, key)
         return cached
 
-    def _take(self, keep: np.ndarray) -> "ObstacleSnapshot":
-        """The obstacles where ``keep`` (circles, then polygons) is true. Indexes the derived
-        arrays too instead of deriving them again: this runs every tick for fresh snapshots."""
+    def _take(self, keep: np.ndarray, key: bytes) -> "ObstacleSnapshot":
+        """The obstacles where ``keep`` (circles, then polygons) is true; ``key`` is
+        ``keep.tobytes()``. Indexes the derived arrays too instead of deriving them again: this
+        runs every tick for fresh snapshots."""
         n_c = len(self.circle_ids)
         kc, kp = keep[:n_c], keep[n_c:]
-        values = {"circle_ids": tuple(i for i, k in zip(self.circle_ids, kc) if k),
-                  "poly_ids": tuple(i for i, k in zip(self.poly_ids, kp) if k),
-                  "polygons_move": self.polygons_move, "_subsets": {},
-                  "bound_xy_m": self.bound_xy_m[keep], "bound_radius_m": self.bound_radius_m[keep],
-                  "speed_m_s": self.speed_m_s[keep]}
-        for name in ("circle_xy_m", "circle_radius_m", "circle_margin_m", "circle_vel_m_s"):
-            values[name] = getattr(self, name)[kc]
-        for name in ("poly_a_m", "poly_b_m", "poly_margin_m", "poly_centre_m", "poly_bound_m", "poly_vel_m_s",
-                     "poly_d_m", "poly_inv_len2", "poly_dx_per_dy"):
-            values[name] = getattr(self, name)[kp]
-        return _assemble(values)
+
+        def pick(names) -> dict:
+            return {name: getattr(self, name)[keep if rows is _BOTH else kc if rows is _CIRCLE else kp]
+                    for name, rows in _ROW_FIELDS.items() if name in names}
+
+        def ids() -> dict:
+            return {"circle_ids": tuple(i for i, k in zip(self.circle_ids, kc) if k),
+                    "poly_ids": tuple(i for i, k in zip(self.poly_ids, kp) if k), "_subsets": {}, "_shared": None}
+
+        if self._shared is None:
+            return _assemble({**pick(_ROW_FIELDS), **ids(), "polygons_move": self.polygons_move})
+        moving_rows, moving_fields, cache = self._shared
+        entry = cache.get(key)
+        if entry is None:
+            fixed = {**pick(_ROW_FIELDS.keys() - moving_fields), **ids()}
+            whole = None
+            if not np.any(keep & moving_rows):  # the same subset in every snapshot that shares the cache
+                values = {**fixed, **pick(moving_fields)}
+                whole = _assemble({**values, "polygons_move": bool(np.any(values["poly_vel_m_s"]))})
+            entry = cache[key] = (fixed, whole)
+        fixed, whole = entry
+        if whole is not None:
+            return whole
+        return _assemble({**fixed, **pick(moving_fields), "polygons_move": self.polygons_move})
+
+
+# The array fields of a snapshot and the rows they have: one per circle, polygon, or obstacle
+# (circles first, then polygons).
+_CIRCLE, _POLYGON, _BOTH = "circle", "polygon", "both"
+_ROW_FIELDS = {
+    **dict.fromkeys(("circle_xy_m", "circle_radius_m", "circle_margin_m", "circle_vel_m_s"), _CIRCLE),
+    **dict.fromkeys(("poly_a_m", "poly_b_m", "poly_margin_m", "poly_centre_m", "poly_bound_m", "poly_vel_m_s",
+                     "poly_d_m", "poly_inv_len2", "poly_dx_per_dy"), _POLYGON),
+    **dict.fromkeys(("bound_xy_m", "bound_radius_m", "speed_m_s"), _BOTH),
+}
 
 
 def _assemble(values: dict) -> ObstacleSnapshot:
@@ -464,10 +516,8 @@ def _to_segment(px: np.ndarray, py: np.ndarray, x_m: float, y_m: float, to_xy: t
 def rollouts(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
     """All rollouts for ``pose``: points (S, K + 1, 2) at config.times_s (the first is the pose
     itself) and the headings (S,) at the prediction point."""
-    body = config.body_xy_m
-    pts = (body.reshape(-1, 2) @ _rotation(pose.heading_rad)).reshape(body.shape)  # one (N, 2) @ (2, 2)
-    pts += (pose.x_m, pose.y_m)
-    return pts, pose.heading_rad + config.final_dheading_rad
+    xy = _placement(pose) @ config.body_hom_m  # (2, N)
+    return np.stack([xy[0], xy[1]], axis=-1).reshape(config.body_xy_m.shape), pose.heading_rad + config.final_dheading_rad
 
 
 def inflated_clearance(px: np.ndarray, py: np.ndarray, t_s: np.ndarray, snap: ObstacleSnapshot) -> np.ndarray:
@@ -542,69 +592,102 @@ def sightline_scores(ends: np.ndarray, other_xy: tuple[float, float], t_s: float
     of the obstacle's extents left and right of the segment's line; the result is the largest
     d_O, or 0 when nothing crosses.
     """
-    ex, ey = ends[:, 0], ends[:, 1]  # (S,); obstacles and edges run along axis 0 (see inflated_clearance)
-    dx = other_xy[0] - ex
-    dy = other_xy[1] - ey
+    return _sightline_scores(ends[:, 0], ends[:, 1], other_xy, t_s, snap)
+
+
+def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, float], t_s: float,
+                      snap: ObstacleSnapshot) -> np.ndarray:
+    """sightline_scores for ends (ex, ey), each (S,).
+
+    Every sight segment ends at q = other_xy, so everything is measured from q: for a point
+    w (relative to q), w . n_i is its signed distance from sight line i (n_i its unit left
+    normal) and w . d_i its position along it (d_i = q - end_i). One (rows, 2) @ (2, 2S)
+    product gives both for every circle centre, polygon vertex and edge vector at once; the
+    rest is a handful of elementwise operations on the (rows, S) blocks.
+    """
+    qx, qy = other_xy
+    dx = qx - ex
+    dy = qy - ey
+    n_s = len(ex)
     len2 = np.maximum(dx * dx + dy * dy, 1e-12)
     inv_len = 1.0 / np.sqrt(len2)
-    nx, ny = -dy * inv_len, dx * inv_len  # unit left normal of each sight line
-    best = np.zeros(len(ends))
-    if snap.circle_ids:
-        cx = (snap.circle_xy_m[:, 0:1] + snap.circle_vel_m_s[:, 0:1] * t_s) - ex  # (C, S)
-        cy = (snap.circle_xy_m[:, 1:2] + snap.circle_vel_m_s[:, 1:2] * t_s) - ey
-        u = np.clip((cx * dx + cy * dy) / len2, 0.0, 1.0)
-        r = snap.circle_radius_m[:, None]
-        crosses = np.hypot(cx - u * dx, cy - u * dy) < r
-        d_o = np.where(crosses, r - np.abs(cx * nx + cy * ny), 0.0)
-        best = np.maximum(best, d_o.max(axis=0))
+    basis = np.empty((2, 2 * n_s))  # [n | d]
+    basis[0, :n_s] = -dy * inv_len
+    basis[1, :n_s] = dx * inv_len
+    basis[0, n_s:] = dx
+    basis[1, n_s:] = dy
+    n_c = len(snap.circle_ids)
+    parts = []
+    if n_c:
+        parts.append(snap.circle_xy_m + (snap.circle_vel_m_s * t_s - (qx, qy)))
     if snap.poly_ids:
-        # Only polygons whose bounding disc some sight segment meets can be crossed (cheap test first).
-        shift = snap.poly_vel_m_s * t_s
-        rx = (snap.poly_centre_m[:, 0:1] + shift[:, 0:1]) - ex  # (P, S)
-        ry = (snap.poly_centre_m[:, 1:2] + shift[:, 1:2]) - ey
-        u = np.clip((rx * dx + ry * dy) / len2, 0.0, 1.0)
-        rows = (np.hypot(rx - u * dx, ry - u * dy) < snap.poly_bound_m[:, None]).any(axis=1)
-    if snap.poly_ids and rows.any():
-        a = snap.poly_a_m[rows] + shift[rows][:, None, :]
-        d = snap.poly_d_m[rows]
-        ddx, ddy = d[..., 0:1], d[..., 1:2]  # (P, E, 1)
-        ax = a[..., 0:1] - ex  # (P, E, S), relative to the ends
-        ay = a[..., 1:2] - ey
-        sa = ax * nx + ay * ny  # signed distance of each vertex from each sight line
-        sb = sa + (ddx * nx + ddy * ny)  # ... of each edge's end
-        # An edge crosses the segment if it straddles the line at a point between the ends.
-        straddle = (sa > 0.0) != (sb > 0.0)
-        k = sa / np.where(straddle, sa - sb, 1.0)
-        along = ((ax + k * ddx) * dx + (ay + k * ddy) * dy) / len2
-        straddle &= (along >= 0.0) & (along <= 1.0)
-        crossed = straddle.any(axis=1)  # (P, S)
-        left = sa.max(axis=1)
-        right = -sa.min(axis=1)
-        d_o = np.where(crossed, np.minimum(left, right), 0.0)
+        n_p, n_e = snap.poly_a_m.shape[:2]
+        shift = snap.poly_vel_m_s * t_s - (qx, qy)
+        parts.append((snap.poly_a_m + shift[:, None, :]).reshape(-1, 2))  # vertices, from q
+        parts.append(snap.poly_d_m.reshape(-1, 2))  # edge vectors
+    m = (parts[0] if len(parts) == 1 else np.concatenate(parts)) @ basis
+    best = np.zeros(n_s)
+    if n_c:
+        side, along = m[:n_c, :n_s], m[:n_c, n_s:]  # centre: from the line; along it, from q
+        # The closest point of segment i to the centre: its position u in [0, 1] from the end.
+        u = along / len2 + 1.0
+        over = u - np.minimum(np.maximum(u, 0.0), 1.0)
+        r = snap.circle_radius_m[:, None]
+        crosses = side * side + over * over * len2 < r * r
+        best = np.where(crosses, r - np.abs(side), 0.0).max(axis=0)
+    if snap.poly_ids:
+        k0, k1 = n_c + n_p * n_e, n_c + 2 * n_p * n_e
+        sa, pa = m[n_c:k0, :n_s], m[n_c:k0, n_s:]  # each edge's start (a vertex)
+        sd, pd = m[k0:k1, :n_s], m[k0:k1, n_s:]  # each edge's vector
+        # An edge crosses the segment if it straddles the line at a point between the ends:
+        # at k = sa / -sd along the edge, whose position along the line from q is pa + k pd,
+        # in [-|d|^2, 0].
+        straddle = (sa > 0.0) != (sa + sd > 0.0)
+        w = pa + sa / np.where(straddle, -sd, 1.0) * pd
+        straddle &= (w >= -len2) & (w <= 0.0)
+        crossed = straddle.reshape(n_p, n_e, n_s).any(axis=1)  # (P, S)
+        sa = sa.reshape(n_p, n_e, n_s)
+        d_o = np.where(crossed, np.minimum(sa.max(axis=1), -sa.min(axis=1)), 0.0)
         best = np.maximum(best, d_o.max(axis=0))
     return best
 
 
 def heading_scores(pts: np.ndarray, final_heading: np.ndarray, goals: LocalGoals) -> np.ndarray:
     """H (S,) in degrees: 180 - |heading - bearing to goal| at each prediction point, toward the
-    goal the tracker would hold there (see :class:`LocalGoals`)."""
-    ex, ey = pts[:, -1, 0], pts[:, -1, 1]
+    goal the tracker would hold there (see :class:`LocalGoals`). ``pts``: rollouts (S, K + 1, 2)."""
+    return _heading(pts[:, -1, 0], pts[:, -1, 1], final_heading, goals, pts[0, 0], pts[..., 0], pts[..., 1])
+
+
+def _single_target(goals: LocalGoals, ex: np.ndarray, ey: np.ndarray, origin: tuple[float, float]) -> bool:
+    """Whether every rollout is scored toward the first goal, so that only the prediction points
+    (ex, ey) matter: one goal, and when it is the station, no rollout can reach it."""
+    nodes = goals.nodes_xy
+    if len(nodes) != 1:
+        return False
+    if not goals.ends_at_station:
+        return True
+    x0, y0 = origin  # every rollout starts at the pose
+    dx, dy = ex - x0, ey - y0
+    reach = math.sqrt(float((dx * dx + dy * dy).max()))
+    return math.hypot(goals.first_xy[0] - x0, goals.first_xy[1] - y0) > reach + goals.station_radius_m
+
+
+def _heading(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray, goals: LocalGoals,
+             origin: tuple[float, float], px: np.ndarray | None, py: np.ndarray | None,
+             single: bool | None = None) -> np.ndarray:
+    """heading_scores from the prediction points (ex, ey) (S,) leaving the pose ``origin``; the
+    whole rollouts px, py (S, K + 1) are read only when not ``single`` (see _single_target)."""
     nodes = goals.nodes_xy
     count = len(nodes)
     at_station = None
-    if count == 1 and goals.ends_at_station:  # only the station: can any rollout reach it?
-        x0, y0 = pts[0, 0]  # every rollout starts at the pose
-        reach = float(np.hypot(ex - x0, ey - y0).max())
-        single = math.hypot(nodes[0, 0] - x0, nodes[0, 1] - y0) > reach + goals.station_radius_m
-    else:
-        single = count == 1
+    if single is None:
+        single = _single_target(goals, ex, ey, origin)
     if single:
-        tx, ty = nodes[0]
+        tx, ty = goals.first_xy
     else:
         gx, gy = nodes[:, 0], nodes[:, 1]
-        flat = pts.reshape(-1, 2)
-        near2 = (((flat[:, 0] - gx[:, None]) ** 2 + (flat[:, 1] - gy[:, None]) ** 2)
-                 .reshape(count, *pts.shape[:2]).min(axis=2).T)  # (S, G)
+        near2 = (((px.ravel() - gx[:, None]) ** 2 + (py.ravel() - gy[:, None]) ** 2)
+                 .reshape(count, *px.shape).min(axis=2).T)  # (S, G)
         prev = goals.prev_nodes_xy
         passed = (ex[:, None] - gx) * (gx - prev[:, 0]) + (ey[:, None] - gy) * (gy - prev[:, 1]) > 0.0
         if goals.ends_at_station:
@@ -626,52 +709,70 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     """One BDWA decision: the best legal yaw rate toward the local goal, or NoLegalRollout.
 
     ``goals`` is a :class:`LocalGoals` window (what the fusion layer passes) or a bare (x, y).
+    Every array here is small (31 x 23 points), so the cost is the number of numpy calls, not
+    arithmetic: the whole rollouts are placed only when a rule or the goal window reads them
+    (in open air only the 31 prediction points are), and each rule is skipped when it cannot bind.
     """
     if not isinstance(goals, LocalGoals):
         goals = LocalGoals.single(goals)
-    pts, final_heading = rollouts(pose, config)
-    px, py = pts[..., 0], pts[..., 1]
     times = config.times_s
+    horizon = float(times[-1])
     shape = (config.samples, config.steps + 1)
-    ok_by_rule: dict[str, np.ndarray] = {}  # (S, K + 1) per rule; column 0 is the pose itself
+    near = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, horizon)
+    # Separation can only bind when the other UAV's predicted path comes within reach.
+    separation = other is not None and config.min_separation_m > 0 and (
+        math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m) <= config.reach_m + config.min_separation_m
+        + math.hypot(other.vx_m_s, other.vy_m_s) * horizon + 1.0)
+    fence = config.fence_m
+    fence_here = None  # distance to the fence, when a rollout can reach it
+    if fence is not None:
+        here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
+        if here < config.reach_m:
+            fence_here = here
 
-    near = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, float(times[-1]))
+    place = _placement(pose)
+    origin = (pose.x_m, pose.y_m)
+    ex, ey = place @ config.end_hom_m  # the prediction points (S,)
+    single = _single_target(goals, ex, ey, origin)
+    px = py = None  # (S, K + 1) each, when needed; column 0 is the pose itself
+    if near.count or separation or fence_here is not None or not single:
+        xy = place @ config.body_hom_m
+        px, py = xy[0].reshape(shape), xy[1].reshape(shape)
+        ex, ey = px[:, -1], py[:, -1]
+    final_heading = pose.heading_rad + config.final_dheading_rad
+
+    ok_by_rule: dict[str, np.ndarray] = {}  # (S, K + 1) per rule
+    clear = None
     if near.count:
         clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)  # (O, S * (K + 1))
-        floor = np.minimum(clear[:, 0:1], 0.0)  # already inside: never deeper than now
-        ok_by_rule["obstacle"] = (clear >= floor - 1e-9).all(axis=0).reshape(shape)
-        nearest = clear.min(axis=0).reshape(shape)[:, 1:].min(axis=1)
-        distance = np.clip(nearest, 0.0, config.distance_saturation_m)
+        lowest = clear.min(axis=0)
+        if clear[:, 0].min() >= 0.0:  # outside every inflated obstacle: no rollout point may enter one
+            ok = lowest >= -1e-9
+        else:  # already inside one: never deeper than now
+            ok = (clear >= np.minimum(clear[:, 0:1], 0.0) - 1e-9).all(axis=0)
+        ok_by_rule["obstacle"] = ok.reshape(shape)
+        distance = np.minimum(np.maximum(lowest.reshape(shape)[:, 1:].min(axis=1), 0.0), config.distance_saturation_m)
     else:
         distance = np.full(config.samples, config.distance_saturation_m)
-
-    # Separation can only bind when the other UAV's predicted path comes within reach.
-    if other is not None and config.min_separation_m > 0 and (
-            math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m) <= config.reach_m + config.min_separation_m
-            + math.hypot(other.vx_m_s, other.vy_m_s) * float(times[-1]) + 1.0):
+    if separation:
         ox = other.x_m + other.vx_m_s * times
         oy = other.y_m + other.vy_m_s * times
         limit = min(config.min_separation_m, math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m))
         ok_by_rule["separation"] = (px - ox) ** 2 + (py - oy) ** 2 >= (limit - 1e-6) ** 2
-
-    fence = config.fence_m
-    if fence is not None:
-        here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
-        if here < config.reach_m:  # otherwise no rollout can reach the fence
-            inside = np.minimum(np.minimum(px - fence[0], fence[2] - px), np.minimum(py - fence[1], fence[3] - py))
-            ok_by_rule["geofence"] = inside >= min(here, 0.0) - 1e-9
+    if fence_here is not None:
+        inside = np.minimum(np.minimum(px - fence[0], fence[2] - px), np.minimum(py - fence[1], fence[3] - py))
+        ok_by_rule["geofence"] = inside >= min(fence_here, 0.0) - 1e-9
 
     ok_pts = None
     for ok in ok_by_rule.values():
         ok_pts = ok if ok_pts is None else ok_pts & ok
     legal = np.ones(config.samples, dtype=bool) if ok_pts is None else ok_pts[:, 1:].all(axis=1)
-    heading = heading_scores(pts, final_heading, goals)
+    heading = _heading(ex, ey, final_heading, goals, origin, px, py, single)
     if not legal.any():
-        return _no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading,
-                                 clear if near.count else None)
+        return _no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear)
     legal = _commit_turn(pose, goals, legal, config)
 
-    sightline = _sightline(pose, other, snapshot, config, pts[:, -1])
+    sightline = _sightline(pose, other, snapshot, config, ex, ey)
     total = _evaluate(config, legal, heading, distance, sightline)
     best = int(np.argmax(total))
     return _command(config, best, heading, distance, sightline, float(total[best]), int(np.count_nonzero(legal)))
@@ -763,7 +864,7 @@ def _no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, sna
             if not legal.any():
                 continue
             scores = heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals)
-            sight = _sightline(pose, other, snapshot, config, pts[:, -1])
+            sight = _sightline(pose, other, snapshot, config, pts[:, -1, 0], pts[:, -1, 1])
             total = _evaluate(config, legal, scores, distance, sight)
             i = int(np.argmax(total))
             turn = float(config.rec_turn_rad[i])
@@ -803,8 +904,8 @@ def _rotation(heading_rad: float) -> np.ndarray:
 
 
 def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig,
-               ends: np.ndarray) -> np.ndarray | None:
-    """S (capped) for prediction points ``ends``, or None when the term is off: no other UAV,
+               ex: np.ndarray, ey: np.ndarray) -> np.ndarray | None:
+    """S (capped) for prediction points (ex, ey), or None when the term is off: no other UAV,
     w_s = 0, or the other UAV has arrived (a parked UAV is no one to hide from, and a term that
     is non-zero for few candidates would outbid the heading critic under sum normalisation)."""
     if other is None or other.arrived or config.w_s <= 0 or not snapshot.count:
@@ -815,7 +916,7 @@ def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, c
     seen = snapshot.near(pose.x_m, pose.y_m, config.reach_m, t_p, to_xy=q)
     if not seen.count:
         return None
-    return np.minimum(config.sightline_cap_m, sightline_scores(ends, q, t_p, seen))
+    return np.minimum(config.sightline_cap_m, _sightline_scores(ex, ey, q, t_p, seen))
 
 
 def _commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaConfig) -> np.ndarray:

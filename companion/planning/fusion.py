@@ -131,11 +131,16 @@ class ObstacleField:
             rows.append((o, o.is_circle, n_sc + k_c if o.is_circle else n_sp + k_p))
             k_c, k_p = k_c + o.is_circle, k_p + (not o.is_circle)
         fields = {name: getattr(template, name) for name in _SNAPSHOT_FIELDS}
+        moved = ("circle_xy_m", "circle_vel_m_s", "bound_xy_m", "speed_m_s") + (
+            ("poly_a_m", "poly_b_m", "poly_centre_m", "poly_vel_m_s") if k_p else ())
+        moving_rows = np.zeros(template.count, dtype=bool)  # circles, then polygons
+        for o, circle, row in rows:
+            moving_rows[row if circle else n_c + row] = True
+        shared = (moving_rows, frozenset(moved), {})  # every snapshot below differs from the template only here
         for k in range(len(times)):
             t = float(times[k])
-            values = dict(fields, _subsets={})
-            for name in ("circle_xy_m", "circle_vel_m_s", "bound_xy_m", "speed_m_s") + (
-                    ("poly_a_m", "poly_b_m", "poly_centre_m", "poly_vel_m_s") if k_p else ()):
+            values = dict(fields, _subsets={}, _shared=shared)
+            for name in moved:
                 values[name] = fields[name].copy()
             for (o, circle, row), off in zip(rows, offsets):
                 dx, dy = float(off[k, 0]), float(off[k, 1])
