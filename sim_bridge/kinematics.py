@@ -14,7 +14,7 @@ yaw is advanced first and a body-frame setpoint is rotated by the *new* yaw, so 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from enum import Enum
 
 
@@ -115,5 +115,6 @@ def step(state: KinematicState, command: VelocityCommand, limits: VehicleLimits,
     if down in (0.0, -limits.max_alt_m):
         vd = 0.0
 
-    return replace(state, north_m=state.north_m + vn * dt_s, east_m=state.east_m + ve * dt_s,
-                   down_m=down, vn_m_s=vn, ve_m_s=ve, vd_m_s=vd, yaw_rad=yaw, yawspeed_rad_s=yawspeed)
+    # Every field is new: the constructor, not dataclasses.replace (several times slower; this
+    # runs once per vehicle per tick in the headless runner).
+    return KinematicState(state.north_m + vn * dt_s, state.east_m + ve * dt_s, down, vn, ve, vd, yaw, yawspeed)

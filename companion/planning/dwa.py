@@ -176,6 +176,12 @@ class DwaConfig:
     # places every rollout point (see _placement), x and y each coming out contiguous.
     body_hom_m: np.ndarray = field(init=False, repr=False)
     end_hom_m: np.ndarray = field(init=False, repr=False)  # (3, S): the prediction points only
+    # Plain numbers and constant rows the tick reads, derived once (a property would recompute).
+    steps: int = field(init=False, repr=False)  # K
+    horizon_s: float = field(init=False, repr=False)  # K dt
+    reach_m: float = field(init=False, repr=False)  # how far a rollout goes: v K dt
+    all_legal: np.ndarray = field(init=False, repr=False)  # (S,) all True
+    saturated_m: np.ndarray = field(init=False, repr=False)  # (S,) all distance_saturation_m
     # Spin recovery: rollouts (R = J headings x recovery samples) that start after yawing in place
     # by rec_turn_rad (J headings one tick of full-rate yaw apart, all round), rec_delay_s later.
     rec_body_xy_m: np.ndarray = field(init=False, repr=False)  # (R, K + 1, 2)
@@ -204,6 +210,13 @@ class DwaConfig:
                             ("end_hom_m", _homogeneous(body[:, -1])), *rec.items()):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
+        for name, value in (("all_legal", np.ones(len(w), dtype=bool)),
+                            ("saturated_m", np.full(len(w), self.distance_saturation_m))):
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "steps", steps)
+        object.__setattr__(self, "horizon_s", float(t[-1]))
+        object.__setattr__(self, "reach_m", self.speed_m_s * float(t[-1]))
 
     @classmethod
     def from_settings(cls, planner: "PlannerSettings", vehicle: "VehicleSpec",
@@ -229,18 +242,9 @@ class DwaConfig:
         return cls(**values)
 
     @property
-    def steps(self) -> int:
-        return int(self.times_s.shape[0]) - 1
-
-    @property
     def spin_time_s(self) -> float:
         """The longest yaw in place the recovery may ask for (half a turn)."""
         return float(self.rec_delay_s.max()) if self.rec_delay_s.size else 0.0
-
-    @property
-    def reach_m(self) -> float:
-        """How far a rollout goes: v * p."""
-        return self.speed_m_s * float(self.times_s[-1])
 
 
 def _homogeneous(xy: np.ndarray) -> np.ndarray:
@@ -716,7 +720,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     if not isinstance(goals, LocalGoals):
         goals = LocalGoals.single(goals)
     times = config.times_s
-    horizon = float(times[-1])
+    horizon = config.horizon_s
     shape = (config.samples, config.steps + 1)
     near = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, horizon)
     # Separation can only bind when the other UAV's predicted path comes within reach.
@@ -753,7 +757,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
         ok_by_rule["obstacle"] = ok.reshape(shape)
         distance = np.minimum(np.maximum(lowest.reshape(shape)[:, 1:].min(axis=1), 0.0), config.distance_saturation_m)
     else:
-        distance = np.full(config.samples, config.distance_saturation_m)
+        distance = config.saturated_m
     if separation:
         ox = other.x_m + other.vx_m_s * times
         oy = other.y_m + other.vy_m_s * times
@@ -766,16 +770,17 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     ok_pts = None
     for ok in ok_by_rule.values():
         ok_pts = ok if ok_pts is None else ok_pts & ok
-    legal = np.ones(config.samples, dtype=bool) if ok_pts is None else ok_pts[:, 1:].all(axis=1)
+    legal = config.all_legal if ok_pts is None else ok_pts[:, 1:].all(axis=1)
     heading = _heading(ex, ey, final_heading, goals, origin, px, py, single)
-    if not legal.any():
+    if not np.count_nonzero(legal):
         return _no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear)
     legal = _commit_turn(pose, goals, legal, config)
 
     sightline = _sightline(pose, other, snapshot, config, ex, ey)
-    total = _evaluate(config, legal, heading, distance, sightline)
-    best = int(np.argmax(total))
-    return _command(config, best, heading, distance, sightline, float(total[best]), int(np.count_nonzero(legal)))
+    n_legal = int(np.count_nonzero(legal))
+    total = _evaluate(config, legal, heading, distance, sightline, n_legal == config.samples)
+    best = int(total.argmax())
+    return _command(config, best, heading, distance, sightline, float(total[best]), n_legal)
 
 
 def _command(config: DwaConfig, i: int, heading: np.ndarray, distance: np.ndarray, sightline: np.ndarray | None,
@@ -866,7 +871,7 @@ def _no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, sna
             scores = heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals)
             sight = _sightline(pose, other, snapshot, config, pts[:, -1, 0], pts[:, -1, 1])
             total = _evaluate(config, legal, scores, distance, sight)
-            i = int(np.argmax(total))
+            i = int(total.argmax())
             turn = float(config.rec_turn_rad[i])
             yaw_rate = max(-config.max_yaw_rate_rad_s, min(config.max_yaw_rate_rad_s, turn / dt))
             command = Command(yaw_rate_rad_s=yaw_rate, speed_m_s=0.0, heading_score=float(scores[i]),
@@ -910,7 +915,7 @@ def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, c
     is non-zero for few candidates would outbid the heading critic under sum normalisation)."""
     if other is None or other.arrived or config.w_s <= 0 or not snapshot.count:
         return None
-    t_p = float(config.times_s[-1])
+    t_p = config.horizon_s
     q = (other.x_m + other.vx_m_s * t_p, other.y_m + other.vy_m_s * t_p)
     # Sight lines run from somewhere within reach of the pose to q: skip obstacles far from both.
     seen = snapshot.near(pose.x_m, pose.y_m, config.reach_m, t_p, to_xy=q)
@@ -940,17 +945,26 @@ def _commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaCo
 
 
 def _evaluate(config: DwaConfig, legal: np.ndarray, heading: np.ndarray, distance: np.ndarray,
-              sightline: np.ndarray | None) -> np.ndarray:
+              sightline: np.ndarray | None, everyone: bool | None = None) -> np.ndarray:
     """Eval = w_h H + w_d D + w_s S, each critic normalised by its sum over the legal candidates
     (Fox et al. 1997; a critic that is zero for all of them contributes nothing); -inf where
-    illegal. Term by term on (S,) rows: this runs every tick."""
-    total = np.zeros(len(heading))
-    everyone = bool(legal.all())
+    illegal. ``everyone``: whether every candidate is legal, if the caller knows. Term by term
+    on (S,) rows: this runs every tick."""
+    if everyone is None:
+        everyone = bool(legal.all())
+    total = None
     for weight, critic in ((config.w_h, heading), (config.w_d, distance), (config.w_s, sightline)):
         if critic is None or weight == 0.0:
             continue
         norm = float(critic.sum() if everyone else critic[legal].sum())
         if norm > 0.0:
-            total += critic * (weight / norm)
-    total[~legal] = -np.inf
+            term = critic * (weight / norm)
+            if total is None:
+                total = term
+            else:
+                total += term
+    if total is None:
+        total = np.zeros(len(heading))
+    if not everyone:
+        total[~legal] = -np.inf
     return total
