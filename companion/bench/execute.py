@@ -26,6 +26,7 @@ from companion.bench.diagnose import diagnose, hold_ticks
 from companion.bench.table import run_row
 from companion.planning.errors import NoPath
 from companion.planning.fusion import variant_needs_route
+from companion.planning.metrics import vehicle_lower_bound_s
 from companion.planning.runner import simulate
 from companion.scenarios import ScenarioConfig, ScenarioError, generate_scenario, with_variant, write_mission_yaml
 
@@ -56,12 +57,13 @@ def run_scenario(task: ScenarioTask) -> list[dict[str, Any]]:
         return [run_row(task.seed, task.index, f"random_s{task.seed}_i{task.index}", v, None,
                         wall_s=0.0, reason="no_scenario", error=str(exc)) for v in task.variants]
     rows = []
+    bounds = {v.name: vehicle_lower_bound_s(scenario.mission, v.name) for v in scenario.mission.vehicles}
     for k, variant in enumerate(task.variants):
         started = time.perf_counter()
         result = None
         try:
             routes = scenario.routes if variant_needs_route(variant) else {}
-            result = simulate(scenario.mission, variant, routes=routes)
+            result = simulate(scenario.mission, variant, routes=routes, lower_bounds_s=bounds)
             summary = result.summary.summary_dict()
             facts = {"hold_ticks": hold_ticks(result.ticks), **diagnose(result.mission, result.tracks, summary)}
             row = run_row(task.seed, task.index, scenario.doc["name"], variant, summary,

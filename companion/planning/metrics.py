@@ -76,12 +76,19 @@ class TruthGeometry:
         self._c_r = np.array([o.size_m for o in fixed], dtype=float)
         for o in self.polygons:
             shapely.prepare(o.footprint)
+        # Each polygon's bounding disc (about its reference centre), for skipping the exact
+        # distance where the disc alone shows the polygon is not the nearest footprint.
+        self._p_bound = [(o.center, float(np.hypot(*(o.vertices() - o.center).T).max())) for o in self.polygons]
 
     def segment_clearance_m(self, x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray,
-                            t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
-        """Smallest distance (N,) from each moving segment to any true footprint; 0 = contact."""
+                            t0: np.ndarray, t1: np.ndarray, upto_m: float = math.inf) -> np.ndarray:
+        """Smallest distance (N,) from each moving segment to any true footprint; 0 = contact.
+
+        ``upto_m``: clearances beyond it come back as ``upto_m`` (for a contact check: obstacles
+        that far from every segment need no exact distance). Exact below it.
+        """
         x0, y0, x1, y1 = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (x0, y0, x1, y1))
-        best = np.full(x0.shape, np.inf)
+        best = np.full(x0.shape, float(upto_m))
         if len(self._c_r):  # static discs, all at once: (N, C)
             cx, cy = self._c_xy[:, 0], self._c_xy[:, 1]
             d = _origin_to_segment(x0[:, None] - cx, y0[:, None] - cy, x1[:, None] - cx, y1[:, None] - cy)
@@ -94,14 +101,21 @@ class TruthGeometry:
             cx, cy = o.center
             best = np.minimum(best, _origin_to_segment(x0 - o0[..., 0] - cx, y0 - o0[..., 1] - cy,
                                                        x1 - o1[..., 0] - cx, y1 - o1[..., 1] - cy) - o.size_m)
-        for o in self.polygons:
+        for o, ((cx, cy), bound) in zip(self.polygons, self._p_bound):
             if o.is_moving:  # in the obstacle's frame
                 o0, o1 = o.offset_at(t0), o.offset_at(t1)
-                a = np.stack([x0 - o0[..., 0], y0 - o0[..., 1]], axis=-1)
-                b = np.stack([x1 - o1[..., 0], y1 - o1[..., 1]], axis=-1)
+                ax, ay, bx, by = x0 - o0[..., 0], y0 - o0[..., 1], x1 - o1[..., 0], y1 - o1[..., 1]
             else:
-                a, b = np.stack([x0, y0], axis=-1), np.stack([x1, y1], axis=-1)
-            best = np.minimum(best, shapely.distance(shapely.linestrings(np.stack([a, b], axis=-2)), o.footprint))
+                ax, ay, bx, by = x0, y0, x1, y1
+            # The distance to the bounding disc is a lower bound of the distance to the polygon:
+            # where it is no smaller than the best so far, the polygon cannot change the result.
+            near = _origin_to_segment(ax - cx, ay - cy, bx - cx, by - cy) - bound < best
+            if not near.any():
+                continue
+            a = np.stack([ax[near], ay[near]], axis=-1)
+            b = np.stack([bx[near], by[near]], axis=-1)
+            best[near] = np.minimum(best[near], shapely.distance(shapely.linestrings(np.stack([a, b], axis=-2)),
+                                                                 o.footprint))
         return np.maximum(best, 0.0)
 
     def sight_blocked(self, ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray,
@@ -278,7 +292,7 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
         if lower_bounds_s is not None and name in lower_bounds_s:
             bound = lower_bounds_s[name]
         else:
-            bound = _lower_bound_s(world, spec.start_enu_m, spec.goal_enu_m, spec.speed_m_s)
+            bound = vehicle_lower_bound_s(mission, name)
         route = None if routes is None else routes.get(name)
         ms = None if planner_ms is None or not len(planner_ms.get(name, ())) else np.asarray(planner_ms[name])
         per_vehicle[name] = VehicleMetrics(
@@ -338,9 +352,13 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
     )
 
 
-def _lower_bound_s(world: World, start, goal, speed_m_s: float) -> float | None:
-    """The bound, or None when there is none (no static route exists)."""
+def vehicle_lower_bound_s(mission: "Mission", name: str) -> float | None:
+    """Vehicle ``name``'s lower bound on flight time (SPEC §2), or None when there is none
+    (no static route exists). It depends on the geometry only, not on the planner variant: a
+    caller scoring several variants of one mission computes it once and passes it to
+    :func:`summarize` as ``lower_bounds_s``."""
+    spec = mission.vehicle(name)
     try:
-        return float(lower_bound_s(world, start, goal, speed_m_s))
+        return float(lower_bound_s(mission.world, spec.start_enu_m, spec.goal_enu_m, spec.speed_m_s))
     except PlanningError:
         return None

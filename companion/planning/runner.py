@@ -82,8 +82,12 @@ def _other(s: KinematicState, parked: bool = False) -> OtherUav:
 
 
 def simulate(mission: Mission, variant: str | None = None, *,
-             routes: dict[str, Route] | None = None) -> RunResult:
+             routes: dict[str, Route] | None = None,
+             lower_bounds_s: dict[str, float | None] | None = None) -> RunResult:
     """Fly ``mission`` headless with ``variant`` (default: the mission's) and score it.
+
+    ``routes`` and ``lower_bounds_s`` (see :func:`metrics.vehicle_lower_bound_s`) do not depend
+    on the variant: a caller flying several variants of one mission may pass them in once.
 
     Raises :class:`companion.planning.errors.NoPath` when an A* variant finds no route.
     """
@@ -160,7 +164,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
         end = len(xy) - 1 if last_row[name] is None else min(last_row[name], len(xy) - 1)
         tracks[name] = Track(dt * np.arange(end + 1), xy[:end + 1, i, 0], xy[:end + 1, i, 1])
     planner_ms = {n: [r.planner_ms for r in ticks[n] if not r.arrived] for n in ticks}
-    summary = summarize(mission, tracks, routes=routes, planner_ms=planner_ms, geometry=truth)
+    summary = summarize(mission, tracks, routes=routes, planner_ms=planner_ms, geometry=truth,
+                        lower_bounds_s=lower_bounds_s)
     summary.extra.update(  # how often the fail-safe fallbacks acted, per vehicle
         planner_holds={n: sum(r.command is None and not r.arrived for r in ticks[n]) for n in names},
         planner_escapes={n: sum(r.escape_reason is not None for r in ticks[n]) for n in names},
@@ -180,7 +185,7 @@ def _first_violation(mission: Mission, truth: TruthGeometry, rows: list, first: 
     if truth.circles or truth.polygons:
         t0 = np.repeat(dt * np.arange(first, first + n), nv)
         clear = truth.segment_clearance_m(a[..., 0].ravel(), a[..., 1].ravel(), b[..., 0].ravel(), b[..., 1].ravel(),
-                                          t0, t0 + dt)
+                                          t0, t0 + dt, upto_m=1.0)  # only contact matters here
         bad |= (clear <= 0.0).reshape(n, nv).any(axis=1)
     bad |= ~inside_fence(mission.world, b[..., 0], b[..., 1]).all(axis=1)
     for i in range(nv):
