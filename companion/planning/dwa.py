@@ -182,6 +182,8 @@ class DwaConfig:
     reach_m: float = field(init=False, repr=False)  # how far a rollout goes: v K dt
     all_legal: np.ndarray = field(init=False, repr=False)  # (S,) all True
     saturated_m: np.ndarray = field(init=False, repr=False)  # (S,) all distance_saturation_m
+    saturated_sums: tuple[float, ...] = field(init=False, repr=False)  # [n]: numpy's sum of n of them
+    end_reach_m: float = field(init=False, repr=False)  # the farthest prediction point from the pose
     # Spin recovery: rollouts (R = J headings x recovery samples) that start after yawing in place
     # by rec_turn_rad (J headings one tick of full-rate yaw apart, all round), rec_delay_s later.
     rec_body_xy_m: np.ndarray = field(init=False, repr=False)  # (R, K + 1, 2)
@@ -214,6 +216,8 @@ class DwaConfig:
                             ("saturated_m", np.full(len(w), self.distance_saturation_m))):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
+        object.__setattr__(self, "saturated_sums", tuple(float(self.saturated_m[:n].sum()) for n in range(len(w) + 1)))
+        object.__setattr__(self, "end_reach_m", float(np.hypot(body[:, -1, 0], body[:, -1, 1]).max()))
         object.__setattr__(self, "steps", steps)
         object.__setattr__(self, "horizon_s", float(t[-1]))
         object.__setattr__(self, "reach_m", self.speed_m_s * float(t[-1]))
@@ -450,21 +454,23 @@ class ObstacleSnapshot:
             return {"circle_ids": tuple(i for i, k in zip(self.circle_ids, kc) if k),
                     "poly_ids": tuple(i for i, k in zip(self.poly_ids, kp) if k), "_subsets": {}, "_shared": None}
 
+        def assemble(values: dict) -> "ObstacleSnapshot":
+            return _assemble({**values, "polygons_move": bool(values["poly_vel_m_s"].any())})
+
         if self._shared is None:
-            return _assemble({**pick(_ROW_FIELDS), **ids(), "polygons_move": self.polygons_move})
+            return assemble({**pick(_ROW_FIELDS), **ids()})
         moving_rows, moving_fields, cache = self._shared
         entry = cache.get(key)
         if entry is None:
             fixed = {**pick(_ROW_FIELDS.keys() - moving_fields), **ids()}
             whole = None
             if not np.any(keep & moving_rows):  # the same subset in every snapshot that shares the cache
-                values = {**fixed, **pick(moving_fields)}
-                whole = _assemble({**values, "polygons_move": bool(np.any(values["poly_vel_m_s"]))})
+                whole = assemble({**fixed, **pick(moving_fields)})
             entry = cache[key] = (fixed, whole)
         fixed, whole = entry
         if whole is not None:
             return whole
-        return _assemble({**fixed, **pick(moving_fields), "polygons_move": self.polygons_move})
+        return assemble({**fixed, **pick(moving_fields)})
 
 
 # The array fields of a snapshot and the rows they have: one per circle, polygon, or obstacle
@@ -662,18 +668,16 @@ def heading_scores(pts: np.ndarray, final_heading: np.ndarray, goals: LocalGoals
     return _heading(pts[:, -1, 0], pts[:, -1, 1], final_heading, goals, pts[0, 0], pts[..., 0], pts[..., 1])
 
 
-def _single_target(goals: LocalGoals, ex: np.ndarray, ey: np.ndarray, origin: tuple[float, float]) -> bool:
+def _single_target(goals: LocalGoals, reach_m: float, origin: tuple[float, float]) -> bool:
     """Whether every rollout is scored toward the first goal, so that only the prediction points
-    (ex, ey) matter: one goal, and when it is the station, no rollout can reach it."""
-    nodes = goals.nodes_xy
-    if len(nodes) != 1:
+    matter: one goal, and when it is the station, no prediction point (at most ``reach_m`` from
+    ``origin``, the pose) can reach it."""
+    if len(goals.nodes_xy) != 1:
         return False
     if not goals.ends_at_station:
         return True
-    x0, y0 = origin  # every rollout starts at the pose
-    dx, dy = ex - x0, ey - y0
-    reach = math.sqrt(float((dx * dx + dy * dy).max()))
-    return math.hypot(goals.first_xy[0] - x0, goals.first_xy[1] - y0) > reach + goals.station_radius_m
+    x0, y0 = origin
+    return math.hypot(goals.first_xy[0] - x0, goals.first_xy[1] - y0) > reach_m + goals.station_radius_m
 
 
 def _heading(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray, goals: LocalGoals,
@@ -685,7 +689,9 @@ def _heading(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray, goals: L
     count = len(nodes)
     at_station = None
     if single is None:
-        single = _single_target(goals, ex, ey, origin)
+        x0, y0 = origin
+        dx, dy = ex - x0, ey - y0
+        single = _single_target(goals, math.sqrt(float((dx * dx + dy * dy).max())), origin)
     if single:
         tx, ty = goals.first_xy
     else:
@@ -696,8 +702,10 @@ def _heading(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray, goals: L
         passed = (ex[:, None] - gx) * (gx - prev[:, 0]) + (ey[:, None] - gy) * (gy - prev[:, 1]) > 0.0
         if goals.ends_at_station:
             passed[:, -1] = False  # the station is reached, never passed
-        reached = (near2 <= goals.radius2_m2) | passed
-        n_reached = np.cumprod(reached, axis=1).sum(axis=1)
+        # How many goals in a row each rollout reaches: the first unreached one's index.
+        reached = np.zeros((len(ex), count + 1), dtype=bool)
+        np.logical_or(near2 <= goals.radius2_m2, passed, out=reached[:, :count])
+        n_reached = reached.argmin(axis=1)
         if goals.ends_at_station:
             at_station = n_reached == count
         target = nodes[np.minimum(n_reached, count - 1)]
@@ -736,13 +744,14 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
 
     place = _placement(pose)
     origin = (pose.x_m, pose.y_m)
-    ex, ey = place @ config.end_hom_m  # the prediction points (S,)
-    single = _single_target(goals, ex, ey, origin)
+    single = _single_target(goals, config.end_reach_m, origin)
     px = py = None  # (S, K + 1) each, when needed; column 0 is the pose itself
     if near.count or separation or fence_here is not None or not single:
         xy = place @ config.body_hom_m
         px, py = xy[0].reshape(shape), xy[1].reshape(shape)
         ex, ey = px[:, -1], py[:, -1]
+    else:
+        ex, ey = place @ config.end_hom_m  # the prediction points (S,) only
     final_heading = pose.heading_rad + config.final_dheading_rad
 
     ok_by_rule: dict[str, np.ndarray] = {}  # (S, K + 1) per rule
@@ -955,6 +964,12 @@ def _evaluate(config: DwaConfig, legal: np.ndarray, heading: np.ndarray, distanc
     total = None
     for weight, critic in ((config.w_h, heading), (config.w_d, distance), (config.w_s, sightline)):
         if critic is None or weight == 0.0:
+            continue
+        if critic is config.saturated_m:  # nothing within reach: the same for every candidate
+            norm = config.saturated_sums[len(critic) if everyone else int(np.count_nonzero(legal))]
+            if norm > 0.0:
+                term = config.distance_saturation_m * (weight / norm)
+                total = np.full(len(critic), term) if total is None else total.__iadd__(term)
             continue
         norm = float(critic.sum() if everyone else critic[legal].sum())
         if norm > 0.0:

@@ -113,51 +113,59 @@ class ObstacleField:
 
     def at_times(self, times_s: np.ndarray) -> Iterator[ObstacleSnapshot]:
         """``at_time(t)`` for every t of ``times_s``, made cheaply: the headless runner knows
-        every tick time up front. The moving obstacles' offsets come from one vectorised
-        ``offset_at`` call each, and every snapshot is a template (static + moving obstacles
-        at their reference position, built once) with only the moving rows translated."""
+        every tick time up front. Every snapshot is a template (static + moving obstacles at
+        their reference position, built once) with only the moving rows changed: their
+        positions for all times come from one vectorised ``offset_at`` call per obstacle, added
+        to the template in bulk, and each snapshot views its row of those arrays."""
         times = np.asarray(times_s, dtype=float)
         moving = list(self.moving.values())
         if not moving:
             yield from (self.static for _ in times)
             return
         template = self.from_tracks([ObstacleTrack(o.id, o.center[0], o.center[1], 0.0, 0.0) for o in moving])
-        offsets = [o.offset_at(times) for o in moving]  # (T, 2) each
         n_sc, n_sp = len(self.static.circle_ids), len(self.static.poly_ids)
         n_c = len(template.circle_ids)
-        rows = []  # (obstacle, is circle, row in its kind's arrays)
+        rows = []  # (obstacle, is circle, row in its kind's arrays, row among all obstacles)
         k_c = k_p = 0
         for o in moving:
-            rows.append((o, o.is_circle, n_sc + k_c if o.is_circle else n_sp + k_p))
+            row = n_sc + k_c if o.is_circle else n_sp + k_p
+            rows.append((o, o.is_circle, row, row if o.is_circle else n_c + row))
             k_c, k_p = k_c + o.is_circle, k_p + (not o.is_circle)
+        placed = ("circle_xy_m", "bound_xy_m") + (("poly_a_m", "poly_b_m", "poly_centre_m") if k_p else ())
+        bulk = {name: np.repeat(getattr(template, name)[None], len(times), axis=0) for name in placed}
+        for o, circle, row, bound in rows:
+            off = o.offset_at(times)  # (T, 2)
+            bulk["bound_xy_m"][:, bound] += off
+            if circle:
+                bulk["circle_xy_m"][:, row] += off
+            else:
+                bulk["poly_a_m"][:, row] += off[:, None, :]
+                bulk["poly_b_m"][:, row] += off[:, None, :]
+                bulk["poly_centre_m"][:, row] += off
         fields = {name: getattr(template, name) for name in _SNAPSHOT_FIELDS}
-        moved = ("circle_xy_m", "circle_vel_m_s", "bound_xy_m", "speed_m_s") + (
-            ("poly_a_m", "poly_b_m", "poly_centre_m", "poly_vel_m_s") if k_p else ())
         moving_rows = np.zeros(template.count, dtype=bool)  # circles, then polygons
-        for o, circle, row in rows:
-            moving_rows[row if circle else n_c + row] = True
+        for _, _, _, bound in rows:
+            moving_rows[bound] = True
+        moved = placed + ("circle_vel_m_s", "speed_m_s") + (("poly_vel_m_s",) if k_p else ())
         shared = (moving_rows, frozenset(moved), {})  # every snapshot below differs from the template only here
         for k in range(len(times)):
             t = float(times[k])
             values = dict(fields, _subsets={}, _shared=shared)
-            for name in moved:
-                values[name] = fields[name].copy()
-            for (o, circle, row), off in zip(rows, offsets):
-                dx, dy = float(off[k, 0]), float(off[k, 1])
-                vx, vy = o.motion.velocity_at(t)
-                bound = row if circle else n_c + row
-                values["bound_xy_m"][bound] += (dx, dy)
-                values["speed_m_s"][bound] = math.hypot(vx, vy)
-                if circle:
-                    values["circle_xy_m"][row] += (dx, dy)
-                    values["circle_vel_m_s"][row] = (vx, vy)
-                else:
-                    values["poly_a_m"][row] += (dx, dy)
-                    values["poly_b_m"][row] += (dx, dy)
-                    values["poly_centre_m"][row] += (dx, dy)
-                    values["poly_vel_m_s"][row] = (vx, vy)
+            for name in placed:
+                values[name] = bulk[name][k]
+            circle_vel = values["circle_vel_m_s"] = fields["circle_vel_m_s"].copy()
+            speed = values["speed_m_s"] = fields["speed_m_s"].copy()
             if k_p:
-                values["polygons_move"] = bool(np.any(values["poly_vel_m_s"]))
+                poly_vel = values["poly_vel_m_s"] = fields["poly_vel_m_s"].copy()
+            for o, circle, row, bound in rows:
+                vx, vy = o.motion.velocity_at(t)
+                speed[bound] = math.hypot(vx, vy)
+                if circle:
+                    circle_vel[row] = (vx, vy)
+                else:
+                    poly_vel[row] = (vx, vy)
+            if k_p:
+                values["polygons_move"] = bool(np.any(poly_vel))
             yield _assemble(values)
 
 

@@ -144,8 +144,47 @@ def test_headless_snapshot_is_the_true_state_now():
     assert tuple(snap.circle_vel_m_s[j]) == pytest.approx(MOVING.world.obstacles[2].motion.velocity_at(40.0))
 
 
-def test_snapshots_for_all_tick_times_equal_one_snapshot_per_time():
-    field = ObstacleField.from_world(MOVING.world)
+MOVING_DISCS = parse_mission("""
+area: {x_min_m: 0, y_min_m: 0, x_max_m: 2000, y_max_m: 2000}
+stations: {A: [0, 0], B: [2000, 2000]}
+obstacles:
+  - {id: rock, shape: triangle, center: [1000, 1000], circumradius_m: 200}
+  - {id: pond, shape: circle, center: [400, 400], radius_m: 150}
+  - {id: wall, shape: rectangle, center: [1500, 1400], width_m: 300, height_m: 80}
+  - {id: drone, shape: circle, center: [1500, 500], radius_m: 80,
+     motion: {type: orbit, pivot: [1500, 800], speed_m_s: 4}}
+  - {id: kite, shape: circle, center: [300, 1200], radius_m: 60,
+     motion: {type: shuttle, to: [1300, 1200], speed_m_s: 5}}
+vehicles:
+  - {name: a, start: A, goal: B}
+""", "moving_discs")
+
+_SNAPSHOT_ARRAYS = ("circle_xy_m", "circle_radius_m", "circle_margin_m", "circle_vel_m_s", "poly_a_m", "poly_b_m",
+                    "poly_d_m", "poly_margin_m", "poly_centre_m", "poly_bound_m", "poly_vel_m_s", "bound_xy_m",
+                    "bound_radius_m", "speed_m_s", "poly_inv_len2", "poly_dx_per_dy")
+
+
+@pytest.mark.parametrize("mission", [MOVING, MOVING_DISCS], ids=["moving-polygon", "moving-discs-only"])
+def test_culled_subsets_of_tick_snapshots_equal_those_of_one_snapshot_per_time(mission):
+    """The runner's snapshots share culled subsets of unmoved obstacles across ticks: each must
+    still equal the subset culled from a snapshot built for that time alone."""
+    field = ObstacleField.from_world(mission.world)
+    times = 0.5 * np.arange(0, 1200, 23)
+    probes = [(x, y) for x in (300.0, 1000.0, 1450.0) for y in (450.0, 1200.0, 1500.0)]
+    for t, fast in zip(times, field.at_times(times)):
+        slow = field.at_time(float(t))
+        for x, y in probes:
+            for got, want in ((fast.near(x, y, 150.0, 11.0), slow.near(x, y, 150.0, 11.0)),
+                              (fast.near(x, y, 120.0, 11.0, to_xy=(1800.0, 300.0)),
+                               slow.near(x, y, 120.0, 11.0, to_xy=(1800.0, 300.0)))):
+                assert got.ids == want.ids and got.polygons_move == want.polygons_move, (t, x, y)
+                for name in _SNAPSHOT_ARRAYS:
+                    assert getattr(got, name) == pytest.approx(getattr(want, name), abs=1e-9), (t, x, y, name)
+
+
+@pytest.mark.parametrize("mission", [MOVING, MOVING_DISCS], ids=["moving-polygon", "moving-discs-only"])
+def test_snapshots_for_all_tick_times_equal_one_snapshot_per_time(mission):
+    field = ObstacleField.from_world(mission.world)
     times = 0.5 * np.arange(0, 900, 37)  # both shuttle legs, the orbit all round
     for t, fast in zip(times, field.at_times(times)):
         slow = field.at_time(float(t))
