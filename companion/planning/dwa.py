@@ -421,14 +421,7 @@ class ObstacleSnapshot:
         """Only the obstacles whose inflated shape can come within ``reach_m`` of (x, y) during
         ``horizon_s`` at their predicted velocity; the others cannot touch any rollout. With
         ``to_xy``: within ``reach_m`` of the segment (x, y) -> to_xy (sight lines)."""
-        bx, by = self.bound_xy_m[:, 0], self.bound_xy_m[:, 1]
-        if to_xy is None:
-            dx, dy = bx - x_m, by - y_m
-            d = np.sqrt(dx * dx + dy * dy)
-        else:
-            d = _to_segment(bx, by, x_m, y_m, to_xy)
-        keep = d - self.bound_radius_m - self.speed_m_s * horizon_s <= reach_m
-        kept = int(np.count_nonzero(keep))
+        keep, kept = self.near_mask(x_m, y_m, reach_m, horizon_s, to_xy)
         if kept == len(keep):
             return self
         if not kept:
@@ -438,6 +431,19 @@ class ObstacleSnapshot:
         if cached is None:
             cached = self._subsets[key] = self._take(keep, key)
         return cached
+
+    def near_mask(self, x_m: float, y_m: float, reach_m: float, horizon_s: float,
+                  to_xy: tuple[float, float] | None = None) -> tuple[np.ndarray, int]:
+        """What :meth:`near` keeps, as a mask over the obstacles (circles, then polygons), and
+        how many it keeps; for a caller that only indexes a few arrays."""
+        bx, by = self.bound_xy_m[:, 0], self.bound_xy_m[:, 1]
+        if to_xy is None:
+            dx, dy = bx - x_m, by - y_m
+            d = np.sqrt(dx * dx + dy * dy)
+        else:
+            d = _to_segment(bx, by, x_m, y_m, to_xy)
+        keep = d - self.bound_radius_m - self.speed_m_s * horizon_s <= reach_m
+        return keep, int(np.count_nonzero(keep))
 
     def _take(self, keep: np.ndarray, key: bytes) -> "ObstacleSnapshot":
         """The obstacles where ``keep`` (circles, then polygons) is true; ``key`` is
@@ -606,8 +612,9 @@ def sightline_scores(ends: np.ndarray, other_xy: tuple[float, float], t_s: float
 
 
 def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, float], t_s: float,
-                      snap: ObstacleSnapshot) -> np.ndarray:
-    """sightline_scores for ends (ex, ey), each (S,).
+                      snap: ObstacleSnapshot, keep: np.ndarray | None = None) -> np.ndarray:
+    """sightline_scores for ends (ex, ey), each (S,), over the obstacles where ``keep`` (a mask,
+    circles then polygons; all when None).
 
     Every sight segment ends at q = other_xy, so everything is measured from q: for a point
     w (relative to q), w . n_i is its signed distance from sight line i (n_i its unit left
@@ -626,15 +633,21 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
     basis[1, :n_s] = dx * inv_len
     basis[0, n_s:] = dx
     basis[1, n_s:] = dy
-    n_c = len(snap.circle_ids)
+    c_xy, c_vel, c_r = snap.circle_xy_m, snap.circle_vel_m_s, snap.circle_radius_m
+    p_a, p_d, p_vel = snap.poly_a_m, snap.poly_d_m, snap.poly_vel_m_s
+    if keep is not None:
+        kc, kp = keep[:len(c_r)], keep[len(c_r):]
+        c_xy, c_vel, c_r = c_xy[kc], c_vel[kc], c_r[kc]
+        p_a, p_d, p_vel = p_a[kp], p_d[kp], p_vel[kp]
+    n_c, n_p = len(c_r), len(p_a)
     parts = []
     if n_c:
-        parts.append(snap.circle_xy_m + (snap.circle_vel_m_s * t_s - (qx, qy)))
-    if snap.poly_ids:
-        n_p, n_e = snap.poly_a_m.shape[:2]
-        shift = snap.poly_vel_m_s * t_s - (qx, qy)
-        parts.append((snap.poly_a_m + shift[:, None, :]).reshape(-1, 2))  # vertices, from q
-        parts.append(snap.poly_d_m.reshape(-1, 2))  # edge vectors
+        parts.append(c_xy + (c_vel * t_s - (qx, qy)))
+    if n_p:
+        n_e = p_a.shape[1]
+        shift = p_vel * t_s - (qx, qy)
+        parts.append((p_a + shift[:, None, :]).reshape(-1, 2))  # vertices, from q
+        parts.append(p_d.reshape(-1, 2))  # edge vectors
     m = (parts[0] if len(parts) == 1 else np.concatenate(parts)) @ basis
     best = np.zeros(n_s)
     if n_c:
@@ -642,10 +655,10 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
         # The closest point of segment i to the centre: its position u in [0, 1] from the end.
         u = along / len2 + 1.0
         over = u - np.minimum(np.maximum(u, 0.0), 1.0)
-        r = snap.circle_radius_m[:, None]
+        r = c_r[:, None]
         crosses = side * side + over * over * len2 < r * r
         best = np.where(crosses, r - np.abs(side), 0.0).max(axis=0)
-    if snap.poly_ids:
+    if n_p:
         k0, k1 = n_c + n_p * n_e, n_c + 2 * n_p * n_e
         sa, pa = m[n_c:k0, :n_s], m[n_c:k0, n_s:]  # each edge's start (a vertex)
         sd, pd = m[k0:k1, :n_s], m[k0:k1, n_s:]  # each edge's vector
@@ -927,10 +940,11 @@ def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, c
     t_p = config.horizon_s
     q = (other.x_m + other.vx_m_s * t_p, other.y_m + other.vy_m_s * t_p)
     # Sight lines run from somewhere within reach of the pose to q: skip obstacles far from both.
-    seen = snapshot.near(pose.x_m, pose.y_m, config.reach_m, t_p, to_xy=q)
-    if not seen.count:
+    keep, kept = snapshot.near_mask(pose.x_m, pose.y_m, config.reach_m, t_p, to_xy=q)
+    if not kept:
         return None
-    return np.minimum(config.sightline_cap_m, _sightline_scores(ex, ey, q, t_p, seen))
+    return np.minimum(config.sightline_cap_m,
+                      _sightline_scores(ex, ey, q, t_p, snapshot, None if kept == len(keep) else keep))
 
 
 def _commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaConfig) -> np.ndarray:
