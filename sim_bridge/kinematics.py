@@ -72,8 +72,9 @@ def _wrap(angle: float) -> float:
 
 def step(state: KinematicState, command: VelocityCommand, limits: VehicleLimits, dt_s: float) -> KinematicState:
     """Advance the plant by ``dt_s`` seconds under ``command``. Pure; non-finite commands hover."""
-    values = (command.x_m_s, command.y_m_s, command.z_m_s, command.yawspeed_rad_s)
-    if not all(math.isfinite(v) for v in values):
+    isfinite = math.isfinite
+    if not (isfinite(command.x_m_s) and isfinite(command.y_m_s) and isfinite(command.z_m_s)
+            and isfinite(command.yawspeed_rad_s)):
         command = HOVER
     yawspeed = _clip(command.yawspeed_rad_s, limits.max_yaw_rate_rad_s)
     yaw = _wrap(state.yaw_rad + yawspeed * dt_s)

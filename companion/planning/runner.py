@@ -114,6 +114,7 @@ def simulate(mission: Mission, variant: str | None = None, *,
     dt = mission.planner.dt_s
     n_ticks = int(math.floor(mission.safety.time_limit_s / dt + 1e-9))
     names = [v.name for v in vehicles]
+    others = {n: [m for m in names if m != n] for n in names}
     # rows[i] = every vehicle's (x, y) at t = i * dt; an arrived vehicle repeats its last row.
     rows = [[_xy(states[n]) for n in names]]
     last_row = {n: None for n in names}  # the row of arrival
@@ -129,8 +130,10 @@ def simulate(mission: Mission, variant: str | None = None, *,
         commands = {}
         for name in list(active):
             own = states[name]
-            nearest = min((n for n in names if n != name), default=None,
-                          key=lambda n: (states[n].east_m - own.east_m) ** 2 + (states[n].north_m - own.north_m) ** 2)
+            candidates = others[name]
+            nearest = candidates[0] if len(candidates) == 1 else min(
+                candidates, default=None,
+                key=lambda n: (states[n].east_m - own.east_m) ** 2 + (states[n].north_m - own.north_m) ** 2)
             # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
             other = None if nearest is None else _other(states[nearest], parked=nearest not in active)
             result = planners[name].tick(_pose(own), other, snapshot, t)
