@@ -19,6 +19,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from companion.app.embedded import StubOptions, embedded_stub
 from companion.app.flight_plan import FlightPlan, prepare, verify_readback
@@ -26,6 +27,9 @@ from companion.app.pilot import RunSettings
 from companion.app.runner import RunResult, run_mission, summary_table
 from companion.errors import CompanionError
 from companion.mission import VARIANTS, MissionError, load_mission, mission_schema
+
+if TYPE_CHECKING:
+    from companion.vehicle.inprocess import InProcessOptions
 
 log = logging.getLogger("companion")
 
@@ -88,7 +92,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--variant", choices=VARIANTS, default=None, help="planner variant (default: the mission's)")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write summary.json, flight.csv, traffic.csv, trajectory.png (and the stub's .tlog) here")
-    p.add_argument("--speedup", type=_positive, default=1.0, help="embedded stub: sim seconds per wall second")
+    p.add_argument("--speedup", type=_positive, default=None,
+                   help="embedded stub: sim seconds per wall second (default 1); with --in-process: pace the "
+                        "sim at this factor (default: as fast as the loop turns)")
     p.add_argument("--loss", type=_probability, default=0.0, metavar="P", help="embedded stub: API packet loss")
     p.add_argument("--latency-ms", type=float, default=0.0, metavar="MS", help="embedded stub: added API latency")
     p.add_argument("--blackout", type=_blackout, action="append", default=[], metavar="START:DURATION",
@@ -105,6 +111,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "mission's obstacles (an external sim-bridge); tracks and scoring then use it, as with the "
                         "embedded stub")
     p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S", help="wall seconds (default 15)")
+    p.add_argument("--in-process", action="store_true",
+                   help="no stub process and no sockets: fly the stub's vehicles inside the companion on one sim "
+                        "clock, deterministically and faster than real time (same outputs, no .tlog)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("validate", help="check a mission file (schema, geometry, reachability)")
@@ -288,6 +297,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         plan = _load_and_plan(args)
         conns = _connections(plan, args.connect) if args.connect else None
+        inproc = _inprocess_options(args) if args.in_process else None
     except (MissionError, BadInput) as exc:
         return _bad(exc)
     out: Path | None = args.out
@@ -300,28 +310,45 @@ def cmd_run(args: argparse.Namespace) -> int:
     settings = RunSettings(shared_clock=conns is None or args.shared_clock, connect_timeout_s=args.connect_timeout,
                            progress_every_s=args.progress_every, land=not args.no_land)
     stub = None
-    if conns is None:
-        stub = StubOptions(speedup=args.speedup, api_port_base=args.port_base, gcs_port=args.gcs_port,
+    if conns is None and inproc is None:
+        stub = StubOptions(speedup=args.speedup or 1.0, api_port_base=args.port_base, gcs_port=args.gcs_port,
                            loss=args.loss, latency_ms=args.latency_ms, seed=args.seed,
                            blackouts=tuple(args.blackout), tlog_dir=out,
                            log_path=None if out is None else out / "sim_bridge.log")
-    elif args.speedup != 1.0 or args.loss or args.latency_ms or args.blackout:
+    elif conns is not None and (args.speedup not in (None, 1.0) or args.loss or args.latency_ms or args.blackout):
         print("companion: note: --speedup/--loss/--latency-ms/--blackout only apply to the embedded stub; "
               "ignored with --connect", file=sys.stderr)
     try:
-        result = asyncio.run(_run(plan, conns, stub, settings, out))
+        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc))
     except CompanionError as exc:
         print(f"companion: {exc}", file=sys.stderr)
         return EXIT_FAILED
     print(summary_table(plan, result), flush=True)
     if out is not None:
-        tlog = "the stub's .tlog" if stub is not None else "no .tlog (MAVSDK cannot record one; use a GCS)"
+        tlog = ("the stub's .tlog" if stub is not None else "no .tlog (in process: no link to record)"
+                if inproc is not None else "no .tlog (MAVSDK cannot record one; use a GCS)")
         print(f"wrote {out}/summary.json, flight.csv, traffic.csv, trajectory.png and {tlog}", flush=True)
     return EXIT_OK if result.success else EXIT_FAILED
 
 
+def _inprocess_options(args: argparse.Namespace) -> InProcessOptions:
+    """--in-process: refuse what only the UDP path has; the speed factor is checked by the sim clock."""
+    from companion.vehicle.inprocess import InProcessOptions
+    from sim_bridge.clock import ClockError
+    if args.connect:
+        raise BadInput("--in-process flies the stub's vehicles inside the companion; "
+                       "it cannot be combined with --connect")
+    if args.loss or args.latency_ms or args.blackout:
+        raise BadInput("--loss/--latency-ms/--blackout act on the embedded stub's UDP link; "
+                       "there is none with --in-process")
+    try:
+        return InProcessOptions(speedup=args.speedup)
+    except ClockError as exc:
+        raise BadInput(f"--speedup: {exc}") from None
+
+
 async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions | None,
-               settings: RunSettings, out: Path | None) -> RunResult:
+               settings: RunSettings, out: Path | None, inproc: InProcessOptions | None = None) -> RunResult:
     started = time.monotonic()
     report = _printer(started)
     stop = asyncio.Event()
@@ -341,6 +368,14 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
         extra = {"connections": conns or "embedded", "speedup": None if stub is None else stub.speedup,
                  "loss": None if stub is None else stub.loss,
                  "latency_ms": None if stub is None else stub.latency_ms}
+        if inproc is not None:
+            from companion.vehicle.inprocess import open_inprocess_fleet
+            extra.update(connections="in-process", speedup=inproc.speedup)
+            pace = "as fast as the loop turns" if inproc.speedup is None else f"at {inproc.speedup:g}x"
+            report(f"flying in process (no stub process, no sockets), {pace}")
+            async with open_inprocess_fleet(plan.mission, inproc) as fleet:
+                return await run_mission(plan, fleet.connections(), settings, out, report, stop, extra,
+                                         open_vehicle=fleet.open_vehicle)
         if stub is None:
             assert conns is not None
             return await run_mission(plan, conns, settings, out, report, stop, extra)

@@ -16,7 +16,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Mapping
-from contextlib import AsyncExitStack
+from contextlib import AbstractAsyncContextManager, AsyncExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,8 +28,13 @@ from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings
 from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
                               VehicleNotReady, primary_error)
+from companion.mission import VehicleSpec
 from companion.planning.metrics import RunSummary, Track, summarize
 from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
+from companion.vehicle.port import Vehicle
+
+# Opens one vehicle of the mission given its connection label; the default is MAVSDK on that URL.
+VehicleOpener = Callable[[VehicleSpec, str], AbstractAsyncContextManager[Vehicle]]
 
 
 @dataclass(frozen=True)
@@ -53,8 +58,10 @@ async def _watch_stop(stop: asyncio.Event) -> None:
 
 async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings: RunSettings,
                       out_dir: Path | None, report: Callable[[str], None],
-                      stop: asyncio.Event | None = None, extra: Mapping[str, Any] | None = None) -> RunResult:
-    """Fly ``plan`` over the given MAVSDK connection URLs (vehicle name -> URL)."""
+                      stop: asyncio.Event | None = None, extra: Mapping[str, Any] | None = None,
+                      open_vehicle: VehicleOpener | None = None) -> RunResult:
+    """Fly ``plan`` over the given MAVSDK connection URLs (vehicle name -> URL), or through
+    ``open_vehicle`` (e.g. the in-process fleet's) when given."""
     mission = plan.mission
     stop = stop or asyncio.Event()
     started = time.monotonic()
@@ -67,9 +74,10 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
                 vehicles = {}
                 for spec in mission.vehicles:
                     url = connections[spec.name]
-                    vehicles[spec.name] = await stack.enter_async_context(open_mavsdk_vehicle(
+                    opened = (open_vehicle(spec, url) if open_vehicle is not None else open_mavsdk_vehicle(
                         spec.name, spec.system_id, url, mission.origin,
                         connect_timeout_s=settings.connect_timeout_s))
+                    vehicles[spec.name] = await stack.enter_async_context(opened)
                     report(f"{spec.name}: connected on {url} (system id {spec.system_id})")
                 ctx = FlightContext(plan, settings, log, vehicles, report)
                 pilots = [Pilot(ctx, spec) for spec in mission.by_priority]

@@ -35,6 +35,7 @@ from mavsdk.exceptions import MavsdkError
 from companion import frames
 from companion.errors import CommandRefused, ConnectTimeout, LinkError, MissionUploadError, VehicleNotReady
 from companion.vehicle.board import VehicleBoard
+from companion.vehicle.convert import traffic_velocity_enu  # shared with the in-process adapter
 from companion.vehicle.port import (
     FlightMode,
     GeoWaypoint,
@@ -89,12 +90,6 @@ def body_setpoint(sp: VelocityYawRateSetpoint) -> VelocityBodyYawspeed:
     yawspeed = frames.enu_yaw_rate_to_ned(sp.yaw_rate_enu_rad_s)
     return VelocityBodyYawspeed(forward_m_s=float(sp.forward_m_s), right_m_s=0.0,
                                 down_m_s=float(-sp.climb_m_s), yawspeed_deg_s=math.degrees(yawspeed))
-
-
-def traffic_velocity_enu(heading_deg: float, speed_m_s: float) -> tuple[float, float]:
-    """(vx_east, vy_north) from an ADS-B course (clockwise from north, a NED yaw) and speed."""
-    course = frames.ned_yaw_to_enu_heading(math.radians(heading_deg))
-    return speed_m_s * math.cos(course), speed_m_s * math.sin(course)
 
 
 class MavsdkVehicle:
