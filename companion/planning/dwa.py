@@ -589,7 +589,8 @@ def _polygon_signed_distance(px: np.ndarray, py: np.ndarray, t_s: np.ndarray,
     u = apx * abx
     u += apy * aby
     u *= snap.poly_inv_len2[..., None]
-    np.clip(u, 0.0, 1.0, out=u)
+    np.maximum(u, 0.0, out=u)  # clip to [0, 1]; np.clip costs more per call
+    np.minimum(u, 1.0, out=u)
     apx -= u * abx
     apy -= u * aby
     apx *= apx
