@@ -35,6 +35,7 @@ import time
 from collections.abc import AsyncIterator, Callable, Iterable, Mapping, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -58,8 +59,12 @@ LINK = "api"  # the one link each in-process vehicle has: the companion's
 PEER = "companion"
 GCS_SYSTEM_ID = 245  # MAVSDK's ground-station identity, so the vehicles see the same partner
 GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER
-# The stub's API stream rates, in sim time only: a wall-clock cap would starve a fast sim.
-INPROCESS_PROFILE = StreamProfile(API_RATES_HZ, max_wall_rate_hz=0.0)
+# The stub's API stream rates, in sim time only (a wall-clock cap would starve a fast sim), less
+# the streams this link's one reader never reads: building them is a third of the telemetry cost.
+UNREAD_STREAMS = frozenset({mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
+                            mavlink.MAVLINK_MSG_ID_MISSION_CURRENT})
+INPROCESS_PROFILE = StreamProfile(
+    MappingProxyType({k: hz for k, hz in API_RATES_HZ.items() if k not in UNREAD_STREAMS}), max_wall_rate_hz=0.0)
 # SET_POSITION_TARGET_LOCAL_NED: body velocity + yaw rate (position, acceleration and yaw ignored).
 BODY_VELOCITY_YAW_RATE_MASK = (
     mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_Y_IGNORE
@@ -267,6 +272,10 @@ class InProcessVehicle:
         """The MAVLink mission upload: COUNT, then one MISSION_ITEM_INT per request, until the ACK."""
         if not waypoints:
             raise MissionUploadError("empty route", vehicle=self.name)
+        for i, w in enumerate(waypoints):  # what MISSION_ITEM_INT cannot carry (int32 degE7) never leaves
+            if not all(math.isfinite(v) and abs(v) * 1e7 < 2**31 for v in (w.lat_deg, w.lon_deg)):
+                raise MissionUploadError(f"waypoint {i}: lat/lon {w.lat_deg}, {w.lon_deg} cannot be encoded",
+                                         vehicle=self.name)
         f = self._up.factory
         items = [f.mission_item_int_encode(
             self.system_id, self._sim.component_id, i, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
@@ -284,6 +293,10 @@ class InProcessVehicle:
             if kind not in ("MISSION_REQUEST_INT", "MISSION_REQUEST") or not 0 <= reply.seq < len(items):
                 break
             reply = await self._mission_reply(items[reply.seq], "mission upload")
+        # End the vehicle's side of the transfer, as a GCS cancels one (MISSION_ACK with an error).
+        await self._absorb(self._exchange(f.mission_ack_encode(
+            self.system_id, self._sim.component_id, mavlink.MAV_MISSION_OPERATION_CANCELLED,
+            mavlink.MAV_MISSION_TYPE_MISSION)))
         raise MissionUploadError(f"mission upload: unexpected {reply.get_type()}", vehicle=self.name)
 
     async def download_route(self) -> tuple[GeoWaypoint, ...]:

@@ -144,6 +144,8 @@ def test_route_upload_download_round_trip_and_refusals(wire):
             await a.upload_route([], 30.0)
         with pytest.raises(MissionUploadError, match="mission upload: MAV_MISSION_"):
             await a.upload_route([GeoWaypoint(95.0, 8.0, 30.0)], 30.0)  # latitude out of range
+        with pytest.raises(MissionUploadError, match="waypoint 1: .* cannot be encoded"):
+            await a.upload_route([route[0], GeoWaypoint(47.4, math.nan, 30.0)], 30.0)
         return route, stored, back, await a.download_route()
     route, stored, back, after_refusal = _fly(mission, body, InProcessOptions(wire=wire))
     verify_readback("a", route, back)
