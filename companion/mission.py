@@ -89,6 +89,7 @@ class PlannerSettings:
     inflation_ratio: float
     acceptance_radius_m: float
     sightline_cap_m: float
+    replan_after_s: float  # 0: never re-plan (see VehiclePlanner)
 
     def prediction_time_for(self, vehicle: VehicleSpec) -> float:
         """The paper's p = ceil(2*pi / ((v/r) * 2)) + 1 seconds, unless the mission fixes it."""
@@ -310,6 +311,7 @@ def _build(data: dict, source: str, root: yaml.Node | None) -> Mission:
         inflation_ratio=float(opt(planner_raw, pdef, "inflation_ratio")),
         acceptance_radius_m=float(opt(planner_raw, pdef, "acceptance_radius_m")),
         sightline_cap_m=float(opt(planner_raw, pdef, "sightline_cap_m")),
+        replan_after_s=float(opt(planner_raw, pdef, "replan_after_s")),
     )
     safety_raw = data.get("safety", {})
     safety = SafetySettings(**{k: float(opt(safety_raw, sdef, k)) for k in sdef})

@@ -290,6 +290,23 @@ class Pilot:
             except CommandRefused as exc:  # the keep-alive resends it; a dead link shows as stale telemetry
                 self.outcome.interventions[f"setpoint not sent: {exc.result}"] += 1
             self._log_tick(pose, t_mission, result, setpoint, action)
+            if self.planner.replan_due:
+                await self._replan(pose, t_mission)
+
+    async def _replan(self, pose: PoseSample, t_mission: float) -> None:
+        """No progress for a while: plan a new route from here in a worker thread (A* must not
+        stall the other vehicle's loop), flying the setpoint just sent meanwhile."""
+        x, y = pose.x_east_m, pose.y_north_m
+        if getattr(self.vehicle, "clock_follows_event_loop", False):  # in-process: inline costs no sim time
+            nodes = self.planner.plan_detour(x, y)
+        else:
+            nodes = await asyncio.to_thread(self.planner.plan_detour, x, y)
+        if self.planner.adopt_detour(nodes, x, y, t_mission):
+            self.outcome.interventions["planner: re-planned"] += 1
+            self.ctx.report(f"{self.name}: no progress for {self.planner.replanning.after_s:g} s: "
+                            f"new route from ({x:.0f}, {y:.0f}), {len(nodes)} nodes")
+        else:
+            self.outcome.interventions["planner: no new route"] += 1
 
     async def _on_stale(self, exc: TelemetryLost, first: bool, stale_wall_s: float) -> None:
         """Never fly on old data: hover, and give up when the silence lasts too long."""

@@ -21,7 +21,7 @@ RUN_COLUMNS: tuple[tuple[str, type], ...] = (
     ("success", bool), ("success_strict", bool), ("reason", str), ("failure_t_s", float),
     ("duration_s", float), ("min_separation_m", float), ("los_blocked_fraction", float),
     ("crossing_occluded", bool), ("planner_ms_per_tick", float), ("wall_s", float), ("error", str),
-    ("hold_ticks", int), ("escape_ticks", int), ("failed_vehicles", str), ("hit_obstacle", str), ("hit_moving", bool),
+    ("hold_ticks", int), ("escape_ticks", int), ("replans", int), ("failed_vehicles", str), ("hit_obstacle", str), ("hit_moving", bool),
     ("hit_from_behind", bool),
 )
 VEHICLE_COLUMNS: tuple[tuple[str, type], ...] = (
@@ -45,6 +45,8 @@ def run_row(seed: int, index: int, scenario: str, variant: str, summary: Mapping
             row[key] = summary[key]
     if isinstance(summary.get("planner_escapes"), Mapping):  # ticks flown on the escape fallback
         row["escape_ticks"] = int(sum(summary["planner_escapes"].values()))
+    if isinstance(summary.get("planner_replans"), Mapping):  # detours planned after a stall
+        row["replans"] = int(sum(summary["planner_replans"].values()))
     for name, metrics in summary.get("vehicles", {}).items():
         for key, _ in VEHICLE_COLUMNS:
             row[f"{name}_{key}"] = metrics.get(key)

@@ -26,6 +26,9 @@ import numpy as np
 
 from companion.planning.dwa import (Command, DwaConfig, LocalGoals, NoLegalRollout, ObstacleSnapshot,
                                     OtherUav, Pose, _assemble, plan_step)
+from companion.planning.errors import BudgetExceeded, NoPath
+from companion.planning.grid import rasterise
+from companion.planning.routes import detour_route
 from companion.planning.world import Obstacle, World
 
 if TYPE_CHECKING:
@@ -238,6 +241,11 @@ class LocalGoalTracker:
                 ends_at_station=i + count == len(self._xy))
         return goals
 
+    def remaining_m(self, x_m: float, y_m: float) -> float:
+        """Route length left from (x, y): to the current goal, then along the nodes after it."""
+        gx, gy = self._xy[self.index]
+        return math.hypot(gx - x_m, gy - y_m) + self._along[-1] - self._along[self.index]
+
     def update(self, x_m: float, y_m: float) -> tuple[float, float]:
         """Advance past every node already reached or passed; return the current goal."""
         while not self.is_last:
@@ -275,15 +283,42 @@ class TickResult:
         return 0.0 if self.command is None else self.command.speed_m_s
 
 
-class VehiclePlanner:
-    """One vehicle's A*-BDWA (or ablation variant): local-goal tracking + one BDWA step a tick."""
+_PROGRESS_M = 20.0  # the remaining route must shorten by more than this to count as progress
 
-    def __init__(self, name: str, config: DwaConfig, tracker: LocalGoalTracker, arrival_radius_m: float):
+
+@dataclass(frozen=True)
+class Replanning:
+    """How an A*-guided vehicle gets out of a pocket (nav2 re-plans its global path for the same
+    reason): when its remaining route has not shortened by more than 20 m for ``after_s`` sim
+    seconds, a new route is planned from where it is (:func:`routes.detour_route`)."""
+
+    after_s: float
+    world: World
+    resolution_m: float
+    sparse: bool  # sparse nodes (astar-bdwa) or every A* cell (astar-bdwa-nosparse)
+
+
+class VehiclePlanner:
+    """One vehicle's A*-BDWA (or ablation variant): local-goal tracking + one BDWA step a tick.
+
+    Re-planning is split so that a live caller never blocks its event loop on A*: ``tick`` sets
+    ``replan_due``; the caller runs :meth:`plan_detour` (pure, a few tens of ms; in a worker
+    thread if it likes) and hands the result to :meth:`adopt_detour`. The headless runner does
+    both at once, right after the tick that set the flag.
+    """
+
+    def __init__(self, name: str, config: DwaConfig, tracker: LocalGoalTracker, arrival_radius_m: float,
+                 replanning: Replanning | None = None):
         self.name = name
         self.config = config
         self.tracker = tracker
         self.arrival_radius_m = arrival_radius_m
         self.arrived = False
+        self.replanning = replanning if replanning is not None and replanning.after_s > 0 else None
+        self.replan_due = False
+        self.replans = 0  # how many detours were planned (adopted or not)
+        self._progress: tuple[float, float] | None = None  # (best remaining route m, sim time it was reached)
+        self._grid = None  # the static grid, rasterised at the first detour
         self._station_xy = (float(tracker.nodes[-1][0]), float(tracker.nodes[-1][1]))
 
     @classmethod
@@ -308,7 +343,40 @@ class VehiclePlanner:
         fence = tuple(float(v) for v in mission.world.geofence.bounds)
         config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline, fence_m=fence)
         tracker = LocalGoalTracker(nodes, mission.planner.acceptance_radius_m)
-        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m)
+        replanning = None if goals_from == "station" else Replanning(
+            mission.planner.replan_after_s, mission.world, mission.planner.grid_resolution_m, goals_from == "sparse")
+        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, replanning)
+
+    def plan_detour(self, x_m: float, y_m: float) -> np.ndarray | None:
+        """A new route from (x, y) to the station, or None when there is none. Reads only what
+        does not change while flying (and caches the grid), so it may run in a worker thread."""
+        if self.replanning is None:
+            return None
+        r = self.replanning
+        if self._grid is None:
+            self._grid = rasterise(r.world, r.resolution_m)
+        try:
+            return detour_route(self._grid, r.world, (x_m, y_m), self._station_xy, sparse=r.sparse)
+        except (NoPath, BudgetExceeded):
+            return None
+
+    def adopt_detour(self, nodes: np.ndarray | None, x_m: float, y_m: float, t_s: float) -> bool:
+        """Fly ``nodes`` (from :meth:`plan_detour`) from now on; with None keep the route and
+        wait another ``after_s`` before trying again. Returns whether the route changed."""
+        self.replan_due = False
+        self.replans += 1
+        adopted = nodes is not None and len(nodes) >= 2
+        if adopted:
+            self.tracker = LocalGoalTracker(nodes, self.tracker.acceptance_radius_m)
+        self._progress = (self.tracker.remaining_m(x_m, y_m), t_s)
+        return adopted
+
+    def _watch_progress(self, x_m: float, y_m: float, t_s: float) -> None:
+        remaining = self.tracker.remaining_m(x_m, y_m)
+        if self._progress is None or remaining < self._progress[0] - _PROGRESS_M:
+            self._progress = (remaining, t_s)
+        elif t_s - self._progress[1] >= self.replanning.after_s:
+            self.replan_due = True
 
     @property
     def station_xy(self) -> tuple[float, float]:
@@ -326,6 +394,8 @@ class VehiclePlanner:
             return TickResult(t_s, None, (sx, sy), self.tracker.index, True,
                               (time.perf_counter() - started) * 1e3, "arrived")
         goal = self.tracker.update(own.x_m, own.y_m)
+        if self.replanning is not None and not self.replan_due:
+            self._watch_progress(own.x_m, own.y_m, t_s)
         reach = self.config.reach_m + self.tracker.acceptance_radius_m
         goals = self.tracker.window(own.x_m, own.y_m, reach, self.arrival_radius_m)
         decision = plan_step(own, goals, other, snapshot, self.config)

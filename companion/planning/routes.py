@@ -36,8 +36,9 @@ from shapely.geometry.base import BaseGeometry
 from companion.mission import Mission, VehicleSpec
 from companion.planning.astar import astar, path_length_m
 from companion.planning.errors import BudgetExceeded, NoPath
-from companion.planning.grid import rasterise
+from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.sparse import sparsify
+from companion.planning.world import World
 
 Constraint = Literal["opposite-side", "avoid-route", "none"]
 
@@ -102,6 +103,45 @@ def plan_routes(mission: Mission, *, max_expansions: int | None = None) -> dict[
             assert failure is not None
             raise failure.for_vehicle(vehicle.name) from None
     return routes
+
+
+def detour_route(grid: OccupancyGrid, world: World, from_xy: tuple[float, float],
+                 goal_xy: tuple[float, float], *, sparse: bool = True,
+                 max_expansions: int | None = None) -> np.ndarray:
+    """A new route (M, 2) from where a vehicle is now to its goal, sparse or every A* cell, on
+    the static ``grid``
+    (the world rasterised as for :func:`plan_routes`). No priority constraint: this is a way out
+    for a vehicle that stopped making progress, not a plan to coordinate.
+
+    A vehicle skirting an obstacle may sit in a cell the conservative rasterisation marks
+    occupied; the search then starts from the nearest free cell (within 10 cells), and the
+    route's first point is still the vehicle's own position. Raises :class:`NoPath` when there
+    is no free cell near or no route, :class:`BudgetExceeded` past ``max_expansions``.
+    """
+    x, y = float(from_xy[0]), float(from_xy[1])
+    start = _nearest_free_centre(grid, x, y, 10)
+    raw = astar(grid, start, goal_xy, max_expansions=max_expansions)
+    if (start[0], start[1]) != (x, y):
+        raw = np.vstack([[x, y], raw])
+    return sparsify(raw, world) if sparse else raw
+
+
+def _nearest_free_centre(grid: OccupancyGrid, x: float, y: float, cells: int) -> tuple[float, float]:
+    """(x, y) itself when its cell is free, else the centre of the nearest free cell within
+    ``cells`` cells of it."""
+    ix, iy = grid.world_to_cell(x, y)
+    if grid.is_free(ix, iy):
+        return x, y
+    ny, nx = grid.shape
+    x0, x1 = max(ix - cells, 0), min(ix + cells + 1, nx)
+    y0, y1 = max(iy - cells, 0), min(iy + cells + 1, ny)
+    if x0 >= x1 or y0 >= y1:
+        raise NoPath(f"({x:.1f}, {y:.1f}) is outside the grid")
+    free_y, free_x = np.nonzero(~grid.occupied[y0:y1, x0:x1])
+    if not free_x.size:
+        raise NoPath(f"no free grid cell within {cells} cells of ({x:.1f}, {y:.1f})")
+    k = int(np.argmin((free_x + x0 - ix) ** 2 + (free_y + y0 - iy) ** 2))
+    return grid.cell_to_world(int(free_x[k]) + x0, int(free_y[k]) + y0)
 
 
 def _constraint_ladder(earlier: Sequence[Route], vehicle: VehicleSpec, separation_m: float,

@@ -136,7 +136,11 @@ def simulate(mission: Mission, variant: str | None = None, *,
                 key=lambda n: (states[n].east_m - own.east_m) ** 2 + (states[n].north_m - own.north_m) ** 2)
             # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
             other = None if nearest is None else _other(states[nearest], parked=nearest not in active)
-            result = planners[name].tick(_pose(own), other, snapshot, t)
+            planner = planners[name]
+            result = planner.tick(_pose(own), other, snapshot, t)
+            if planner.replan_due:  # no progress for a while: a new route from here, at once
+                x, y = _xy(own)
+                planner.adopt_detour(planner.plan_detour(x, y), x, y, t)
             ticks[name].append(result)
             if result.arrived:
                 active.remove(name)
@@ -172,7 +176,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
     summary.extra.update(  # how often the fail-safe fallbacks acted, per vehicle
         planner_holds={n: sum(r.command is None and not r.arrived for r in ticks[n]) for n in names},
         planner_escapes={n: sum(r.escape_reason is not None for r in ticks[n]) for n in names},
-        planner_recoveries={n: sum(r.recovery_reason is not None for r in ticks[n]) for n in names})
+        planner_recoveries={n: sum(r.recovery_reason is not None for r in ticks[n]) for n in names},
+        planner_replans={n: planners[n].replans for n in names})
     return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started)
 
 

@@ -183,6 +183,12 @@ class InProcessVehicle:
         return self._board
 
     @property
+    def clock_follows_event_loop(self) -> bool:
+        """True when free-running: sim time moves only when the event loop turns, so CPU work
+        done inline costs no sim time while work in a thread lets the sim fly on without us."""
+        return self._fleet.options.speedup is None
+
+    @property
     def sim(self) -> SimVehicle:
         """The simulated autopilot itself (truth: collisions, offboard losses, parameters)."""
         return self._sim

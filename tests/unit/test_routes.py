@@ -199,3 +199,20 @@ def test_side_region_shapes():
     weave = side_region(np.array([[0.0, 0.0], [10.0, 10.0], [20.0, -10.0], [30.0, 10.0], [40.0, 0.0]]), frame)
     assert weave.geom_type == "MultiPolygon" and weave.area == pytest.approx(200.0)
     assert side_region(np.array([[0.0, 0.0], [5.0, 0.0], [10.0, 0.0]]), frame).is_empty
+
+
+def test_detour_starts_where_the_vehicle_is_even_in_a_conservatively_occupied_cell():
+    from companion.planning.routes import detour_route
+
+    rock = make_obstacle("rock", "circle", center=(500.0, 500.0), radius_m=200.0)
+    world = World(0.0, 0.0, 1000.0, 1000.0, 50.0, (rock,))
+    grid = rasterise(world, 10.0)
+    here = (500.0 + 240.5, 500.0)  # just outside the inflated disc (r = 240), in a cell the grid blocks
+    assert not grid.is_free(*grid.world_to_cell(*here))
+    route = detour_route(grid, world, here, (900.0, 950.0))
+    assert tuple(route[0]) == here and tuple(route[-1]) == (900.0, 950.0)
+    assert LineString(route).distance(Point(500.0, 500.0)) >= 240.0 - 1e-6  # clear of the inflated rock
+    raw = detour_route(grid, world, here, (900.0, 950.0), sparse=False)
+    assert len(raw) > len(route) and tuple(raw[0]) == here
+    with pytest.raises(NoPath, match="no free grid cell"):
+        detour_route(grid, world, (500.0, 500.0), (900.0, 950.0))  # the middle of the rock
