@@ -100,3 +100,36 @@ class VehicleBoard:
     async def put_traffic(self, report: TrafficReport) -> None:
         self._traffic[report.callsign] = report
         await self._notify()
+
+
+class BoardReaders:
+    """The Vehicle port's readers, answered from a :class:`VehicleBoard` in ``self._board``:
+    every adapter keeps its telemetry on a board, so they all read it the same way."""
+
+    _board: VehicleBoard
+
+    @property
+    def board(self) -> VehicleBoard:
+        return self._board
+
+    def latest_pose(self) -> PoseSample | None:
+        return self._board.pose()
+
+    def clock_s(self) -> float | None:
+        return self._board.latest_clock_s
+
+    def sim_rate(self) -> float | None:
+        return self._board.sim_rate
+
+    def status(self) -> VehicleStatus:
+        return self._board.status()
+
+    def traffic(self) -> Mapping[str, TrafficReport]:
+        return self._board.traffic()
+
+    async def next_pose(self, after_seq: int, timeout_s: float) -> PoseSample:
+        return await self._board.next_pose(after_seq, timeout_s)
+
+    async def wait_until(self, predicate: Callable[[VehicleStatus, PoseSample | None], bool],
+                         timeout_s: float, what: str) -> None:
+        await self._board.wait_until(predicate, timeout_s, what)

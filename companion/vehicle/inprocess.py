@@ -32,7 +32,7 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import AsyncIterator, Callable, Iterable, Mapping, Sequence
+from collections.abc import AsyncIterator, Iterable, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -43,10 +43,10 @@ from pymavlink.dialects.v20 import common as mavlink
 from companion import frames
 from companion.errors import CommandRefused, MissionUploadError, TelemetryLost, VehicleNotReady
 from companion.mission import Mission, VehicleSpec
-from companion.vehicle.board import VehicleBoard
+from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import traffic_velocity_enu
-from companion.vehicle.port import (FlightMode, GeoWaypoint, LandedState, PoseSample, TrafficReport, Vehicle,
-                                    VehicleStatus, VelocityYawRateSetpoint)
+from companion.vehicle.port import (FlightMode, GeoWaypoint, LandedState, TrafficReport, Vehicle,
+                                    VelocityYawRateSetpoint)
 from sim_bridge.clock import SimClock
 from sim_bridge.energy import EnergyModel
 from sim_bridge.px4 import Px4AutoSubMode, Px4MainMode, decode_custom_mode
@@ -150,7 +150,7 @@ class _Codec:
         return [m for m in self._parser.parse_buffer(buf) or [] if m.get_type() != "BAD_DATA"]
 
 
-class InProcessVehicle:
+class InProcessVehicle(BoardReaders):
     """The Vehicle port over one in-process SimVehicle. Build through :func:`open_inprocess_fleet`."""
 
     def __init__(self, fleet: InProcessFleet, sim: SimVehicle, origin: frames.GeoOrigin, wire: bool):
@@ -179,10 +179,6 @@ class InProcessVehicle:
         return self._sim.system_id
 
     @property
-    def board(self) -> VehicleBoard:
-        return self._board
-
-    @property
     def clock_follows_event_loop(self) -> bool:
         """True when free-running: sim time moves only when the event loop turns, so CPU work
         done inline costs no sim time while work in a thread lets the sim fly on without us."""
@@ -193,30 +189,11 @@ class InProcessVehicle:
         """The simulated autopilot itself (truth: collisions, offboard losses, parameters)."""
         return self._sim
 
-    def latest_pose(self) -> PoseSample | None:
-        return self._board.pose()
-
-    def clock_s(self) -> float | None:
-        return self._board.latest_clock_s
-
     def sim_rate(self) -> float | None:
         # Free-running, sim time only moves when the companion yields: there is no rate a wall
         # bound could trust (a descheduled process would look like a dead link), so the pilot
         # falls back to its generous 1x bounds. Paced, it is measured as on the socket path.
         return None if self._fleet.options.speedup is None else self._board.sim_rate
-
-    def status(self) -> VehicleStatus:
-        return self._board.status()
-
-    def traffic(self) -> Mapping[str, TrafficReport]:
-        return self._board.traffic()
-
-    async def next_pose(self, after_seq: int, timeout_s: float) -> PoseSample:
-        return await self._board.next_pose(after_seq, timeout_s)
-
-    async def wait_until(self, predicate: Callable[[VehicleStatus, PoseSample | None], bool],
-                         timeout_s: float, what: str) -> None:
-        await self._board.wait_until(predicate, timeout_s, what)
 
     async def wait_ready(self, timeout_s: float) -> None:
         """Health all OK (gyro/accel/mag/GPS sensors, global position, home) and a first pose."""

@@ -18,7 +18,7 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Mapping, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
 from typing import TypeVar
 
@@ -34,15 +34,13 @@ from mavsdk.exceptions import MavsdkError
 
 from companion import frames
 from companion.errors import CommandRefused, ConnectTimeout, LinkError, MissionUploadError, VehicleNotReady
-from companion.vehicle.board import VehicleBoard
+from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import traffic_velocity_enu  # shared with the in-process adapter
 from companion.vehicle.port import (
     FlightMode,
     GeoWaypoint,
     LandedState,
-    PoseSample,
     TrafficReport,
-    VehicleStatus,
     VelocityYawRateSetpoint,
 )
 
@@ -92,7 +90,7 @@ def body_setpoint(sp: VelocityYawRateSetpoint) -> VelocityBodyYawspeed:
                                 down_m_s=float(-sp.climb_m_s), yawspeed_deg_s=math.degrees(yawspeed))
 
 
-class MavsdkVehicle:
+class MavsdkVehicle(BoardReaders):
     """One autopilot over its own Mavsdk instance. Build with :func:`open_mavsdk_vehicle`."""
 
     def __init__(self, name: str, system_id: int, system, origin: frames.GeoOrigin):
@@ -120,31 +118,6 @@ class MavsdkVehicle:
     @property
     def system_id(self) -> int:
         return self._system_id
-
-    @property
-    def board(self) -> VehicleBoard:
-        return self._board
-
-    def latest_pose(self) -> PoseSample | None:
-        return self._board.pose()
-
-    def clock_s(self) -> float | None:
-        return self._board.latest_clock_s
-
-    def sim_rate(self) -> float | None:
-        return self._board.sim_rate
-
-    def status(self) -> VehicleStatus:
-        return self._board.status()
-
-    def traffic(self) -> Mapping[str, TrafficReport]:
-        return self._board.traffic()
-
-    async def next_pose(self, after_seq: int, timeout_s: float) -> PoseSample:
-        return await self._board.next_pose(after_seq, timeout_s)
-
-    async def wait_until(self, predicate, timeout_s: float, what: str) -> None:
-        await self._board.wait_until(predicate, timeout_s, what)
 
     async def wait_ready(self, timeout_s: float) -> None:
         """Health all OK (gyro/accel/mag, local + global position, home) and a first pose."""
