@@ -254,7 +254,19 @@ def parse_mission(text: str, source: str = "<mission>") -> Mission:
         raise MissionError(source, "", f"YAML syntax: {problem}", line) from None
     if not isinstance(data, dict):
         raise MissionError(source, "", "a mission file must be a YAML mapping", _line_of(root, []))
+    return _validated(data, source, root)
 
+
+def mission_from_data(data: dict[str, Any], source: str = "<mission>") -> Mission:
+    """A mission document already in memory (JSON types: dicts, lists, numbers, strings), e.g.
+    from the scenario generator: the same validation as :func:`parse_mission`, without a YAML
+    round trip (errors then carry no line number)."""
+    if not isinstance(data, dict):
+        raise MissionError(source, "", "a mission document must be a mapping")
+    return _validated(data, source, None)
+
+
+def _validated(data: dict[str, Any], source: str, root: yaml.Node | None) -> Mission:
     validator = jsonschema.Draft202012Validator(mission_schema())
     errors = list(validator.iter_errors(data))
     if errors:

@@ -96,3 +96,18 @@ def test_with_variant_refuses_unknown_variant():
     assert m.with_variant("dwa").planner.variant == "dwa"
     with pytest.raises(MissionError, match="unknown variant"):
         m.with_variant("rrt")
+
+
+def test_a_document_in_memory_validates_like_its_yaml():
+    import yaml
+
+    from companion.mission import mission_from_data
+
+    text = Path("missions/paper_reference.yaml").read_text()
+    assert repr(mission_from_data(yaml.safe_load(text), "ref")) == repr(parse_mission(text, "ref"))
+    doc = yaml.safe_load(text)
+    doc["planner"] = {"yaw_rate_samples": 1}
+    with pytest.raises(MissionError, match=r"^ref: planner.yaw_rate_samples: 1 is less than the minimum of 3$"):
+        mission_from_data(doc, "ref")
+    with pytest.raises(MissionError, match="must be a mapping"):
+        mission_from_data(["not", "a", "mapping"], "ref")
