@@ -3,12 +3,17 @@
 Prints the median (and min) over repeats; no pass/fail. Targets from the team brief:
 rasterise + A* on the reference map at 10 m <= 50 ms; A* on a 1000 x 1000 random grid <= 1 s.
 
-    python benchmarks/bench_astar.py [--repeats 7]
+    python benchmarks/bench_astar.py [--repeats 7] [--reference]
+
+--reference also times the frozen pre-speed-up A* (tests/unit/astar_reference.py) on the 1000 x
+1000 grids, alternating with the current one run by run, so both medians come from the same
+window of this shared machine's drifting speed.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import statistics
 import time
 from collections.abc import Callable
@@ -26,6 +31,7 @@ from companion.planning.sparse import sparsify
 from companion.planning.world import make_obstacle
 
 REFERENCE = Path(__file__).resolve().parents[1] / "missions" / "paper_reference.yaml"
+ORACLE = Path(__file__).resolve().parents[1] / "tests" / "unit" / "astar_reference.py"
 
 
 def measure(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]:
@@ -56,6 +62,8 @@ def random_grid(kind: str, seed: int, n: int = 1000) -> OccupancyGrid:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--reference", action="store_true",
+                        help="also time the pre-speed-up A*, alternating run by run")
     args = parser.parse_args()
     rep = args.repeats
     mission = load_mission(REFERENCE)
@@ -95,8 +103,28 @@ def main() -> None:
         except Exception as exc:  # a walled-in draw would only time the failure
             print(f"A* 1000x1000 {kind}: {exc}")
             continue
+        if args.reference:
+            alternate(kind, g, max(3, rep // 2))
+            continue
         row(f"A* 1000x1000 {kind} corner->corner (target <= 1 s)", lambda g=g: astar(g, (0.5, 0.5), (999.5, 999.5)),
             lambda p: f"{len(p)} nodes, {g.occupied.mean() * 100:.0f} % blocked", repeats=max(3, rep // 2))
+
+
+def alternate(kind: str, grid: OccupancyGrid, repeats: int) -> None:
+    """Median ms of the reference and the current A*, run alternately on one grid."""
+    spec = importlib.util.spec_from_file_location("astar_reference", ORACLE)
+    assert spec is not None and spec.loader is not None
+    oracle = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(oracle)
+    times: dict[str, list[float]] = {"reference": [], "current": []}
+    for _ in range(repeats):
+        for name, fn in (("reference", oracle.astar), ("current", astar)):
+            t0 = time.perf_counter()
+            path = fn(grid, (0.5, 0.5), (999.5, 999.5))
+            times[name].append((time.perf_counter() - t0) * 1e3)
+    old, new = (statistics.median(times[k]) for k in ("reference", "current"))
+    print(f"A* 1000x1000 {kind:<6} reference median {old:8.1f} ms   current median {new:8.1f} ms   "
+          f"ratio {new / old:.2f}   {len(path)} nodes, {grid.occupied.mean() * 100:.0f} % blocked", flush=True)
 
 
 if __name__ == "__main__":
