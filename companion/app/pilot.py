@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from companion import frames
 from companion.app import monitors
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan, verify_readback
@@ -467,6 +468,8 @@ class Pilot:
         ):
             if verdict.hover:
                 self.outcome.interventions[verdict.reason] += 1
+                if verdict.reason == "geofence":
+                    return self._turn_in(pose, dt), "turn in place (geofence monitor)"
                 return HOVER, f"hover ({verdict.reason} monitor)"
         # The planner is planar; hold the cruise altitude with a gentle proportional climb rate.
         climb = max(-1.0, min(1.0, 0.5 * (self.spec.cruise_alt_m - pose.alt_rel_m)))
@@ -475,6 +478,16 @@ class Pilot:
             self.outcome.interventions["planner: spin recovery"] += 1
             action = "recover (yaw in place)"
         return VelocityYawRateSetpoint(forward_m_s=v, yaw_rate_enu_rad_s=w, climb_m_s=climb), action
+
+    def _turn_in(self, pose: PoseSample, dt: float) -> VelocityYawRateSetpoint:
+        """Stop and yaw toward the middle of the area. The monitor looks closer than the planner
+        (half its step), so near the fence it can veto a command the planner found legal; a plain
+        hover keeps the heading, and the planner would ask for the same command for ever."""
+        w = self.ctx.mission.world
+        cx, cy = (w.x_min_m + w.x_max_m) / 2.0, (w.y_min_m + w.y_max_m) / 2.0
+        error = frames.wrap_pi(math.atan2(cy - pose.y_north_m, cx - pose.x_east_m) - pose.heading_enu_rad)
+        rate = self.spec.max_yaw_rate_rad_s
+        return VelocityYawRateSetpoint(forward_m_s=0.0, yaw_rate_enu_rad_s=max(-rate, min(rate, error / dt)))
 
     # -- logging ----------------------------------------------------------------------------
     def _record(self, pose: PoseSample) -> None:
