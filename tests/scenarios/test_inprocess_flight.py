@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import csv
 import json
-import logging
 import math
 from pathlib import Path
 
@@ -19,20 +18,6 @@ from companion.planning.runner import simulate
 
 ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "missions" / "paper_reference.yaml"
-
-
-@pytest.fixture
-def companion_logger():
-    """``companion run`` sends the companion's log to a file in --out: undo that afterwards."""
-    logger = logging.getLogger("companion")
-    saved = (list(logger.handlers), logger.level, logger.propagate)
-    yield
-    for handler in logger.handlers[:]:
-        if handler not in saved[0]:
-            logger.removeHandler(handler)
-            handler.close()
-    logger.setLevel(saved[1])
-    logger.propagate = saved[2]
 
 
 def test_reference_mission_in_process_matches_the_headless_runner(tmp_path, capsys, companion_logger):

@@ -9,7 +9,6 @@ for one detour (never a reporting seed: see docs/results.md).
 from __future__ import annotations
 
 import json
-import logging
 
 import pytest
 
@@ -17,20 +16,6 @@ from companion.cli import main
 from companion.mission import load_mission
 from companion.planning.runner import simulate
 from companion.scenarios import generate_scenario, with_variant, write_mission_yaml
-
-
-@pytest.fixture
-def companion_logger():
-    """``companion run`` sends the companion's log to a file in --out: undo that afterwards."""
-    logger = logging.getLogger("companion")
-    saved = (list(logger.handlers), logger.level, logger.propagate)
-    yield
-    for handler in logger.handlers[:]:
-        if handler not in saved[0]:
-            logger.removeHandler(handler)
-            handler.close()
-    logger.setLevel(saved[1])
-    logger.propagate = saved[2]
 
 
 @pytest.fixture(scope="module")
