@@ -5,7 +5,7 @@ rasterise + A* on the reference map at 10 m <= 50 ms; A* on a 1000 x 1000 random
 
     python benchmarks/bench_astar.py [--repeats 7] [--reference]
 
---reference also times the frozen pre-speed-up A* (tests/unit/astar_reference.py) on the 1000 x
+--reference also times the frozen pre-speed-up A* (tests/planning/astar_reference.py) on the 1000 x
 1000 grids, alternating with the current one run by run, so both medians come from the same
 window of this shared machine's drifting speed.
 """
@@ -22,16 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.mission import load_mission
+from uav_model.mission import load_mission
 from companion.planning.astar import astar
 from companion.planning.bounds import inscribed_outline, lower_bound_m
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.routes import plan_routes
 from companion.planning.sparse import sparsify
-from companion.planning.world import make_obstacle
+from uav_model.world import make_obstacle
 
 REFERENCE = Path(__file__).resolve().parents[1] / "missions" / "paper_reference.yaml"
-ORACLE = Path(__file__).resolve().parents[1] / "tests" / "unit" / "astar_reference.py"
+ORACLE = Path(__file__).resolve().parents[1] / "tests" / "planning" / "astar_reference.py"
 
 
 def measure(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]:

@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from companion.mission import load_mission
+from uav_model.mission import load_mission
 from companion.planning.runner import simulate
 from companion.testing.plugin import free_udp_port, free_udp_port_block
 

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from companion.mission import parse_mission
+from uav_model.mission import parse_mission
 from companion.planning.dwa import Command, OtherUav, Pose, plan_step
 from companion.planning.fusion import ObstacleField, VehiclePlanner
 

@@ -20,9 +20,9 @@ from pathlib import Path
 from companion.app.flight_plan import prepare
 from companion.app.pilot import RunSettings
 from companion.app.runner import run_mission
-from companion.mission import load_mission
+from uav_model.mission import load_mission
 from companion.planning.runner import simulate
-from companion.vehicle.inprocess import InProcessOptions, open_inprocess_fleet
+from companion.sitl.inprocess import InProcessOptions, open_inprocess_fleet
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -12,7 +12,7 @@ import argparse
 import statistics
 import time
 
-from companion.mission import VARIANTS, load_mission
+from uav_model.mission import VARIANTS, load_mission
 from companion.planning.routes import plan_routes
 from companion.planning.runner import simulate
 

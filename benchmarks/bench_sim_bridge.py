@@ -45,7 +45,7 @@ vehicles:
 
 def child(args: argparse.Namespace) -> None:
     """The stub alone: run for --seconds of wall time, then print its own cost as JSON."""
-    from companion.mission import parse_mission
+    from uav_model.mission import parse_mission
     from sim_bridge.bridge import SimBridge, SimOptions
 
     ports = json.loads(args.ports)

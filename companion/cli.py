@@ -26,14 +26,14 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from companion.mission import VARIANTS, Mission, MissionError, load_mission
+from uav_model.mission import VARIANTS, Mission, MissionError, load_mission
 from companion.planning.errors import NoPath
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
 # (module, registration function) of the other subcommand groups, each f(subparsers) -> None.
 _COMMAND_MODULES = (
-    ("companion.app.commands", "add_commands"),  # run, validate, plan, upload, schema
+    ("companion.commands", "add_commands"),  # run, validate, plan, upload, schema
     ("companion.bench.cli", "add_parser"),  # bench
 )
 
@@ -179,7 +179,7 @@ def _diagonal_mission(base: Mission, oa_m: float, ob_m: float) -> Mission:
     45 deg diagonal; the area is the square with A and B at opposite corners."""
     from shapely import affinity
 
-    from companion.planning.world import World
+    from uav_model.world import World
     (obstacle,) = base.world.obstacles
     a, b = (v.name for v in base.by_priority[:2])
     k = 1.0 / math.sqrt(2.0)

@@ -15,7 +15,7 @@ Raised, never printed; ``str()`` is one line that names the vehicle and says wha
                                    carries the SPEC §2 failure ``reason`` (``link_lost``,
                                    ``interrupted``, ``geofence``, ``separation`` ...)
 
-Bad input is not a CompanionError: :class:`companion.mission.MissionError` (and the planner's
+Bad input is not a CompanionError: :class:`uav_model.mission.MissionError` (and the planner's
 :class:`companion.planning.errors.NoPath`, which the CLI turns into a MissionError) are raised
 before anything connects, and the CLI exits 2 on them.
 """

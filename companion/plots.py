@@ -14,7 +14,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon as PolygonPatch
 
-from companion.mission import Mission
+from uav_model.mission import Mission
 from companion.planning.metrics import Track
 
 _TRACK_STYLES = ({"color": "tab:red", "lw": 2.4}, {"color": "tab:blue", "lw": 1.4},

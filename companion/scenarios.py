@@ -27,10 +27,10 @@ import yaml
 from shapely.geometry import LineString, Point
 from shapely.geometry.base import BaseGeometry
 
-from companion.mission import Mission, mission_from_data
+from uav_model.mission import Mission, mission_from_data
 from companion.planning.errors import NoPath
 from companion.planning.routes import Route, plan_routes
-from companion.planning.world import Obstacle, Shuttle
+from uav_model.world import Obstacle, Shuttle
 
 REFERENCE_SIDE_M = 4500.0 / math.sqrt(2.0)
 

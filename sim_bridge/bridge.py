@@ -29,7 +29,7 @@ from typing import Any, Callable, Hashable
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.mission import Mission
+from uav_model.mission import Mission
 from sim_bridge.clock import SimClock
 from sim_bridge.energy import EnergyModel
 from sim_bridge.faults import Blackout, FaultConfig, LinkFaults

@@ -9,7 +9,7 @@ import signal
 import sys
 from pathlib import Path
 
-from companion.mission import MissionError, load_mission
+from uav_model.mission import MissionError, load_mission
 from sim_bridge.bridge import SimBridge, SimBridgeError, SimOptions, run_stub
 from sim_bridge.clock import ClockError, SimClock
 from sim_bridge.faults import Blackout, FaultConfig, FaultSpecError

@@ -11,7 +11,7 @@ import socket
 from collections.abc import AsyncIterator
 from dataclasses import replace
 
-from companion.mission import Mission
+from uav_model.mission import Mission
 from sim_bridge.bridge import SimBridge, SimOptions
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import shapely
 from shapely.geometry import LineString, Point
 
-from companion.planning.world import Obstacle, Orbit, Patrol, Shuttle, World
+from uav_model.world import Obstacle, Orbit, Patrol, Shuttle, World
 
 
 @dataclass(frozen=True, slots=True)

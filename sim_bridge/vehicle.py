@@ -11,7 +11,7 @@ socket, no clock and no event loop, so every rule here is testable by calling me
 
 Frames: the plant and every MAVLink field are in PX4's local NED frame, whose origin is the
 mission's geodetic origin for all vehicles (a shared EKF origin), so LOCAL_POSITION_NED of
-either vehicle is directly comparable and maps to mission ENU through :mod:`companion.frames`.
+either vehicle is directly comparable and maps to mission ENU through :mod:`uav_model.frames`.
 """
 
 from __future__ import annotations
@@ -26,11 +26,11 @@ from typing import Any, Callable, Hashable, NamedTuple
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.frames import enu_heading_to_ned_yaw, geodetic_to_local, local_to_geodetic, wrap_pi
-from companion.mission import Mission, VehicleSpec
-from sim_bridge import kinematics
+from uav_model.frames import enu_heading_to_ned_yaw, geodetic_to_local, local_to_geodetic, wrap_pi
+from uav_model.mission import Mission, VehicleSpec
+from uav_model import plant
 from sim_bridge.energy import EnergyModel
-from sim_bridge.kinematics import HOVER, KinematicState, VehicleLimits, VelocityCommand, VelocityFrame
+from uav_model.plant import HOVER, KinematicState, VehicleLimits, VelocityCommand, VelocityFrame
 from sim_bridge.mission_protocol import (
     MISSION, NOOP_COMMANDS, RELATIVE_ALT_FRAMES, MissionItem, MissionProtocol, ProtocolEvent,
 )
@@ -709,7 +709,7 @@ class SimVehicle:
         if command is None:  # on the ground, not climbing: nothing moves
             new = replace(old, vn_m_s=0.0, ve_m_s=0.0, vd_m_s=0.0, yawspeed_rad_s=0.0)
         else:
-            new = kinematics.step(old, command, self._limits, dt_s)
+            new = plant.step(old, command, self._limits, dt_s)
         self._accel_ned = ((new.vn_m_s - old.vn_m_s) / dt_s, (new.ve_m_s - old.ve_m_s) / dt_s)
         self._state = new
         self.sim_time_s = t1

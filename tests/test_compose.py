@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from companion.cli import build_parser as companion_parser
-from companion.mission import load_mission
+from uav_model.mission import load_mission
 from sim_bridge.cli import build_parser as sim_parser
 from sim_bridge.cli import options_from_args
 

@@ -1,7 +1,7 @@
 """What the companion decides before anything connects: routes, planners, the uploaded missions.
 
 :func:`prepare` is the last gate for bad input: an unreachable goal (the planner's ``NoPath``)
-becomes a :class:`companion.mission.MissionError` naming the vehicle's ``goal`` field, so the CLI
+becomes a :class:`uav_model.mission.MissionError` naming the vehicle's ``goal`` field, so the CLI
 can refuse it in one line before any vehicle is armed.
 """
 
@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion import frames
+from uav_model import frames
 from companion.errors import MissionUploadError
-from companion.mission import Mission, VehicleSpec, mission_error
+from uav_model.mission import Mission, VehicleSpec, mission_error
 from companion.planning.errors import NoPath
 from companion.planning.fusion import VARIANT_GOALS, variant_needs_route
 from companion.vehicle.port import GeoWaypoint

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.planning.world import World
+from uav_model.world import World
 
 
 @dataclass(frozen=True, slots=True)

@@ -26,13 +26,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion import frames
+from uav_model import frames
 from companion.app import monitors
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan, verify_readback
 from companion.errors import (CommandRefused, CompanionError, MissionAborted, MissionUploadError, TelemetryLost,
                               primary_error)
-from companion.mission import VehicleSpec
+from uav_model.mission import VehicleSpec
 from companion.planning.dwa import OtherUav, Pose, inflated_clearance
 from companion.planning.fusion import ObstacleField, ObstacleTrack, TickResult, VehiclePlanner
 from companion.vehicle.port import (HOVER, FlightMode, LandedState, PoseSample, TrafficReport, Vehicle,

@@ -28,7 +28,7 @@ from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings
 from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
                               VehicleNotReady, primary_error)
-from companion.mission import VehicleSpec
+from uav_model.mission import VehicleSpec
 from companion.planning.metrics import RunSummary, Track, summarize
 from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
 from companion.vehicle.port import Vehicle

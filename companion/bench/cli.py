@@ -15,7 +15,7 @@ from pathlib import Path
 
 import yaml
 
-from companion.mission import VARIANTS
+from uav_model.mission import VARIANTS
 
 DEFAULT_VARIANTS = ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa")
 DESCRIPTION = ("Fly seeded random scenarios (SPEC §3) with each planner variant, headless and in parallel; "

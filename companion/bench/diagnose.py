@@ -17,7 +17,7 @@ from typing import Any
 
 from shapely.geometry import Point
 
-from companion.mission import Mission
+from uav_model.mission import Mission
 
 
 def hold_ticks(ticks: Mapping[str, Sequence[Any]]) -> int:

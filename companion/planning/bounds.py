@@ -26,7 +26,7 @@ from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from companion.planning.errors import NoPath, PlanningError
-from companion.planning.world import Obstacle, World
+from uav_model.world import Obstacle, World
 
 OUTLINE_QUAD_SEGS = 16  # inscribed vertices per quarter turn of a circle or a round corner
 _TANGENT_CHUNK = 256     # rows of the vertex-pair matrix built at once (bounds memory)

@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # only for the builder's signature; the core takes plain values
-    from companion.mission import PlannerSettings, SafetySettings, VehicleSpec
+    from uav_model.mission import PlannerSettings, SafetySettings, VehicleSpec
 
 
 @dataclass(frozen=True, slots=True)
@@ -199,7 +199,7 @@ class DwaConfig:
         w = (np.zeros(1) if self.samples == 1
              else np.linspace(-self.max_yaw_rate_rad_s, self.max_yaw_rate_rad_s, self.samples))
         t = self.dt_s * np.arange(0, steps + 1)
-        # The plant advances yaw first, then moves along the new heading (sim_bridge.kinematics).
+        # The plant advances yaw first, then moves along the new heading (uav_model.plant).
         dheading = np.outer(w, t[1:])
         step_m = self.speed_m_s * self.dt_s
         body = np.zeros((len(w), steps + 1, 2))

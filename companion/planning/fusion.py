@@ -29,10 +29,10 @@ from companion.planning.dwa import (Command, DwaConfig, LocalGoals, NoLegalRollo
 from companion.planning.errors import BudgetExceeded, NoPath
 from companion.planning.grid import rasterise
 from companion.planning.routes import detour_route
-from companion.planning.world import Obstacle, World
+from uav_model.world import Obstacle, World
 
 if TYPE_CHECKING:
-    from companion.mission import Mission, VehicleSpec
+    from uav_model.mission import Mission, VehicleSpec
     from companion.planning.routes import Route
 
 # Variant -> (local goals come from, sightline term on). SPEC §1's ablation table.

@@ -18,7 +18,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from companion.planning.errors import PlanningError
-from companion.planning.world import World
+from uav_model.world import World
 
 MAX_CELLS = 4_000_000  # A* keeps ~50 bytes per cell (g, parent, h, stop tables): ~200 MB at the cap
 

@@ -29,10 +29,10 @@ import shapely
 
 from companion.planning.bounds import lower_bound_s
 from companion.planning.errors import PlanningError
-from companion.planning.world import World
+from uav_model.world import World
 
 if TYPE_CHECKING:
-    from companion.mission import Mission
+    from uav_model.mission import Mission
 
 FAILURE_ORDER = ("collision", "separation", "geofence")  # ties at the same instant: worst first
 

@@ -33,12 +33,12 @@ import shapely
 from shapely.geometry import LineString, Point
 from shapely.geometry.base import BaseGeometry
 
-from companion.mission import Mission, VehicleSpec
+from uav_model.mission import Mission, VehicleSpec
 from companion.planning.astar import astar, path_length_m
 from companion.planning.errors import BudgetExceeded, NoPath
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.sparse import sparsify
-from companion.planning.world import World
+from uav_model.world import World
 
 Constraint = Literal["opposite-side", "avoid-route", "none"]
 

@@ -2,8 +2,8 @@
 
 No sockets and no clocks: the same per-tick planner code the live companion runs
 (:class:`VehiclePlanner.tick` on an :class:`ObstacleSnapshot` of the obstacles' state *now*),
-the same plant as the SITL stub (:func:`sim_bridge.kinematics.step`, fed a BODY_NED velocity and
-a PX4 yawspeed converted by :mod:`companion.frames`), and the same scoring as every other flight
+the same plant as the SITL stub (:func:`uav_model.plant.step`, fed a BODY_NED velocity and
+a PX4 yawspeed converted by :mod:`uav_model.frames`), and the same scoring as every other flight
 (:func:`companion.planning.metrics.summarize`).
 
 The loop ticks at the planner's dt. All vehicles decide from the state at t, then all step.
@@ -24,14 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to_ned, ned_to_enu, ned_yaw_to_enu_heading
-from companion.mission import Mission
+from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to_ned, ned_to_enu, ned_yaw_to_enu_heading
+from uav_model.mission import Mission
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.fusion import ObstacleField, TickResult, VehiclePlanner, variant_needs_route
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
 from companion.planning.routes import Route, plan_routes
-from sim_bridge.kinematics import HOVER, KinematicState, VehicleLimits, VelocityCommand, VelocityFrame, step
+from uav_model.plant import HOVER, KinematicState, VehicleLimits, VelocityCommand, VelocityFrame, step
 
 
 @dataclass(frozen=True)

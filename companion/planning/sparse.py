@@ -24,7 +24,7 @@ from shapely.geometry.base import BaseGeometry
 
 from companion.planning.errors import PlanningError
 from companion.planning.grid import dilate
-from companion.planning.world import World
+from uav_model.world import World
 
 _FIRST_CHUNK = 32  # candidate segments tested per vectorised call; doubles while all are clear
 

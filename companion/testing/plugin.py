@@ -46,8 +46,8 @@ import pytest
 import shapely
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.frames import geodetic_to_local
-from companion.mission import Mission, load_mission
+from uav_model.frames import geodetic_to_local
+from uav_model.mission import Mission, load_mission
 from companion.planning.metrics import RunSummary, Track, TruthGeometry, arrival, inside_fence, \
     pair_min_distance, summarize
 from companion.testing.recorder import GCS_COMPONENT_ID, GCS_SYSTEM_ID, TelemetryRecorder, VehicleLog

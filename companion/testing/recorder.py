@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.frames import ned_to_enu
+from uav_model.frames import ned_to_enu
 from companion.planning.metrics import Track
 
 GCS_SYSTEM_ID = 255

@@ -1,14 +1,14 @@
 """Conversions of MAVLink field values into port values that more than one adapter needs.
 
 Kept free of MAVSDK so that the in-process adapter can share them; every frame relation comes
-from :mod:`companion.frames`.
+from :mod:`uav_model.frames`.
 """
 
 from __future__ import annotations
 
 import math
 
-from companion import frames
+from uav_model import frames
 
 
 def traffic_velocity_enu(heading_deg: float, speed_m_s: float) -> tuple[float, float]:

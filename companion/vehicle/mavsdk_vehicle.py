@@ -4,7 +4,7 @@ Open with :func:`open_mavsdk_vehicle` as an async context manager. Inside it, on
 the telemetry pumps (attitude, position, velocity, mode, armed, landed state, health, battery,
 ADS-B traffic); leaving the context cancels them and destroys the Mavsdk instance.
 
-Conversions happen here and only through :mod:`companion.frames`: GLOBAL_POSITION_INT lat/lon
+Conversions happen here and only through :mod:`uav_model.frames`: GLOBAL_POSITION_INT lat/lon
 becomes mission ENU (one frame for every vehicle, whatever their homes); NED yaw becomes an ENU
 heading; an ENU yaw rate becomes PX4's clockwise yawspeed. The vehicle's sim clock is the
 ATTITUDE ``time_boot_ms`` that MAVSDK passes on as ``EulerAngle.timestamp_us``; position
@@ -32,7 +32,7 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync, TelemetryError
 from mavsdk.asyncio.plugins.transponder import TransponderAsync
 from mavsdk.exceptions import MavsdkError
 
-from companion import frames
+from uav_model import frames
 from companion.errors import CommandRefused, ConnectTimeout, LinkError, MissionUploadError, VehicleNotReady
 from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import traffic_velocity_enu  # shared with the in-process adapter

@@ -4,7 +4,7 @@ Everything that crosses this port is a frozen value with its unit and frame in i
 Positions and velocities are local ENU metres from the mission origin (x east, y north), headings
 are math angles (from +x, counter-clockwise), yaw rates are counter-clockwise positive. An adapter
 (``mavsdk_vehicle`` for real links) converts to and from the autopilot's NED world through
-:mod:`companion.frames` and nowhere else.
+:mod:`uav_model.frames` and nowhere else.
 
 Time on this side is the *vehicle's* sim clock (``t_sim_s``, from MAVLink ``time_boot_ms``), so
 that the runner works at any speed factor; ``t_wall_s`` (``time.monotonic``) is kept only to bound

@@ -1,0 +1,387 @@
+"""The flying subcommands of ``companion``: run, validate, plan, upload, schema.
+
+``companion.cli`` builds the parser and calls :func:`add_commands`; each subcommand stores its
+handler in ``func``, which returns the exit code:
+
+    0  success
+    1  mission failure (the flight did not succeed, a link or a vehicle failed)
+    2  bad input: one line ``file:line: field.path: reason``, no traceback, nothing armed
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import math
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from companion.sitl.embedded import StubOptions, embedded_stub
+from companion.app.flight_plan import FlightPlan, prepare, verify_readback
+from companion.app.pilot import RunSettings
+from companion.app.runner import RunResult, run_mission, summary_table
+from companion.errors import CompanionError
+from uav_model.mission import VARIANTS, MissionError, load_mission, mission_schema
+
+if TYPE_CHECKING:
+    from companion.sitl.inprocess import InProcessOptions
+
+log = logging.getLogger("companion")
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class BadInput(ValueError):
+    """A command-line value that cannot be used; exit 2 with this one-line message."""
+
+
+# -- argument helpers ---------------------------------------------------------------------
+def _connect(text: str) -> tuple[str, str]:
+    name, sep, url = text.partition("=")
+    if not sep or not name or not url:
+        raise argparse.ArgumentTypeError(f"--connect {text!r}: expected NAME=URL, e.g. a=udpin://0.0.0.0:14540")
+    if "://" not in url:
+        raise argparse.ArgumentTypeError(f"--connect {text!r}: {url!r} is not a MAVSDK URL (udpin://HOST:PORT, "
+                                         "udpout://, tcpout://, serial://DEV:BAUD)")
+    return name, url
+
+
+def _port(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 65535 - 8:
+        raise argparse.ArgumentTypeError(f"{value} is not a usable UDP port")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text}: must be a positive number")
+    return value
+
+
+def _probability(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text}: must be a probability in [0, 1]")
+    return value
+
+
+def _blackout(text: str) -> str:
+    from sim_bridge.faults import Blackout, FaultSpecError
+    try:
+        Blackout.parse(text)
+    except FaultSpecError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Register run, validate, plan, upload and schema on the ``companion`` parser."""
+    p = sub.add_parser("run", help="fly the mission over MAVLink (embedded stub unless --connect)",
+                       description="Fly every vehicle of the mission with A*-BDWA over MAVSDK. Without --connect "
+                                   "the bundled sim_bridge is started on loopback and stopped on exit.")
+    p.add_argument("mission", type=Path)
+    p.add_argument("--connect", type=_connect, action="append", default=[], metavar="NAME=URL",
+                   help="fly an external autopilot, e.g. a=udpin://0.0.0.0:14540 (one per vehicle)")
+    p.add_argument("--variant", choices=VARIANTS, default=None, help="planner variant (default: the mission's)")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="write summary.json, flight.csv, traffic.csv, trajectory.png (and the stub's .tlog) here")
+    p.add_argument("--speedup", type=_positive, default=None,
+                   help="embedded stub: sim seconds per wall second (default 1); with --in-process: pace the "
+                        "sim at this factor (default: as fast as the loop turns)")
+    p.add_argument("--loss", type=_probability, default=0.0, metavar="P", help="embedded stub: API packet loss")
+    p.add_argument("--latency-ms", type=float, default=0.0, metavar="MS", help="embedded stub: added API latency")
+    p.add_argument("--blackout", type=_blackout, action="append", default=[], metavar="START:DURATION",
+                   help="embedded stub: API link blackout in sim seconds (repeatable), e.g. 150:3")
+    p.add_argument("--seed", type=int, default=0, help="embedded stub: fault-injection seed")
+    p.add_argument("--port-base", type=_port, default=14540,
+                   help="embedded stub: vehicle i talks to PORT_BASE + i (default 14540)")
+    p.add_argument("--gcs-port", type=_port, default=14550, help="embedded stub: GCS link port (default 14550)")
+    p.add_argument("--progress-every", type=_positive, default=20.0, metavar="S",
+                   help="a progress line per vehicle every S sim seconds (default 20)")
+    p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
+    p.add_argument("--shared-clock", action="store_true",
+                   help="with --connect: every vehicle stamps telemetry with one sim clock, the one that moves the "
+                        "mission's obstacles (an external sim-bridge); tracks and scoring then use it, as with the "
+                        "embedded stub")
+    p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S", help="wall seconds (default 15)")
+    p.add_argument("--in-process", action="store_true",
+                   help="no stub process and no sockets: fly the stub's vehicles inside the companion on one sim "
+                        "clock, deterministically and faster than real time (same outputs, no .tlog)")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", help="check a mission file (schema, geometry, reachability)")
+    p.add_argument("mission", type=Path)
+    p.add_argument("--variant", choices=VARIANTS, default=None)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("plan", help="global routes and a plot, no vehicles")
+    p.add_argument("mission", type=Path)
+    p.add_argument("--variant", choices=VARIANTS, default=None)
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="write routes.json and trajectory.png here")
+    p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser("upload", help="plan, upload the routes as MAVLink missions, read them back")
+    p.add_argument("mission", type=Path)
+    p.add_argument("--connect", type=_connect, action="append", default=[], metavar="NAME=URL", required=True)
+    p.add_argument("--variant", choices=VARIANTS, default=None)
+    p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S")
+    p.set_defaults(func=cmd_upload)
+
+    p = sub.add_parser("schema", help="print the mission JSON Schema")
+    p.set_defaults(func=cmd_schema)
+
+
+# -- shared steps -------------------------------------------------------------------------
+def _bad(exc: Exception) -> int:
+    """One line on stderr: a MissionError already reads ``file:line: field: reason``."""
+    print(str(exc) if isinstance(exc, MissionError) else f"companion: {exc}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _load_and_plan(args: argparse.Namespace) -> FlightPlan:
+    """Load, validate and plan, or raise MissionError (bad file, unreachable goal)."""
+    mission = load_mission(args.mission)
+    return prepare(mission, args.variant)
+
+
+def _connections(plan: FlightPlan, pairs: list[tuple[str, str]]) -> dict[str, str]:
+    names = [v.name for v in plan.mission.vehicles]
+    out: dict[str, str] = {}
+    for name, url in pairs:
+        if name not in names:
+            raise BadInput(f"--connect {name}=...: the mission has no vehicle {name!r} (vehicles: {', '.join(names)})")
+        if name in out:
+            raise BadInput(f"--connect {name}=... given twice")
+        out[name] = url
+    missing = [n for n in names if n not in out]
+    if missing:
+        raise BadInput(f"--connect missing for vehicle(s) {', '.join(missing)}: give one NAME=URL per vehicle")
+    return out
+
+
+def _quiet_mavsdk(out_dir: Path | None) -> None:
+    """MAVSDK's own log goes to the companion's logger (a file with --out), not the terminal."""
+    from mavsdk.logging import LogLevel, log_subscribe
+    mav_log = logging.getLogger("companion.mavsdk")
+    levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
+              LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
+
+    def forward(level, message, file, line) -> bool:
+        mav_log.log(levels.get(level, logging.INFO), "%s", message)
+        return True  # suppress MAVSDK's own printing
+    log_subscribe(forward)
+    root = logging.getLogger("companion")
+    root.setLevel(logging.DEBUG)
+    root.propagate = False
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        handler = logging.FileHandler(out_dir / "companion.log", encoding="utf-8")
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        root.addHandler(handler)
+
+
+def _printer(started: float):
+    def report(line: str) -> None:
+        print(f"[{time.monotonic() - started:6.1f}s] {line}", flush=True)
+        log.info("%s", line)
+    return report
+
+
+# -- commands ------------------------------------------------------------------------------
+def cmd_schema(args: argparse.Namespace) -> int:
+    print(json.dumps(mission_schema(), indent=2))
+    return EXIT_OK
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    try:
+        plan = _load_and_plan(args)
+    except MissionError as exc:
+        return _bad(exc)
+    m = plan.mission
+    routes = ", ".join(f"{n}: {r.nodes_raw} -> {r.nodes_sparse} nodes" for n, r in plan.routes.items())
+    print(f"{m.source}: ok: {len(m.vehicles)} vehicle(s), {len(m.world.obstacles)} obstacle(s) "
+          f"({len(m.world.moving_obstacles)} moving), variant {plan.variant}" + (f"; routes {routes}" if routes else ""))
+    return EXIT_OK
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    try:
+        plan = _load_and_plan(args)
+    except MissionError as exc:
+        return _bad(exc)
+    from companion.planning.bounds import lower_bound_s
+    out: Path = args.out
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return _bad(BadInput(f"--out {out}: cannot create the directory ({exc.strerror})"))
+    doc: dict = {"mission": plan.mission.name, "variant": plan.variant, "vehicles": {}}
+    for v in plan.mission.by_priority:
+        nodes = plan.nodes_enu_m(v)
+        route = plan.routes.get(v.name)
+        bound = lower_bound_s(plan.mission.world, v.start_enu_m, v.goal_enu_m, v.speed_m_s)
+        doc["vehicles"][v.name] = {
+            "start": v.start, "goal": v.goal, "nodes_raw": None if route is None else route.nodes_raw,
+            "nodes_sparse": None if route is None else route.nodes_sparse,
+            "constraint": getattr(route, "constraint", None),
+            "lower_bound_s": bound,
+            "waypoints_enu_m": [[round(float(x), 3), round(float(y), 3)] for x, y in nodes],
+            "waypoints_geodetic": [[round(w.lat_deg, 7), round(w.lon_deg, 7), w.alt_rel_m] for w in plan.waypoints(v)],
+        }
+        print(f"{v.name}: {v.start} -> {v.goal}: "
+              + (f"{route.nodes_raw} A* nodes -> {route.nodes_sparse} sparse" if route else "no global route (variant)")
+              + f"; lower bound {bound:.1f} s")
+    (out / "routes.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    _save_plan_figure(out / "trajectory.png", plan)
+    print(f"wrote {out / 'routes.json'} and {out / 'trajectory.png'}")
+    return EXIT_OK
+
+
+def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
+    """The shared trajectory figure with the planned routes (nothing flown yet) drawn on it."""
+    import warnings
+
+    from companion.plots import trajectory_figure
+    with warnings.catch_warnings():  # the figure's legend is empty until the routes are added
+        warnings.filterwarnings("ignore", message="No artists with labels found", category=UserWarning)
+        fig = trajectory_figure(plan.mission, {}, None, title=f"{plan.mission.name}: planned routes ({plan.variant})")
+    ax = fig.axes[0]
+    for v in plan.mission.by_priority:
+        nodes = plan.nodes_enu_m(v)
+        route = plan.routes.get(v.name)
+        if route is not None and len(route.raw_enu_m) != len(nodes):
+            ax.plot(route.raw_enu_m[:, 0], route.raw_enu_m[:, 1], ls="--", lw=0.8, alpha=0.6,
+                    label=f"{v.name}: raw A* ({route.nodes_raw} nodes)")
+        ax.plot(nodes[:, 0], nodes[:, 1], lw=1.4, marker="o", ms=3.5,
+                label=f"{v.name}: uploaded route ({len(nodes)} waypoints)")
+    ax.legend(loc="lower right", fontsize=7, framealpha=0.85)
+    fig.savefig(path)
+
+
+def cmd_upload(args: argparse.Namespace) -> int:
+    try:
+        plan = _load_and_plan(args)
+        conns = _connections(plan, args.connect)
+    except (MissionError, BadInput) as exc:
+        return _bad(exc)
+    _quiet_mavsdk(None)
+    try:
+        asyncio.run(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
+    except CompanionError as exc:
+        print(f"companion: upload failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
+
+
+async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, report) -> None:
+    from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
+    for v in plan.mission.vehicles:
+        async with open_mavsdk_vehicle(v.name, v.system_id, conns[v.name], plan.mission.origin,
+                                       connect_timeout_s=timeout_s) as vehicle:
+            waypoints = plan.waypoints(v)
+            await vehicle.upload_route(waypoints, plan.mission.planner.acceptance_radius_m)
+            got = await vehicle.download_route()
+            verify_readback(v.name, waypoints, got)
+            report(f"{v.name}: uploaded {len(waypoints)} waypoints to {conns[v.name]} and read them back")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    try:
+        plan = _load_and_plan(args)
+        conns = _connections(plan, args.connect) if args.connect else None
+        inproc = _inprocess_options(args) if args.in_process else None
+    except (MissionError, BadInput) as exc:
+        return _bad(exc)
+    out: Path | None = args.out
+    try:
+        if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return _bad(BadInput(f"--out {out}: cannot create the directory ({exc.strerror})"))
+    _quiet_mavsdk(out)
+    settings = RunSettings(shared_clock=conns is None or args.shared_clock, connect_timeout_s=args.connect_timeout,
+                           progress_every_s=args.progress_every, land=not args.no_land)
+    stub = None
+    if conns is None and inproc is None:
+        stub = StubOptions(speedup=args.speedup or 1.0, api_port_base=args.port_base, gcs_port=args.gcs_port,
+                           loss=args.loss, latency_ms=args.latency_ms, seed=args.seed,
+                           blackouts=tuple(args.blackout), tlog_dir=out,
+                           log_path=None if out is None else out / "sim_bridge.log")
+    elif conns is not None and (args.speedup not in (None, 1.0) or args.loss or args.latency_ms or args.blackout):
+        print("companion: note: --speedup/--loss/--latency-ms/--blackout only apply to the embedded stub; "
+              "ignored with --connect", file=sys.stderr)
+    try:
+        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc))
+    except CompanionError as exc:
+        print(f"companion: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    print(summary_table(plan, result), flush=True)
+    if out is not None:
+        tlog = ("the stub's .tlog" if stub is not None else "no .tlog (in process: no link to record)"
+                if inproc is not None else "no .tlog (MAVSDK cannot record one; use a GCS)")
+        print(f"wrote {out}/summary.json, flight.csv, traffic.csv, trajectory.png and {tlog}", flush=True)
+    return EXIT_OK if result.success else EXIT_FAILED
+
+
+def _inprocess_options(args: argparse.Namespace) -> InProcessOptions:
+    """--in-process: refuse what only the UDP path has; the speed factor is checked by the sim clock."""
+    from companion.sitl.inprocess import InProcessOptions
+    from sim_bridge.clock import ClockError
+    if args.connect:
+        raise BadInput("--in-process flies the stub's vehicles inside the companion; "
+                       "it cannot be combined with --connect")
+    if args.loss or args.latency_ms or args.blackout:
+        raise BadInput("--loss/--latency-ms/--blackout act on the embedded stub's UDP link; "
+                       "there is none with --in-process")
+    try:
+        return InProcessOptions(speedup=args.speedup)
+    except ClockError as exc:
+        raise BadInput(f"--speedup: {exc}") from None
+
+
+async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions | None,
+               settings: RunSettings, out: Path | None, inproc: InProcessOptions | None = None) -> RunResult:
+    started = time.monotonic()
+    report = _printer(started)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    main = asyncio.current_task()
+    assert main is not None
+
+    def on_signal(sig: signal.Signals) -> None:
+        if not stop.is_set():
+            report(f"{sig.name}: stopping; vehicles will hold (send it again to quit at once)")
+            stop.set()
+        else:
+            main.cancel()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, on_signal, sig)
+    try:
+        extra = {"connections": conns or "embedded", "speedup": None if stub is None else stub.speedup,
+                 "loss": None if stub is None else stub.loss,
+                 "latency_ms": None if stub is None else stub.latency_ms}
+        if inproc is not None:
+            from companion.sitl.inprocess import open_inprocess_fleet
+            extra.update(connections="in-process", speedup=inproc.speedup)
+            pace = "as fast as the loop turns" if inproc.speedup is None else f"at {inproc.speedup:g}x"
+            report(f"flying in process (no stub process, no sockets), {pace}")
+            async with open_inprocess_fleet(plan.mission, inproc) as fleet:
+                return await run_mission(plan, fleet.connections(), settings, out, report, stop, extra,
+                                         open_vehicle=fleet.open_vehicle)
+        if stub is None:
+            assert conns is not None
+            return await run_mission(plan, conns, settings, out, report, stop, extra)
+        report(f"starting the embedded sim_bridge at {stub.speedup:g}x on 127.0.0.1:{stub.api_port_base}+i")
+        async with embedded_stub(plan.mission, stub) as embedded_conns:
+            return await run_mission(plan, embedded_conns, settings, out, report, stop, extra)
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)

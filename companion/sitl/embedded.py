@@ -1,0 +1,127 @@
+"""The embedded SITL stub: ``sim-bridge`` in a child process for ``companion run`` without --connect.
+
+A child process rather than the companion's own event loop, so that the stub's physics gets the
+other core and the two cannot stall each other; it is still the same MAVLink-over-UDP path an
+external autopilot would use. The child runs in its own process group, which is terminated
+(then killed) when the context exits, and :mod:`companion.sitl.stub_child` makes it exit by
+itself if the companion dies without cleaning up.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import sys
+from collections import deque
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+from companion.errors import LinkError
+from uav_model.mission import Mission
+
+READY_MARK = b"running at"
+
+
+@dataclass(frozen=True)
+class StubOptions:
+    speedup: float = 1.0
+    api_port_base: int = 14540
+    gcs_port: int | None = 14550
+    loss: float = 0.0
+    latency_ms: float = 0.0
+    seed: int = 0
+    blackouts: tuple[str, ...] = ()  # START:DURATION in sim seconds, as sim-bridge --blackout takes them
+    tlog_dir: Path | None = None
+    log_path: Path | None = None  # the child's output; None: discarded
+
+    def argv(self, mission_path: Path) -> list[str]:
+        out = [sys.executable, "-m", "companion.sitl.stub_child", str(mission_path), "--speedup", f"{self.speedup:g}",
+               "--api-port-base", str(self.api_port_base), "--seed", str(self.seed)]
+        out += ["--no-gcs"] if self.gcs_port is None else ["--gcs-port", str(self.gcs_port)]
+        if self.loss:
+            out += ["--loss", f"{self.loss:g}"]
+        if self.latency_ms:
+            out += ["--latency-ms", f"{self.latency_ms:g}"]
+        for b in self.blackouts:
+            out += ["--blackout", b]
+        if self.tlog_dir is not None:
+            out += ["--tlog", str(self.tlog_dir)]
+        return out
+
+
+def connections(mission: Mission, api_port_base: int) -> dict[str, str]:
+    """The MAVSDK URL of each vehicle of the embedded stub (PX4 SITL: 14540 + i)."""
+    return {v.name: f"udpin://0.0.0.0:{api_port_base + v.index}" for v in mission.vehicles}
+
+
+async def _drain(stream: asyncio.StreamReader, sink: IO[bytes] | None, ready: asyncio.Event,
+                 tail: deque[bytes]) -> None:
+    while line := await stream.readline():
+        tail.append(line.rstrip())
+        if sink is not None:
+            sink.write(line)
+            sink.flush()
+        if READY_MARK in line:
+            ready.set()
+
+
+@asynccontextmanager
+async def embedded_stub(mission: Mission, options: StubOptions, *,
+                        ready_timeout_s: float = 20.0) -> AsyncIterator[dict[str, str]]:
+    """Run the stub for ``mission`` while the context is open; yields the vehicles' URLs."""
+    sink = open(options.log_path, "wb") if options.log_path is not None else None
+    proc = await asyncio.create_subprocess_exec(
+        *options.argv(Path(mission.source)), stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT, start_new_session=True)
+    tail: deque[bytes] = deque(maxlen=8)
+    ready = asyncio.Event()
+    try:
+        async with asyncio.TaskGroup() as tg:
+            assert proc.stdout is not None
+            drain = tg.create_task(_drain(proc.stdout, sink, ready, tail), name="stub-output")
+            waiter = tg.create_task(ready.wait(), name="stub-ready")
+            try:
+                await asyncio.wait({drain, waiter}, timeout=ready_timeout_s, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                waiter.cancel()
+            if not ready.is_set():
+                last = b" | ".join(tail).decode(errors="replace")[-400:]
+                if drain.done():
+                    raise LinkError(f"the embedded sim_bridge exited before it was ready: {last}")
+                raise LinkError(f"the embedded sim_bridge was not ready within {ready_timeout_s:g} s: {last}")
+            try:
+                yield connections(mission, options.api_port_base)
+            finally:
+                await _terminate(proc)
+    except BaseExceptionGroup as group:
+        if len(group.exceptions) == 1:
+            raise group.exceptions[0] from None
+        raise
+    finally:
+        if proc.returncode is None:
+            await _terminate(proc)
+        if sink is not None:
+            sink.close()
+
+
+async def _terminate(proc: asyncio.subprocess.Process, grace_s: float = 5.0) -> None:
+    """SIGTERM the child's process group, then SIGKILL it if it does not go in time."""
+    if proc.returncode is not None:
+        return
+    if proc.stdin is not None:
+        proc.stdin.close()
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            async with asyncio.timeout(grace_s):
+                await proc.wait()
+            return
+        except TimeoutError:
+            continue

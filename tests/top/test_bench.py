@@ -1,0 +1,169 @@
+"""``companion bench``: the summary it writes is exactly what runs.csv says, failures are
+replayable, and the result does not depend on the worker count.
+
+The flights are real headless runs of the real planner, on a small world (a 1 km square,
+~100 s flights) so that the whole file takes seconds.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from companion.bench import aggregate, read_runs_csv
+from companion.bench.cli import run
+from companion.bench.diagnose import diagnose
+from companion.bench.execute import failure_dir_name, run_bench
+from companion.bench.table import format_table, write_runs_csv
+from uav_model.mission import load_mission, parse_mission
+from companion.planning.metrics import Track
+from companion.planning.runner import simulate
+from companion.scenarios import ScenarioConfig
+
+SMALL = {"side_m": 1000.0, "static_count": 2, "static_circumradius_m": [40.0, 90.0],
+         "moving_count": 1, "moving_radius_m": [20.0, 30.0], "moving_path_m": [150.0, 300.0],
+         "moving_speed_m_s": [2.0, 4.0], "station_clearance_m": 100.0}
+
+
+@pytest.fixture(scope="module")
+def small_bench(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    cfg = out / "small.yaml"
+    cfg.write_text(yaml.safe_dump(SMALL))
+    code = run(["--scenarios", "2", "--seed", "7", "--variants", "astar-bdwa,bdwa", "--workers", "1",
+                "--out", str(out), "--scenario-config", str(cfg), "--quiet"])
+    return out, code
+
+
+def test_summary_json_is_the_aggregate_of_runs_csv(small_bench):
+    out, code = small_bench
+    rows = read_runs_csv(out / "runs.csv")
+    summary = json.loads((out / "summary.json").read_text())
+    assert [(r["index"], r["variant"]) for r in rows] == [(0, "astar-bdwa"), (0, "bdwa"),
+                                                          (1, "astar-bdwa"), (1, "bdwa")]
+    assert aggregate(rows) == summary
+    for variant, s in summary.items():  # and the headline numbers by hand
+        mine = [r for r in rows if r["variant"] == variant]
+        assert s["runs"] == 2
+        assert s["successes"] == sum(r["success"] for r in mine)
+        assert s["collisions"] == sum(r["reason"] == "collision" for r in mine)
+        assert sum(s["reasons"].values()) == s["runs"] - s["successes"]
+    unsafe = sum(s["unsafe"] + s["reasons"].get("error", 0) for s in summary.values())
+    assert code == (1 if unsafe else 0)
+
+
+def test_bench_writes_every_artefact(small_bench):
+    out, _ = small_bench
+    for name in ("runs.csv", "summary.json", "table.md", "meta.json", "violin.png", "lines.png",
+                 "trajectory_example.png", "failures/index.md"):
+        assert (out / name).stat().st_size > 0, name
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["command"].startswith("companion bench --scenarios 2 --seed 7 --variants astar-bdwa,bdwa")
+    assert meta["scenario_config"]["side_m"] == 1000.0
+    rows = read_runs_csv(out / "runs.csv")
+    index = (out / "failures" / "index.md").read_text()
+    for r in rows:  # a gallery entry for exactly the failed runs
+        entry = out / "failures" / failure_dir_name(r["variant"], r["seed"], r["index"])
+        assert entry.is_dir() == (not r["success"])
+        assert (failure_dir_name(r["variant"], r["seed"], r["index"]) in index) == (not r["success"])
+
+
+def test_a_failed_run_replays_from_its_gallery_yaml(tmp_path):
+    # A 20 s time limit makes every run a timeout: the gallery must hold each, replayable.
+    cfg = tmp_path / "short.yaml"
+    cfg.write_text(yaml.safe_dump({**SMALL, "time_limit_s": 20.0}))
+    out = tmp_path / "out"
+    assert run(["--scenarios", "1", "--seed", "3", "--variants", "astar-bdwa,dwa", "--workers", "1",
+                "--out", str(out), "--scenario-config", str(cfg), "--quiet"]) == 0
+    rows = read_runs_csv(out / "runs.csv")
+    assert [r["reason"] for r in rows] == ["timeout", "timeout"]
+    for r in rows:
+        entry = out / "failures" / failure_dir_name(r["variant"], 3, 0)
+        assert (entry / "trajectory.png").stat().st_size > 0
+        mission = load_mission(entry / "scenario.yaml")
+        assert mission.planner.variant == r["variant"]
+        replay = simulate(mission).summary.summary_dict()
+        assert replay["reason"] == "timeout"
+        assert replay["vehicles"]["a"]["path_length_m"] == pytest.approx(r["a_path_length_m"])
+        assert replay["min_separation_m"] == pytest.approx(r["min_separation_m"])
+    # A second bench into the same directory leaves no stale gallery entries behind.
+    assert run(["--scenarios", "1", "--seed", "3", "--variants", "dwa", "--workers", "1",
+                "--out", str(out), "--scenario-config", str(cfg), "--quiet"]) == 0
+    assert sorted(p.name for p in (out / "failures").iterdir()) == ["dwa_s3_i000", "index.md"]
+
+
+def test_rows_do_not_depend_on_the_worker_count():
+    cfg = ScenarioConfig.from_mapping(SMALL)
+    alone = run_bench(5, 2, ["dwa"], workers=1, config=cfg, progress=None)
+    pooled = run_bench(5, 2, ["dwa"], workers=2, config=cfg, progress=None)
+    strip = [{k: v for k, v in r.items() if k not in ("wall_s", "planner_ms_per_tick")} for r in alone]
+    assert strip == [{k: v for k, v in r.items() if k not in ("wall_s", "planner_ms_per_tick")} for r in pooled]
+
+
+def _row(index, variant, success, reason=None, a=500.0, b=600.0):
+    return {"seed": 1, "index": index, "scenario": f"s{index}", "variant": variant, "success": success,
+            "success_strict": success and index == 0, "reason": reason, "planner_ms_per_tick": 1.0,
+            "wall_s": 2.0, "a_arrived": success, "a_flight_time_s": a, "a_ratio": a / 400.0,
+            "b_arrived": success, "b_flight_time_s": b, "b_ratio": b / 400.0}
+
+
+def test_aggregate_counts_and_times_over_successes_only(tmp_path):
+    rows = [_row(0, "x", True, a=500.0), _row(1, "x", True, a=700.0), _row(2, "x", False, "collision", a=9.0),
+            _row(0, "y", True, a=550.0), _row(1, "y", False, "timeout"), _row(2, "y", False, "timeout")]
+    s = aggregate(rows)
+    assert list(s) == ["x", "y"]
+    assert (s["x"]["successes"], s["x"]["strict_successes"], s["x"]["collisions"]) == (2, 1, 1)
+    assert s["x"]["success_rate"] == pytest.approx(2 / 3, abs=1e-4)
+    assert s["x"]["flight_time_s"]["a"]["mean"] == 600.0  # the 9 s collision run is not a flight time
+    assert s["y"]["reasons"] == {"timeout": 2}
+    assert s["x"]["common_scenarios"] == 1  # only scenario 0 succeeded with both
+    assert s["x"]["flight_time_common_s"]["a"]["mean"] == 500.0
+    assert s["x"]["ratio_to_bound"]["b"]["median"] == 1.5
+    assert "collision 1" in format_table(s)
+    write_runs_csv(rows, tmp_path / "runs.csv")
+    assert aggregate(read_runs_csv(tmp_path / "runs.csv")) == s
+
+
+def test_bad_arguments_are_one_line_errors(capsys, tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        run(["--variants", "astar-bdwa,warp"])
+    assert exc.value.code == 2
+    assert "unknown variant(s) warp" in capsys.readouterr().err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("side: 5\n")
+    assert run(["--scenarios", "1", "--scenario-config", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("companion bench: ") and "unknown scenario key(s) side" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def _track(points, dt=0.5):
+    xy = np.asarray(points, dtype=float)
+    return Track(dt * np.arange(len(xy)), xy[:, 0], xy[:, 1])
+
+
+def test_diagnose_names_the_vehicle_and_the_obstacle():
+    mission = parse_mission(yaml.safe_dump({
+        "area": {"x_min_m": 0, "y_min_m": 0, "x_max_m": 1000, "y_max_m": 1000},
+        "stations": {"A": [0, 0], "B": [1000, 1000]},
+        "obstacles": [{"id": "rock", "shape": "circle", "center": [500, 200], "radius_m": 50},
+                      {"id": "truck", "shape": "circle", "center": [200, 500], "radius_m": 40,
+                       "motion": {"type": "shuttle", "to": [600, 500], "speed_m_s": 4}}],
+        "vehicles": [{"name": "a", "start": "A", "goal": "B"}, {"name": "b", "start": "B", "goal": "A"}]}))
+    # a flies east along y = 500 at 5 m/s, slower than nothing: the truck (4 m/s, behind it) is
+    # at x = 210 at t = 2.5 s while a sits at x = 212.5 - inside the truck's footprint.
+    a = _track([(200 + 2.5 * k, 500) for k in range(6)])
+    b = _track([(900, 900 - 5 * k) for k in range(6)])
+    summary = {"reason": "collision", "vehicles": {"a": {"arrived": False}, "b": {"arrived": False}}}
+    facts = diagnose(mission, {"a": a, "b": b}, summary)
+    assert facts == {"failed_vehicles": "a", "hit_obstacle": "truck", "hit_moving": True, "hit_from_behind": True}
+    out = _track([(1000, 1000), (1100, 1000), (1250, 1000)])
+    facts = diagnose(mission, {"a": a, "b": out}, {**summary, "reason": "geofence"})
+    assert facts["failed_vehicles"] == "b" and facts["hit_obstacle"] is None
+    facts = diagnose(mission, {"a": a, "b": b},
+                     {"reason": "timeout", "vehicles": {"a": {"arrived": True}, "b": {"arrived": False}}})
+    assert facts["failed_vehicles"] == "b"
+    assert diagnose(mission, {"a": a, "b": b}, {"reason": None})["failed_vehicles"] is None

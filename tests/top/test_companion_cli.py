@@ -1,0 +1,89 @@
+"""The flying subcommands' input handling, in-process: exit codes and one-line messages."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from companion.cli import main
+from uav_model.mission import mission_schema
+
+ROOT = Path(__file__).resolve().parents[2]
+REFERENCE = ROOT / "missions" / "paper_reference.yaml"
+BAD_MISSIONS = sorted((ROOT / "tests" / "data" / "bad_missions").glob("*.yaml"))
+
+
+def _one_line(text: str) -> str:
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert len(lines) == 1, text
+    assert "Traceback" not in text
+    return lines[0]
+
+
+@pytest.mark.parametrize("command", ["validate", "run"])
+@pytest.mark.parametrize("path", BAD_MISSIONS, ids=lambda p: p.stem)
+def test_bad_missions_exit_2_with_one_line_naming_the_file(command, path, capsys):
+    # "run" refuses before it starts a stub or opens a connection (nothing to arm).
+    assert main([command, str(path)]) == 2
+    err = capsys.readouterr()
+    line = _one_line(err.err)
+    assert line.startswith(str(path)), line
+    assert err.out == ""
+
+
+def test_unreachable_goal_names_the_goal_field(capsys):
+    assert main(["validate", str(ROOT / "tests/data/bad_missions/unreachable_goal.yaml")]) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert "].goal: no path" in line
+
+
+def test_validate_reports_routes_for_a_good_mission(capsys):
+    assert main(["validate", str(REFERENCE)]) == 0
+    out = capsys.readouterr().out
+    assert "ok" in out and "a:" in out and "nodes" in out
+
+
+@pytest.mark.parametrize("connects, message", [
+    (["a=udpin://0.0.0.0:1"], "--connect missing for vehicle(s) b"),
+    (["a=udpin://0.0.0.0:1", "c=udpin://0.0.0.0:2"], "no vehicle 'c'"),
+    (["a=udpin://0.0.0.0:1", "a=udpin://0.0.0.0:2"], "given twice"),
+])
+def test_connect_must_name_each_vehicle_once(connects, message, capsys):
+    args = ["run", str(REFERENCE)]
+    for c in connects:
+        args += ["--connect", c]
+    assert main(args) == 2
+    assert message in _one_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("bad", ["a", "a=", "=udpin://0.0.0.0:1", "a=14540"])
+def test_malformed_connect_is_a_usage_error(bad, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["run", str(REFERENCE), "--connect", bad])
+    assert info.value.code == 2
+    assert "--connect" in capsys.readouterr().err
+
+
+def test_schema_prints_the_published_schema(capsys):
+    assert main(["schema"]) == 0
+    assert json.loads(capsys.readouterr().out) == mission_schema()
+
+
+def test_plan_writes_routes_and_a_plot(tmp_path, capsys):
+    assert main(["plan", str(REFERENCE), "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "routes.json").read_text())
+    assert set(doc["vehicles"]) == {"a", "b"}
+    a = doc["vehicles"]["a"]
+    assert a["nodes_sparse"] == len(a["waypoints_enu_m"]) == len(a["waypoints_geodetic"])
+    assert a["lower_bound_s"] == pytest.approx(473.8, abs=0.1)
+    assert (tmp_path / "trajectory.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("command", ["run", "plan"])
+def test_an_output_directory_that_cannot_exist_is_bad_input(command, tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert main([command, str(REFERENCE), "--out", str(blocker / "out")]) == 2
+    assert "cannot create the directory" in _one_line(capsys.readouterr().err)

@@ -1,0 +1,104 @@
+"""Scenario tests through the harness (companion.testing.plugin): ``companion run`` flies a mission
+against ``sim-bridge`` while a GCS-side recorder listens; the vehicles' own telemetry is the judge.
+
+Each flight costs ~30-40 s of wall time, so one flight carries every assertion about it,
+including the companion's own outputs where they matter.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uav_model.mission import load_mission
+from companion.planning.runner import simulate
+from companion.scenarios import generate, write_mission_yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+REFERENCE = ROOT / "missions" / "paper_reference.yaml"
+MOVING = ROOT / "missions" / "moving_obstacles.yaml"
+SCENARIO_SEED = 2026
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+
+
+def test_reference_mission(sitl, companion, tmp_path):
+    stub = sitl(REFERENCE, speedup=20, extra=["--tlog", str(tmp_path / "tlog")])
+    run = companion(stub)
+    assert run.exit_code == 0, run.tail
+
+    stub.assert_success()
+    for name in ("a", "b"):
+        stub.assert_modes_in_order(name, "TAKEOFF", "OFFBOARD", "HOLD", "LAND")
+    stub.assert_mission_matches_plan()
+
+    # Same planner, same plant, same scoring: flight times within 3 % of the headless runner's.
+    report = stub.report()
+    headless = simulate(load_mission(REFERENCE)).summary
+    for name, v in report.vehicles.items():
+        assert v.flight_time_s == pytest.approx(headless.vehicles[name].flight_time_s, rel=0.03), name
+    # The sight-line metrics from the GCS's recording agree with the companion's from its own links.
+    assert report.los_blocked_fraction == pytest.approx(run.summary["los_blocked_fraction"], abs=0.05)
+    assert report.min_separation_m == pytest.approx(run.summary["min_separation_m"], rel=0.02)
+
+    # The companion's own outputs of the same flight.
+    ticks = [r for r in run.flight_log() if r["vehicle"] == "a" and r["action"] == "fly"]
+    assert len(ticks) > 800  # one tick per 0.5 s of sim time over ~480 s
+    assert max(abs(float(r["cmd_yaw_rate_deg_s"])) for r in ticks) <= math.degrees(10.0 / 30.0) + 1e-6
+    assert (run.out_dir / "trajectory.png").stat().st_size > 10_000
+    assert "SUCCESS" in run.stdout and "a: arrived" in run.stdout
+    tlogs = list((tmp_path / "tlog").glob("*.tlog"))
+    assert tlogs and tlogs[0].stat().st_size > 10_000
+
+
+def test_moving_obstacles(sitl, companion):
+    mission = load_mission(MOVING)
+    stub = sitl(MOVING, speedup=20)
+    run = companion(stub)
+    assert run.exit_code == 0, run.tail
+    stub.assert_success()  # clearance is checked against the obstacles' TRUE motion
+
+    # ADS-B as the GCS hears it follows the mission's motion model (stamped on arrival, so allow
+    # one stream period of lag at 20x: a couple of seconds of sim time, ~10 m at these speeds).
+    moving = {o.id: o for o in mission.world.moving_obstacles}
+    heard = stub.traffic("a")
+    assert set(heard) == set(moving)
+    for callsign, reports in heard.items():
+        errors = [math.hypot(r.x_m - moving[callsign].center_at(r.t_s)[0], r.y_m - moving[callsign].center_at(r.t_s)[1])
+                  for r in reports]
+        assert len(reports) > 50 and np.median(errors) < 15.0, (callsign, np.median(errors))
+
+    # traffic.csv is what the companion decoded from ADSB_VEHICLE: it matches the motion model at
+    # the vehicle clock the report came in with.
+    rows = run.traffic_log()
+    assert {r["callsign"] for r in rows} == set(moving) and {r["via"] for r in rows} == {"a", "b"}
+    errors, vel_errors = [], []
+    for r in rows:
+        o, t = moving[r["callsign"]], float(r["t_sim_s"])
+        x, y = o.center_at(t)
+        errors.append(math.hypot(float(r["x_m"]) - x, float(r["y_m"]) - y))
+        # Around a shuttle's turn a report's velocity may belong to either side of it: the stub
+        # reports at its own sim time, stamped here with the receiving vehicle's clock, and a
+        # loaded machine skews the two by 100+ ms of wall (seconds of sim at 20x) either way. It
+        # must match the motion model's velocity at some moment within 3 s of its stamp.
+        v = np.array([float(r["vx_m_s"]), float(r["vy_m_s"])])
+        vel_errors.append(min(float(np.hypot(*(v - np.array(o.motion.velocity_at(t + lag)))))
+                              for lag in np.arange(-3.0, 3.01, 0.1)))
+    assert len(rows) > 200
+    # Stamped with the receiving vehicle's latest clock: at most one API stream period late.
+    assert np.median(errors) < 1.5 and max(errors) < 5.0, (np.median(errors), max(errors))
+    assert max(vel_errors) < 0.05
+
+
+@pytest.mark.parametrize("index", [0, 1, 2], ids=lambda i: f"seed{SCENARIO_SEED}-{i}")
+def test_random_scenario(sitl, companion, tmp_path, index):
+    # SPEC §3's generator: five static obstacles in the middle, two moving ones across the routes.
+    path = write_mission_yaml(generate(SCENARIO_SEED, index), tmp_path / f"scenario_{index}.yaml")
+    stub = sitl(path, speedup=20)
+    run = companion(stub)
+    assert run.exit_code == 0, run.tail
+    stub.assert_success()
+    stub.assert_mission_matches_plan()
