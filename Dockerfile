@@ -3,6 +3,7 @@
 FROM python:3.11-slim
 WORKDIR /app
 COPY pyproject.toml README.md ./
+COPY uav_model ./uav_model
 COPY companion ./companion
 COPY sim_bridge ./sim_bridge
 COPY missions ./missions
