@@ -26,7 +26,7 @@ from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
 from companion.app.runner import RunResult, run_mission, summary_table
 from companion.errors import CompanionError
-from uav_model.mission import VARIANTS, MissionError, load_mission, mission_schema
+from uav_model.mission import VARIANTS, MissionError, load_mission, mission_schema, shared_goals
 
 if TYPE_CHECKING:
     from companion.sitl.inprocess import InProcessOptions
@@ -206,6 +206,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
     except MissionError as exc:
         return _bad(exc)
     m = plan.mission
+    for station, names in shared_goals(m).items():
+        print(f"{m.source}: warning: vehicles {', '.join(names)} share goal station {station!r}: "
+              f"only one can hold it; the others will wait near it until the time limit")
     routes = ", ".join(f"{n}: {r.nodes_raw} -> {r.nodes_sparse} nodes" for n, r in plan.routes.items())
     print(f"{m.source}: ok: {len(m.vehicles)} vehicle(s), {len(m.world.obstacles)} obstacle(s) "
           f"({len(m.world.moving_obstacles)} moving), variant {plan.variant}" + (f"; routes {routes}" if routes else ""))

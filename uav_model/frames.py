@@ -15,8 +15,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-EARTH_RADIUS_M = 6_378_137.0  # WGS-84 equatorial radius, as PX4's map_projection uses
+import pymap3d
 
+_A = 6_378_137.0  # WGS-84 semi-major axis, m
+_E2 = 6.694_379_990_14e-3  # WGS-84 first eccentricity squared
+_NEWTON_STEPS = 4
 
 @dataclass(frozen=True, slots=True)
 class GeoOrigin:
@@ -64,39 +67,39 @@ def ned_to_enu(north_m: float, east_m: float, down_m: float = 0.0) -> tuple[floa
 
 def local_to_geodetic(origin: GeoOrigin, x_east_m: float, y_north_m: float,
                       z_up_m: float = 0.0) -> tuple[float, float, float]:
-    """Local ENU metres to (lat_deg, lon_deg, alt_amsl_m) by azimuthal equidistant projection.
+    """Local ENU metres to (lat_deg, lon_deg, alt_amsl_m): the exact inverse of :func:`geodetic_to_local`.
 
-    This is the projection PX4 uses for its local frame (map_projection); it is exact to well
-    under a metre over the few kilometres a mission spans.
+    pymap3d has the inverse too, but it costs ~2 ms a call (numpy masks on scalars), and the stub
+    converts every GLOBAL_POSITION_INT it sends. So this solves geodetic_to_local(lat, lon) = (x, y)
+    by Newton steps on pymap3d's forward transform, from a spherical first guess; two steps reach
+    well under a millimetre over a mission's few kilometres (tests/model/test_frames.py).
     """
-    lat0 = math.radians(origin.lat_deg)
-    lon0 = math.radians(origin.lon_deg)
-    x_rad = x_east_m / EARTH_RADIUS_M
-    y_rad = y_north_m / EARTH_RADIUS_M
-    c = math.hypot(x_rad, y_rad)
-    if c < 1e-12:
-        return origin.lat_deg, origin.lon_deg, origin.alt_m + z_up_m
-    sin_c, cos_c = math.sin(c), math.cos(c)
-    lat = math.asin(cos_c * math.sin(lat0) + y_rad * sin_c * math.cos(lat0) / c)
-    lon = lon0 + math.atan2(x_rad * sin_c,
-                            c * math.cos(lat0) * cos_c - y_rad * math.sin(lat0) * sin_c)
-    return math.degrees(lat), math.degrees(lon), origin.alt_m + z_up_m
+    lat0, lon0 = origin.lat_deg, origin.lon_deg
+    lat, lon = lat0, lon0
+    dx, dy = x_east_m, y_north_m
+    for _ in range(_NEWTON_STEPS):
+        # Local radii of curvature: metres per radian of latitude (M) and of longitude (N cos lat).
+        s = math.sin(math.radians(lat))
+        w = math.sqrt(1.0 - _E2 * s * s)
+        m_lat = _A * (1.0 - _E2) / (w * w * w)
+        n_lon = _A / w * math.cos(math.radians(lat))
+        lat += math.degrees(dy / m_lat)
+        lon += math.degrees(dx / n_lon)
+        e, n, _ = pymap3d.geodetic2enu(lat, lon, origin.alt_m, lat0, lon0, origin.alt_m)
+        dx, dy = x_east_m - float(e), y_north_m - float(n)
+        if abs(dx) < 1e-5 and abs(dy) < 1e-5:
+            break
+    return lat, lon, origin.alt_m + z_up_m
 
 
 def geodetic_to_local(origin: GeoOrigin, lat_deg: float, lon_deg: float,
                       alt_m: float | None = None) -> tuple[float, float, float]:
-    """(lat, lon, alt AMSL) to local ENU metres; the inverse of :func:`local_to_geodetic`."""
-    lat0 = math.radians(origin.lat_deg)
-    lon0 = math.radians(origin.lon_deg)
-    lat = math.radians(lat_deg)
-    lon = math.radians(lon_deg)
-    sin_lat, cos_lat = math.sin(lat), math.cos(lat)
-    cos_dlon = math.cos(lon - lon0)
-    arg = math.sin(lat0) * sin_lat + math.cos(lat0) * cos_lat * cos_dlon
-    arg = max(-1.0, min(1.0, arg))
-    c = math.acos(arg)
-    k = 1.0 if abs(c) < 1e-12 else c / math.sin(c)
-    x = k * cos_lat * math.sin(lon - lon0) * EARTH_RADIUS_M
-    y = k * (math.cos(lat0) * sin_lat - math.sin(lat0) * cos_lat * cos_dlon) * EARTH_RADIUS_M
+    """(lat, lon, alt AMSL) to local ENU metres: the WGS-84 tangent plane at the origin (pymap3d).
+
+    East and north are exact. Up is the altitude difference (flat ground at the origin's
+    altitude), as PX4's local z is; the plane's curvature drop (~0.7 m at 3 km) is not applied.
+    """
+    e, n, _ = pymap3d.geodetic2enu(lat_deg, lon_deg, origin.alt_m,
+                                   origin.lat_deg, origin.lon_deg, origin.alt_m)
     z = 0.0 if alt_m is None else alt_m - origin.alt_m
-    return x, y, z
+    return float(e), float(n), z

@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import re
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
@@ -27,6 +28,7 @@ import yaml
 from shapely.geometry import Point
 
 from uav_model.frames import GeoOrigin
+from uav_model.mission_points import latlon_slips, localise
 from uav_model.world import Obstacle, Orbit, Patrol, Shuttle, Static, World, make_obstacle
 
 Variant = Literal["astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa"]
@@ -44,8 +46,30 @@ class MissionError(ValueError):
         self.field_path = field_path
         self.reason = reason
         self.line = line
+        self.problems: tuple[MissionError, ...] = (self,)
         where = f"{source}:{line}" if line is not None else source
         super().__init__(f"{where}: {field_path}: {reason}" if field_path else f"{where}: {reason}")
+
+    @classmethod
+    def of(cls, problems: list["MissionError"]) -> "MissionError":
+        """One error for several problems, in file order: ``str()`` is one line per problem."""
+        ordered = sorted(problems, key=lambda e: (e.line is None, e.line or 0, e.field_path))
+        first = ordered[0]
+        combined = cls(first.source, first.field_path, first.reason, first.line)
+        combined.problems = tuple(ordered)
+        combined.args = ("\n".join(str(e) for e in ordered),)
+        return combined
+
+    def __reduce__(self):
+        return (_rebuild_error, (self.source, self.field_path, self.reason, self.line,
+                                 tuple((e.field_path, e.reason, e.line) for e in self.problems)))
+
+
+def _rebuild_error(source: str, field_path: str, reason: str, line: int | None,
+                   problems: tuple[tuple[str, str, int | None], ...]) -> MissionError:
+    if len(problems) <= 1:
+        return MissionError(source, field_path, reason, line)
+    return MissionError.of([MissionError(source, f, r, ln) for f, r, ln in problems])
 
 
 @dataclass(frozen=True, slots=True)
@@ -266,22 +290,48 @@ def mission_from_data(data: dict[str, Any], source: str = "<mission>") -> Missio
     return _validated(data, source, None)
 
 
-def _validated(data: dict[str, Any], source: str, root: yaml.Node | None) -> Mission:
+def _schema_problems(data: dict[str, Any], source: str, root: yaml.Node | None) -> list[MissionError]:
+    """Every schema violation, one per field (not only the first)."""
     validator = jsonschema.Draft202012Validator(mission_schema())
-    errors = list(validator.iter_errors(data))
-    if errors:
-        best = jsonschema.exceptions.best_match(errors)
-        # Descend into if/then branches so the message names the real field.
+    problems: dict[str, MissionError] = {}
+    for err in validator.iter_errors(data):
+        best = err
+        # Descend into if/then and oneOf branches so the message names the real field.
         while best.context:
             best = jsonschema.exceptions.best_match(best.context)
         path, reason = _schema_reason(best)
-        raise MissionError(source, _dotted(path), reason, _line_of(root, path))
+        problems.setdefault(_dotted(path), MissionError(source, _dotted(path), reason, _line_of(root, path)))
+    return list(problems.values())
 
-    return _build(data, source, root)
+
+def _validated(data: dict[str, Any], source: str, root: yaml.Node | None) -> Mission:
+    """Check the whole document and report every problem at once (``MissionError.problems``)."""
+    problems = _schema_problems(data, source, root)
+    origin = _origin(data.get("origin")) if not any(p.field_path.startswith("origin") for p in problems) else DEFAULT_ORIGIN
+    problems += [_fail(source, root, path, reason) for path, reason in latlon_slips(data, origin)]
+    found: list[MissionError] = []
+    mission = None
+    try:
+        broken = {re.match(r"^[a-z_]+(\[\d+\])?", p.field_path).group(0) for p in problems if p.field_path}
+        mission = _build(localise(data, origin), source, root, origin, found, broken)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError):
+        if not problems and not found:  # a valid document must build: our bug, not the file's
+            raise
+    problems += found
+    if problems:
+        raise MissionError.of(problems)
+    assert mission is not None
+    return mission
 
 
 def _fail(source: str, root: yaml.Node | None, path: list[Any], reason: str) -> MissionError:
     return MissionError(source, _dotted(path), reason, _line_of(root, path))
+
+
+def _origin(raw: dict[str, Any] | None) -> GeoOrigin:
+    if raw is None:
+        return DEFAULT_ORIGIN
+    return GeoOrigin(float(raw["lat_deg"]), float(raw["lon_deg"]), float(raw.get("alt_m", DEFAULT_ORIGIN.alt_m)))
 
 
 def _motion(spec: dict | None, start: tuple[float, float]):
@@ -298,7 +348,12 @@ def _motion(spec: dict | None, start: tuple[float, float]):
     return Patrol(loop_m=(start,) + tuple(tuple(p) for p in spec["waypoints"]), speed_m_s=speed)
 
 
-def _build(data: dict, source: str, root: yaml.Node | None) -> Mission:
+def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
+           problems: list[MissionError], broken: set[str] = frozenset()) -> Mission | None:
+    """The typed mission; semantic problems are appended to ``problems`` (None if any).
+
+    ``broken`` names the items (``vehicles[1]``, ``obstacles[0]``) the schema already refused:
+    they are checked no further, so one wrong value does not hide the next item's problems."""
     schema = mission_schema()["$defs"]
     planner_raw = copy.deepcopy(data.get("planner", {}))
     weights = planner_raw.get("weights", {})
@@ -332,9 +387,9 @@ def _build(data: dict, source: str, root: yaml.Node | None) -> Mission:
     adef = mission_schema()["properties"]["area"]["properties"]
     x0, y0, x1, y1 = (float(area[k]) for k in ("x_min_m", "y_min_m", "x_max_m", "y_max_m"))
     if x1 <= x0:
-        raise _fail(source, root, ["area", "x_max_m"], f"must be greater than x_min_m ({x0})")
+        problems.append(_fail(source, root, ["area", "x_max_m"], f"must be greater than x_min_m ({x0})"))
     if y1 <= y0:
-        raise _fail(source, root, ["area", "y_max_m"], f"must be greater than y_min_m ({y0})")
+        problems.append(_fail(source, root, ["area", "y_max_m"], f"must be greater than y_min_m ({y0})"))
     margin = float(opt(area, adef, "geofence_margin_m"))
 
     obstacles: list[Obstacle] = []
@@ -342,15 +397,18 @@ def _build(data: dict, source: str, root: yaml.Node | None) -> Mission:
     for i, o in enumerate(data.get("obstacles", [])):
         oid = o.get("id", f"obstacle{i}")
         if oid in seen_ids:
-            raise _fail(source, root, ["obstacles", i, "id"], f"duplicate obstacle id {oid!r}")
+            problems.append(_fail(source, root, ["obstacles", i, "id"], f"duplicate obstacle id {oid!r}"))
         seen_ids.add(oid)
         kind = o["shape"]
+        if f"obstacles[{i}]" in broken:
+            continue
         if kind == "polygon":
             poly_vertices = [tuple(map(float, p)) for p in o["vertices"]]
             from shapely.geometry import Polygon
             if not Polygon(poly_vertices).is_valid or Polygon(poly_vertices).area <= 0:
-                raise _fail(source, root, ["obstacles", i, "vertices"],
-                            "polygon is self-intersecting or has no area")
+                problems.append(_fail(source, root, ["obstacles", i, "vertices"],
+                                      "polygon is self-intersecting or has no area"))
+                continue
         obstacle = make_obstacle(
             oid, kind,
             center=tuple(map(float, o["center"])) if "center" in o else None,
@@ -370,12 +428,12 @@ def _build(data: dict, source: str, root: yaml.Node | None) -> Mission:
     for name, (x, y) in stations.items():
         path = ["stations", name]
         if not (x0 <= x <= x1 and y0 <= y <= y1):
-            raise _fail(source, root, path, f"station ({x:g}, {y:g}) lies outside the area")
+            problems.append(_fail(source, root, path, f"station ({x:g}, {y:g}) lies outside the area"))
         for o in world.static_obstacles:
             if o.inflated.intersects(Point(x, y)):
-                raise _fail(source, root, path,
-                            f"station ({x:g}, {y:g}) lies inside obstacle {o.id!r} "
-                            f"(inflated by {o.margin_m:g} m)")
+                problems.append(_fail(source, root, path,
+                                      f"station ({x:g}, {y:g}) lies inside obstacle {o.id!r} "
+                                      f"(inflated by {o.margin_m:g} m)"))
 
     vehicles: list[VehicleSpec] = []
     names: set[str] = set()
@@ -383,18 +441,20 @@ def _build(data: dict, source: str, root: yaml.Node | None) -> Mission:
     for i, v in enumerate(data["vehicles"]):
         base = ["vehicles", i]
         if v["name"] in names:
-            raise _fail(source, root, base + ["name"], f"duplicate vehicle name {v['name']!r}")
+            problems.append(_fail(source, root, base + ["name"], f"duplicate vehicle name {v['name']!r}"))
         names.add(v["name"])
         sysid = int(v.get("system_id", i + 1))
         if sysid in sysids:
-            raise _fail(source, root, base + ["system_id"], f"duplicate system id {sysid}")
+            problems.append(_fail(source, root, base + ["system_id"], f"duplicate system id {sysid}"))
         sysids.add(sysid)
-        for key in ("start", "goal"):
-            if v[key] not in stations:
-                raise _fail(source, root, base + [key],
-                            f"unknown station {v[key]!r}; stations are {', '.join(stations)}")
+        unknown = [key for key in ("start", "goal") if v[key] not in stations]
+        for key in unknown:
+            problems.append(_fail(source, root, base + [key],
+                                  f"unknown station {v[key]!r}; stations are {', '.join(stations)}"))
         if v["start"] == v["goal"]:
-            raise _fail(source, root, base + ["goal"], "goal is the same station as start")
+            problems.append(_fail(source, root, base + ["goal"], "goal is the same station as start"))
+        if unknown or f"vehicles[{i}]" in broken:
+            continue
         vehicles.append(VehicleSpec(
             name=v["name"], index=i, system_id=sysid,
             connection=v.get("connection", f"udpin://0.0.0.0:{API_PORT_BASE + i}"),
@@ -409,10 +469,16 @@ def _build(data: dict, source: str, root: yaml.Node | None) -> Mission:
             battery_pct=float(opt(v, vdef, "battery_pct")),
         ))
 
-    origin_raw = data.get("origin")
-    origin = DEFAULT_ORIGIN if origin_raw is None else GeoOrigin(
-        float(origin_raw["lat_deg"]), float(origin_raw["lon_deg"]),
-        float(origin_raw.get("alt_m", DEFAULT_ORIGIN.alt_m)))
+    if problems:
+        return None
     return Mission(name=data.get("name", Path(source).stem), source=source,
                    description=data.get("description", ""), origin=origin, world=world,
                    stations=stations, vehicles=tuple(vehicles), planner=planner, safety=safety)
+
+
+def shared_goals(mission: Mission) -> dict[str, list[str]]:
+    """Goal stations that more than one vehicle flies to, with those vehicles' names."""
+    by_goal: dict[str, list[str]] = {}
+    for v in mission.vehicles:
+        by_goal.setdefault(v.goal, []).append(v.name)
+    return {goal: names for goal, names in by_goal.items() if len(names) > 1}
