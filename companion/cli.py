@@ -4,6 +4,7 @@
     companion sweep table1|table2|table3 [--out DIR]            the paper's Tables I-III
     companion run | validate | plan | upload | schema           flying commands (companion.app)
     companion bench                                             the Table IV ablation (companion.bench)
+    companion import | replay                                   .plan / GeoJSON in, an animation out
 
 Exit codes, for every subcommand:
 
@@ -35,6 +36,7 @@ EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 _COMMAND_MODULES = (
     ("companion.commands", "add_commands"),  # run, validate, plan, upload, schema
     ("companion.bench.cli", "add_parser"),  # bench
+    ("companion.formats.cli", "add_parsers"),  # import, replay
 )
 
 

@@ -243,8 +243,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
               + (f"{route.nodes_raw} A* nodes -> {route.nodes_sparse} sparse" if route else "no global route (variant)")
               + f"; lower bound {bound:.1f} s")
     (out / "routes.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    from companion.formats.qgc_plan import plan_document
+    for v in plan.mission.vehicles:
+        (out / f"{v.name}.plan").write_text(json.dumps(plan_document(plan, v), indent=2) + "\n", encoding="utf-8")
     _save_plan_figure(out / "trajectory.png", plan)
-    print(f"wrote {out / 'routes.json'} and {out / 'trajectory.png'}")
+    print(f"wrote {out / 'routes.json'}, {out / 'trajectory.png'} and a QGroundControl .plan per vehicle")
     return EXIT_OK
 
 

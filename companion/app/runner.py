@@ -155,6 +155,7 @@ def _summary_doc(plan: FlightPlan, summary: RunSummary | None, outcomes: Mapping
         doc["reason"] = reason
     # The keys `companion simulate` adds, so that the two summaries compare key for key.
     doc.setdefault("mission", plan.mission.name)
+    doc.setdefault("mission_file", plan.mission.source)
     doc.setdefault("variant", plan.variant)
     doc["wall_s"] = round(wall_s, 3)
     doc["speed_factor"] = round(doc["duration_s"] / wall_s, 1) if wall_s > 0 and doc.get("duration_s") else None

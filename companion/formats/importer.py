@@ -1,0 +1,89 @@
+"""``companion import``: a QGC ``.plan`` or a GeoJSON file (plus an optional base mission) to mission YAML.
+
+The imported file gives the geometry (origin, area, obstacles, and stations from GeoJSON); the
+base mission, when given, gives everything else (stations, vehicles, planner and safety). The
+result is validated by the one mission loader before anything is written.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from companion.formats.geojson import GeoJsonError, geojson_to_document
+from companion.formats.qgc_plan import PlanFormatError, fences_to_document
+from uav_model.mission import Mission, MissionError, mission_from_data
+
+
+class ImportError_(ValueError):
+    """An input that cannot become a mission; ``str()`` is one line naming the file."""
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ImportError_(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ImportError_(f"{path}: cannot read file: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise ImportError_(f"{path}:{exc.lineno}: not JSON: {exc.msg}") from None
+
+
+def _read_base(path: Path | None) -> dict[str, Any]:
+    if path is None:
+        return {}
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ImportError_(f"{path}: cannot read the base mission: {exc}") from None
+    if not isinstance(data, dict):
+        raise ImportError_(f"{path}: the base mission must be a YAML mapping")
+    return data
+
+
+def parts_from_file(path: Path) -> dict[str, Any]:
+    """Mission parts from a ``.plan`` or a GeoJSON file, recognised by content."""
+    doc = _read_json(path)
+    try:
+        if isinstance(doc, dict) and doc.get("fileType") == "Plan":
+            return fences_to_document(doc, str(path))
+        if isinstance(doc, dict) and doc.get("type") == "FeatureCollection":
+            return geojson_to_document(doc, str(path))
+    except (PlanFormatError, GeoJsonError) as exc:
+        raise ImportError_(str(exc)) from None
+    raise ImportError_(f"{path}: neither a QGroundControl plan (fileType 'Plan') nor a GeoJSON FeatureCollection")
+
+
+def merged_document(path: Path, base: Path | None = None) -> dict[str, Any]:
+    """The mission document: the imported geometry over the base mission (or a default pair)."""
+    parts = parts_from_file(path)
+    doc = _read_base(base)
+    doc.setdefault("name", path.stem)
+    if "origin" in parts and "origin" not in doc:
+        doc["origin"] = parts["origin"]
+    for key in ("area", "obstacles"):
+        if key in parts:
+            doc[key] = parts[key]
+    if parts.get("stations"):
+        doc["stations"] = {**doc.get("stations", {}), **parts["stations"]}
+    if "vehicles" not in doc:
+        stations = list(doc.get("stations", {}))
+        if len(stations) != 2:
+            raise ImportError_(f"{path}: no vehicles to fly: give --base MISSION.yaml for the stations and "
+                               f"vehicles (or exactly two stations, for the paper's pair)")
+        a, b = stations
+        doc["vehicles"] = [{"name": "a", "start": a, "goal": b}, {"name": "b", "start": b, "goal": a}]
+    return doc
+
+
+def import_mission(path: Path, base: Path | None = None) -> tuple[dict[str, Any], Mission]:
+    """The merged document and the mission it validates to (raises ImportError_ or MissionError)."""
+    doc = merged_document(path, base)
+    try:
+        return doc, mission_from_data(doc, str(path))
+    except MissionError:
+        raise

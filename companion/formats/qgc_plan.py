@@ -1,0 +1,159 @@
+"""QGroundControl ``.plan`` files: each vehicle's route and the mission's fences, out and in.
+
+Export (:func:`plan_document`): one ``.plan`` per vehicle. Its ``mission`` holds the route the
+companion uploads (NAV_WAYPOINTs at cruise altitude above home, exactly ``FlightPlan.waypoints``);
+its ``geoFence`` holds the area plus the geofence margin as an inclusion polygon and every static
+obstacle, *inflated*, as an exclusion circle or polygon: what the autopilot must never enter.
+MAVSDK's importer is stricter than QGC's documentation, so the file always has top-level
+``version`` 1, ``mission.version`` 2, and ``geoFence`` and ``rallyPoints`` blocks of ``version`` 2.
+
+Each exclusion also carries the true obstacle under the key ``astar_bdwa`` (QGC and MAVSDK ignore
+unknown keys), so that importing our own file gives back the obstacle, not its inflated fence.
+
+Import (:func:`fences_to_document`): exclusion circles and polygons become obstacles, and the
+first inclusion polygon's bounding box becomes the area. A foreign file's fences are taken as
+the true obstacle footprints (they are inflated again by the mission's planner settings).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from shapely.geometry import Polygon
+
+from companion.app.flight_plan import FlightPlan
+from uav_model import frames
+from uav_model.mission import VehicleSpec
+from uav_model.world import Obstacle
+
+MAV_CMD_NAV_WAYPOINT = 16
+MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
+QGC_FIRMWARE_PX4 = 12
+QGC_VEHICLE_MULTIROTOR = 2
+FENCE_VERTEX_SPACING_M = 25.0  # a curved inflated corner becomes straight runs about this long
+EXTRA_KEY = "astar_bdwa"
+
+
+class PlanFormatError(ValueError):
+    """A ``.plan`` file we cannot read; ``str()`` names the file and the problem."""
+
+
+def _latlon(origin: frames.GeoOrigin, x: float, y: float) -> list[float]:
+    lat, lon, _ = frames.local_to_geodetic(origin, x, y)
+    return [round(lat, 9), round(lon, 9)]
+
+
+def _ring(origin: frames.GeoOrigin, poly: Polygon) -> list[list[float]]:
+    """A polygon's exterior in lat/lon, without the closing repeat, densified no further than needed."""
+    simple = poly.simplify(0.05, preserve_topology=True)
+    return [_latlon(origin, x, y) for x, y in list(simple.exterior.coords)[:-1]]
+
+
+def _true_shape(origin: frames.GeoOrigin, o: Obstacle) -> dict[str, Any]:
+    if o.is_circle:
+        return {"id": o.id, "shape": "circle", "center": _latlon(origin, *o.center), "radius_m": o.size_m}
+    return {"id": o.id, "shape": "polygon", "vertices": [_latlon(origin, x, y) for x, y in o.vertices()]}
+
+
+def _exclusion(origin: frames.GeoOrigin, o: Obstacle) -> tuple[str, dict[str, Any]]:
+    extra = {EXTRA_KEY: _true_shape(origin, o)}
+    if o.is_circle:
+        return "circles", {"circle": {"center": _latlon(origin, *o.center), "radius": o.inflated_radius_m},
+                           "inclusion": False, "version": 1, **extra}
+    inflated = o.footprint.buffer(o.margin_m, quad_segs=max(2, int(o.margin_m / FENCE_VERTEX_SPACING_M)))
+    return "polygons", {"inclusion": False, "polygon": _ring(origin, inflated), "version": 1, **extra}
+
+
+def _mission_items(plan: FlightPlan, vehicle: VehicleSpec) -> list[dict[str, Any]]:
+    items = []
+    for i, wp in enumerate(plan.waypoints(vehicle)):
+        items.append({
+            "AMSLAltAboveTerrain": None, "Altitude": wp.alt_rel_m, "AltitudeMode": 1, "autoContinue": True,
+            "command": MAV_CMD_NAV_WAYPOINT, "doJumpId": i + 1, "frame": MAV_FRAME_GLOBAL_RELATIVE_ALT,
+            "params": [0, 0, 0, None, wp.lat_deg, wp.lon_deg, wp.alt_rel_m], "type": "SimpleItem",
+        })
+    return items
+
+
+def plan_document(plan: FlightPlan, vehicle: VehicleSpec) -> dict[str, Any]:
+    """The QGC ``.plan`` JSON document for one vehicle of a planned mission."""
+    mission, origin = plan.mission, plan.mission.origin
+    w = mission.world
+    sw, ne = _latlon(origin, w.x_min_m, w.y_min_m), _latlon(origin, w.x_max_m, w.y_max_m)
+    area = {"area": {"south_west": {"lat_deg": sw[0], "lon_deg": sw[1]},
+                     "north_east": {"lat_deg": ne[0], "lon_deg": ne[1]}, "geofence_margin_m": w.geofence_margin_m}}
+    fence = {"circles": [], "polygons": [{"inclusion": True, "polygon": _ring(origin, w.geofence),
+                                          "version": 1, EXTRA_KEY: area}], "version": 2}
+    for o in mission.world.static_obstacles:
+        kind, item = _exclusion(origin, o)
+        fence[kind].append(item)
+    return {
+        "fileType": "Plan",
+        "geoFence": fence,
+        "groundStation": "QGroundControl",
+        "mission": {
+            "cruiseSpeed": vehicle.speed_m_s, "firmwareType": QGC_FIRMWARE_PX4, "globalPlanAltitudeMode": 1,
+            "hoverSpeed": vehicle.speed_m_s, "items": _mission_items(plan, vehicle),
+            "plannedHomePosition": [origin.lat_deg, origin.lon_deg, origin.alt_m],
+            "vehicleType": QGC_VEHICLE_MULTIROTOR, "version": 2,
+        },
+        "rallyPoints": {"points": [], "version": 2},
+        "version": 1,
+    }
+
+
+def _geo(pair: Any, where: str) -> dict[str, float]:
+    if not (isinstance(pair, list) and len(pair) >= 2 and all(isinstance(v, (int, float)) for v in pair[:2])):
+        raise PlanFormatError(f"{where}: expected [lat, lon], got {pair!r}")
+    return {"lat_deg": float(pair[0]), "lon_deg": float(pair[1])}
+
+
+def _obstacle_from_extra(extra: dict[str, Any], where: str) -> dict[str, Any]:
+    out = {"id": str(extra["id"]), "shape": extra["shape"]}
+    if extra["shape"] == "circle":
+        out.update(center=_geo(extra["center"], where), radius_m=float(extra["radius_m"]))
+    else:
+        out["vertices"] = [_geo(v, where) for v in extra["vertices"]]
+    return out
+
+
+def fences_to_document(doc: Any, source: str) -> dict[str, Any]:
+    """Mission document parts (origin, area, obstacles) from a ``.plan``'s geofence, in lat/lon."""
+    if not isinstance(doc, dict) or doc.get("fileType") != "Plan":
+        raise PlanFormatError(f"{source}: not a QGroundControl plan (fileType is not 'Plan')")
+    fence = doc.get("geoFence") or {}
+    out: dict[str, Any] = {"obstacles": []}
+    home = (doc.get("mission") or {}).get("plannedHomePosition")
+    if isinstance(home, list) and len(home) >= 2:
+        out["origin"] = {"lat_deg": float(home[0]), "lon_deg": float(home[1])}
+        if len(home) >= 3 and isinstance(home[2], (int, float)):
+            out["origin"]["alt_m"] = float(home[2])
+    for i, c in enumerate(fence.get("circles") or []):
+        where = f"{source}: geoFence.circles[{i}]"
+        if c.get("inclusion"):
+            continue
+        if EXTRA_KEY in c:
+            out["obstacles"].append(_obstacle_from_extra(c[EXTRA_KEY], where))
+            continue
+        circle = c.get("circle") or {}
+        out["obstacles"].append({"id": f"fence_circle{i}", "shape": "circle",
+                                 "center": _geo(circle.get("center"), where),
+                                 "radius_m": float(circle.get("radius", 0.0)) or 0.1})
+    for i, p in enumerate(fence.get("polygons") or []):
+        where = f"{source}: geoFence.polygons[{i}]"
+        ring = [_geo(v, where) for v in p.get("polygon") or []]
+        if p.get("inclusion"):
+            if "area" not in out and isinstance(p.get(EXTRA_KEY), dict) and "area" in p[EXTRA_KEY]:
+                out["area"] = p[EXTRA_KEY]["area"]
+            elif "area" not in out and ring:
+                lats = [v["lat_deg"] for v in ring]
+                lons = [v["lon_deg"] for v in ring]
+                out["area"] = {"south_west": {"lat_deg": min(lats), "lon_deg": min(lons)},
+                               "north_east": {"lat_deg": max(lats), "lon_deg": max(lons)},
+                               "geofence_margin_m": 0.0}
+            continue
+        if EXTRA_KEY in p:
+            out["obstacles"].append(_obstacle_from_extra(p[EXTRA_KEY], where))
+        else:
+            out["obstacles"].append({"id": f"fence_polygon{i}", "shape": "polygon", "vertices": ring})
+    return out
