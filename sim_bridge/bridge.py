@@ -35,7 +35,7 @@ from sim_bridge.energy import EnergyModel
 from sim_bridge.faults import Blackout, FaultConfig, LinkFaults
 from sim_bridge.px4 import FlightMode
 from sim_bridge.streams import API_PROFILE, GCS_PROFILE, StreamProfile
-from sim_bridge.tlog import TlogWriter
+from sim_bridge.tlog import TlogSet
 from sim_bridge.vehicle import Emit, SimVehicle
 
 log = logging.getLogger(__name__)
@@ -62,6 +62,7 @@ class SimOptions:
     faults: FaultConfig = field(default_factory=FaultConfig)  # applied to the API links
     faults_on_gcs: bool = False
     tlog_dir: Path | None = None
+    tlog_per_vehicle: bool = False  # also one .tlog per vehicle beside the combined one
     speed_headroom: float = 1.0  # vehicle speed limit = mission speed * headroom
     energy: EnergyModel = field(default_factory=EnergyModel)
     api_profile: StreamProfile = API_PROFILE
@@ -160,7 +161,7 @@ class SimBridge:
         self._api: list[_Endpoint] = []
         self._gcs: _Endpoint | None = None
         self._task: asyncio.Task | None = None
-        self._tlog: TlogWriter | None = None
+        self._tlog: TlogSet | None = None
         self._timers: set[asyncio.TimerHandle] = set()
         self._cpu_start = 0.0
         self._wall_start = 0.0
@@ -199,10 +200,13 @@ class SimBridge:
         except OSError as exc:
             self._close_sockets()
             raise SimBridgeError(f"cannot open UDP sockets on {bind}: {exc}") from None
-        if o.tlog_dir is not None:
-            self._tlog = TlogWriter.create(Path(o.tlog_dir), self.mission.name)
         self._clock = SimClock(o.speedup, o.physics_dt_s, loop.time(),
                                max_lag_steps=max(1, math.ceil(o.max_catchup_sim_s / o.physics_dt_s)))
+        if o.tlog_dir is not None:
+            epoch_at_start = time.time()  # tlog stamps: this wall instant plus the sim seconds since
+            self._tlog = TlogSet(Path(o.tlog_dir), self.mission.name,
+                                 [(v.system_id, v.name) for v in self.vehicles],
+                                 lambda: epoch_at_start + self.sim_time_s, per_vehicle=o.tlog_per_vehicle)
         self._cpu_start = time.process_time()
         self._wall_start = loop.time()
         self._running = True
@@ -297,7 +301,7 @@ class SimBridge:
                 continue
             self.stats["rx_messages"] += 1
             if self._tlog is not None and ep.socket_name == GCS_LINK:
-                self._tlog.write(msg.get_msgbuf())
+                self._tlog.write(msg.get_msgbuf(), getattr(msg, "target_system", 0) or None)
             if ep.vehicle_index is not None:
                 self._deliver(ep.vehicle_index, msg, API_LINK, addr)
                 continue
@@ -334,7 +338,7 @@ class SimBridge:
             return
         link.encoder.seq = (link.encoder.seq + 1) % 256
         if self._tlog is not None and link.name == GCS_LINK:
-            self._tlog.write(buf)
+            self._tlog.write(buf, self.vehicles[index].system_id)
         for dest in ([peer] if peer is not None else ep.destinations()):
             delay = link.faults_out.verdict(self.sim_time_s) if link.faults_out else 0.0
             if delay is None:
@@ -418,7 +422,13 @@ class SimBridge:
 
     @property
     def tlog_path(self) -> Path | None:
-        return None if self._tlog is None else self._tlog.path
+        """The combined GCS-stream log (None without --tlog)."""
+        return None if self._tlog is None else self._tlog.combined.path
+
+    @property
+    def tlog_paths(self) -> list[Path]:
+        """The combined log, then one per vehicle if asked."""
+        return [] if self._tlog is None else self._tlog.paths
 
     def blackout(self, duration_s: float, vehicle: str | int | None = None) -> None:
         """Cut the API link(s) for ``duration_s`` sim seconds from now (both directions)."""

@@ -48,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--latency-ms", type=float, default=0.0, metavar="MS", help="added API link latency (wall ms)")
     p.add_argument("--blackout", type=_blackout, action="append", default=[], metavar="START:DURATION",
                    help="API link blackout in sim seconds (repeatable), e.g. 30:5")
-    p.add_argument("--tlog", type=Path, default=None, metavar="DIR", help="record the GCS stream as DIR/*.tlog")
+    p.add_argument("--tlog", type=Path, default=None, metavar="DIR",
+                   help="record the GCS stream as DIR/*.tlog, stamped in sim time")
+    p.add_argument("--tlog-per-vehicle", action="store_true", help="with --tlog: also one .tlog per vehicle")
     p.add_argument("--seed", type=int, default=0, help="seed of the fault injection (default 0)")
     p.add_argument("--physics-dt", type=float, default=0.02, metavar="S", help="physics step in sim s (default 0.02)")
     p.add_argument("--speed-headroom", type=float, default=1.0,
@@ -65,7 +67,7 @@ def options_from_args(args: argparse.Namespace) -> SimOptions:
         raise ValueError(f"speed headroom {args.speed_headroom}: must be in [0.1, 10]")
     return SimOptions(speedup=args.speedup, host=args.host, bind_host=args.bind, api_port_base=args.api_port_base,
                       gcs_port=None if args.no_gcs else args.gcs_port, physics_dt_s=args.physics_dt, seed=args.seed,
-                      faults=faults, tlog_dir=args.tlog, speed_headroom=args.speed_headroom)
+                      faults=faults, tlog_dir=args.tlog, tlog_per_vehicle=args.tlog_per_vehicle, speed_headroom=args.speed_headroom)
 
 
 async def _serve(mission, options: SimOptions) -> None:
@@ -81,8 +83,8 @@ async def _serve(mission, options: SimOptions) -> None:
                   f"(companion: udpin://0.0.0.0:{port})", flush=True)
         if options.gcs_port is not None:
             print(f"GCS link -> {options.host}:{options.gcs_port}", flush=True)
-        if sim.tlog_path is not None:
-            print(f"tlog: {sim.tlog_path}", flush=True)
+        for path in sim.tlog_paths:
+            print(f"tlog: {path}", flush=True)
         print(f"running at {options.speedup:g}x; Ctrl-C to stop", flush=True)
 
     await run_stub(mission, options, stop=stop, on_ready=ready)

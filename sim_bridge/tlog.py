@@ -1,8 +1,13 @@
 """``.tlog`` recording of the GCS stream, in the format pymavlink and QGroundControl read.
 
-Each record is an 8-byte big-endian timestamp (microseconds since the Unix epoch, wall clock)
-followed by one raw MAVLink frame. Records are buffered and flushed at least once a second of
-wall time, so a crash loses at most the last second (SPEC section 6).
+Each record is an 8-byte big-endian timestamp (microseconds since the Unix epoch) followed by one
+raw MAVLink frame. The timestamp is **sim time** (the wall clock at the sim's start plus the sim
+seconds elapsed), so at 20x mavlogdump and mavflightmodes report the flight as flown: a 478 s
+flight, not the 24 s of wall time it took. Records are buffered and flushed at least once a
+second of wall time, so a crash loses at most the last second (SPEC section 6).
+
+:class:`TlogSet` writes the combined log and, on request, one log per vehicle (the frames a
+vehicle sent, and those addressed to it or to everyone).
 """
 
 from __future__ import annotations
@@ -10,6 +15,7 @@ from __future__ import annotations
 import re
 import struct
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import BinaryIO
 
@@ -17,14 +23,15 @@ FLUSH_INTERVAL_S = 1.0
 
 
 class TlogWriter:
-    def __init__(self, path: Path, stream: BinaryIO):
+    def __init__(self, path: Path, stream: BinaryIO, clock_s: Callable[[], float] = time.time):
         self.path = path
         self._f = stream
+        self._clock_s = clock_s
         self._last_flush = 0.0
         self.records = 0
 
     @classmethod
-    def create(cls, directory: Path, name: str) -> "TlogWriter":
+    def create(cls, directory: Path, name: str, clock_s: Callable[[], float] = time.time) -> "TlogWriter":
         directory.mkdir(parents=True, exist_ok=True)
         safe = re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "sim"
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -33,12 +40,12 @@ class TlogWriter:
         while path.exists():
             path = directory / f"{safe}-{stamp}-{n}.tlog"
             n += 1
-        return cls(path, open(path, "xb"))  # noqa: SIM115 - closed in close()
+        return cls(path, open(path, "xb"), clock_s)  # noqa: SIM115 - closed in close()
 
     def write(self, frame: bytes) -> None:
         if self._f.closed:
             return
-        self._f.write(struct.pack(">Q", int(time.time() * 1e6)) + bytes(frame))
+        self._f.write(struct.pack(">Q", int(self._clock_s() * 1e6)) + bytes(frame))
         self.records += 1
 
     def maybe_flush(self, wall_t: float) -> None:
@@ -49,3 +56,36 @@ class TlogWriter:
     def close(self) -> None:
         if not self._f.closed:
             self._f.close()
+
+
+class TlogSet:
+    """The combined GCS-stream log, plus one per vehicle when asked, all stamped by one clock."""
+
+    def __init__(self, directory: Path, name: str, vehicles: Iterable[tuple[int, str]],
+                 clock_s: Callable[[], float], per_vehicle: bool = False):
+        self.combined = TlogWriter.create(directory, name, clock_s)
+        self.by_system: dict[int, TlogWriter] = {}
+        if per_vehicle:
+            for system_id, vehicle in vehicles:
+                self.by_system[system_id] = TlogWriter.create(directory, f"{name}-{vehicle}", clock_s)
+
+    @property
+    def paths(self) -> list[Path]:
+        return [self.combined.path] + [w.path for w in self.by_system.values()]
+
+    def write(self, frame: bytes, system_id: int | None) -> None:
+        """Record a frame; ``system_id`` is the vehicle it belongs to, or None for every vehicle."""
+        self.combined.write(frame)
+        if system_id is None:
+            for w in self.by_system.values():
+                w.write(frame)
+        elif system_id in self.by_system:
+            self.by_system[system_id].write(frame)
+
+    def maybe_flush(self, wall_t: float) -> None:
+        for w in (self.combined, *self.by_system.values()):
+            w.maybe_flush(wall_t)
+
+    def close(self) -> None:
+        for w in (self.combined, *self.by_system.values()):
+            w.close()
