@@ -469,6 +469,7 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
             battery_pct=float(opt(v, vdef, "battery_pct")),
         ))
 
+    _check_shared_goals(vehicles, safety, source, root, problems)
     if problems:
         return None
     return Mission(name=data.get("name", Path(source).stem), source=source,
@@ -482,3 +483,21 @@ def shared_goals(mission: Mission) -> dict[str, list[str]]:
     for v in mission.vehicles:
         by_goal.setdefault(v.goal, []).append(v.name)
     return {goal: names for goal, names in by_goal.items() if len(names) > 1}
+
+
+def _check_shared_goals(vehicles: list[VehicleSpec], safety: SafetySettings, source: str,
+                        root: yaml.Node | None, problems: list[MissionError]) -> None:
+    """Two vehicles cannot both arrive at one station when the arrival disc is narrower than the
+    separation they must keep: refuse that before anything flies (a wider disc is only warned
+    about, by ``companion validate``)."""
+    if 2.0 * safety.arrival_radius_m >= safety.min_separation_m:
+        return
+    first: dict[str, VehicleSpec] = {}
+    for v in vehicles:
+        if v.goal in first:
+            problems.append(_fail(source, root, ["vehicles", v.index, "goal"],
+                                  f"station {v.goal!r} is already the goal of vehicle {first[v.goal].name!r}: both "
+                                  f"cannot be within the arrival radius ({safety.arrival_radius_m:g} m) and "
+                                  f"{safety.min_separation_m:g} m apart; give each vehicle its own goal"))
+        else:
+            first[v.goal] = v

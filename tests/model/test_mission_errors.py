@@ -78,6 +78,10 @@ def test_a_latlon_pair_typed_as_metres_is_caught_either_way_round():
             parse_mission(text, "slip.yaml")
 
 
-def test_shared_goal_stations_are_listed():
+def test_a_shared_goal_that_separation_forbids_is_refused():
     text = GEO_MISSION.replace("- {name: b, start: B, goal: A}", "- {name: b, start: B, goal: A}\n  - {name: c, start: B, goal: A}")
-    assert shared_goals(parse_mission(text, "x.yaml")) == {"A": ["b", "c"]}
+    with pytest.raises(MissionError, match=r"vehicles\[2\]\.goal: station 'A' is already the goal of vehicle 'b'"):
+        parse_mission(text, "x.yaml")
+    # With an arrival disc wide enough for both, it is allowed (and `validate` warns).
+    wide = text + "safety: {arrival_radius_m: 40, min_separation_m: 50}\n"
+    assert shared_goals(parse_mission(wide, "x.yaml")) == {"A": ["b", "c"]}
