@@ -1,26 +1,18 @@
-"""The vehicle plant: one pure kinematic step, shared by the SITL stub and the headless runner.
+"""The paper's unicycle: one pure kinematic step, the plant the paper's tables were flown on.
 
-State and commands are in PX4's local NED frame (north, east, down; yaw clockwise from north),
-because this is the autopilot's side of the link. Callers in the ENU mission frame convert with
-:mod:`uav_model.frames`.
-
-The model is a velocity-controlled multicopter: yaw follows the commanded yawspeed within the
-yaw-rate limit; horizontal velocity moves toward the setpoint within the acceleration limit and
-is capped at the speed limit; altitude follows a climb-rate setpoint within its own limits. The
-yaw is advanced first and a body-frame setpoint is rotated by the *new* yaw, so a constant
-(forward speed, yaw rate) command traces exactly the unicycle the planner's rollouts assume.
+Yaw follows the commanded yawspeed within the yaw-rate limit; horizontal velocity moves toward
+the setpoint within the acceleration limit and is capped at the speed limit; altitude follows a
+climb-rate setpoint within its own limits. The yaw is advanced first and a body-frame setpoint is
+rotated by the *new* yaw, so a constant (forward speed, yaw rate) command traces exactly the
+unicycle the planner's rollouts assume.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import Enum
 
-
-class VelocityFrame(Enum):
-    LOCAL_NED = "local_ned"
-    BODY_NED = "body_ned"  # x forward, y right, z down; rotated by yaw only (PX4 MAV_FRAME_BODY_NED)
+from uav_model.plant.state import HOVER, KinematicState, VelocityCommand, VelocityFrame
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,36 +22,6 @@ class VehicleLimits:
     max_accel_m_s2: float
     max_climb_m_s: float = 3.0
     max_alt_m: float = 500.0  # above home
-
-
-@dataclass(frozen=True, slots=True)
-class KinematicState:
-    north_m: float
-    east_m: float
-    down_m: float
-    vn_m_s: float = 0.0
-    ve_m_s: float = 0.0
-    vd_m_s: float = 0.0
-    yaw_rad: float = 0.0  # NED yaw, wrapped to [-pi, pi)
-    yawspeed_rad_s: float = 0.0
-
-    @property
-    def ground_speed_m_s(self) -> float:
-        return math.hypot(self.vn_m_s, self.ve_m_s)
-
-
-@dataclass(frozen=True, slots=True)
-class VelocityCommand:
-    """Velocity + yawspeed setpoint. In BODY_NED, x is forward and y is right."""
-
-    frame: VelocityFrame
-    x_m_s: float
-    y_m_s: float
-    z_m_s: float  # down-positive in both frames
-    yawspeed_rad_s: float  # clockwise-positive (PX4)
-
-
-HOVER = VelocityCommand(VelocityFrame.LOCAL_NED, 0.0, 0.0, 0.0, 0.0)
 
 
 def _clip(value: float, limit: float) -> float:
