@@ -28,6 +28,7 @@ from shapely.geometry import LineString, Point
 from shapely.geometry.base import BaseGeometry
 
 from uav_model.mission import Mission, mission_from_data
+from uav_model.plant import Plant
 from companion.planning.errors import NoPath
 from companion.planning.routes import Route, plan_routes
 from uav_model.world import Obstacle, Shuttle
@@ -56,6 +57,7 @@ class ScenarioConfig:
     inflation_ratio: float = 0.2
     max_redraws: int = 200
     time_limit_s: float | None = None  # None: the mission default (SPEC §2: 2500 s)
+    plant: str = Plant.MULTICOPTER.value  # unicycle: the paper's ideal vehicle (its Table IV)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -75,6 +77,8 @@ class ScenarioConfig:
             raise ScenarioError("side_m, static_count, moving_count and max_redraws must be positive")
         if self.time_limit_s is not None and not self.time_limit_s > 0:
             raise ScenarioError(f"time_limit_s: must be positive (got {self.time_limit_s})")
+        if self.plant not in {p.value for p in Plant}:
+            raise ScenarioError(f"plant: use {' or '.join(p.value for p in Plant)} (got {self.plant!r})")
         if self.moving_path_m[1] >= self.side_m:
             raise ScenarioError(f"moving_path_m: a path must fit in the {self.side_m:g} m square")
 
@@ -159,6 +163,7 @@ def _draw(rng: random.Random, cfg: ScenarioConfig, seed: int, index: int) -> dic
     doc = {
         "name": f"random_s{seed}_i{index}",
         "description": f"Seeded random complex scenario (seed {seed}, index {index}; SPEC §3)",
+        "plant": cfg.plant,
         "area": {"x_min_m": 0.0, "y_min_m": 0.0, "x_max_m": side, "y_max_m": side, "geofence_margin_m": 200.0},
         "stations": {"A": [0.0, 0.0], "B": [side, side]},
         "obstacles": obstacles,

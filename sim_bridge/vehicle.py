@@ -28,9 +28,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import enu_heading_to_ned_yaw, geodetic_to_local, local_to_geodetic, wrap_pi
 from uav_model.mission import Mission, VehicleSpec
-from uav_model import plant
 from sim_bridge.energy import EnergyModel
-from uav_model.plant import HOVER, KinematicState, VehicleLimits, VelocityCommand, VelocityFrame
+from uav_model.plant import HOVER, KinematicState, PlantLimits, VelocityCommand, VelocityFrame, limits_for, step_for
 from sim_bridge.mission_protocol import (
     MISSION, NOOP_COMMANDS, RELATIVE_ALT_FRAMES, MissionItem, MissionProtocol, ProtocolEvent,
 )
@@ -160,6 +159,8 @@ class SimVehicle:
         self._param_order: tuple[str, ...] = tuple(d.name for d in defs)
         self._params: dict[str, float] = {d.name: float(d.default) for d in defs}
         self._max_alt_m = max(500.0, 2.0 * spec.cruise_alt_m)
+        self._plant = mission.plant
+        self._plant_step = step_for(mission.plant)
         self._limits = self._limits_from_params()
 
         home_x, home_y = spec.start_enu_m
@@ -246,7 +247,7 @@ class SimVehicle:
         return self._state
 
     @property
-    def limits(self) -> VehicleLimits:
+    def limits(self) -> PlantLimits:
         return self._limits
 
     @property
@@ -677,11 +678,11 @@ class SimVehicle:
     def _on_param_request_list(self, msg: Any, link: str, peer: Hashable) -> list[Emit]:
         return [Emit(self._param_value_msg(n), link, peer) for n in self._param_order]
 
-    def _limits_from_params(self) -> VehicleLimits:
+    def _limits_from_params(self) -> PlantLimits:
         p = self._params
-        return VehicleLimits(max_speed_m_s=p["MPC_XY_VEL_MAX"], max_yaw_rate_rad_s=math.radians(p["MPC_YAWRAUTO_MAX"]),
-                             max_accel_m_s2=p["MPC_ACC_HOR"], max_climb_m_s=max(p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"]),
-                             max_alt_m=self._max_alt_m)
+        return limits_for(self._plant, speed_m_s=p["MPC_XY_VEL_MAX"], max_yaw_rate_rad_s=math.radians(p["MPC_YAWRAUTO_MAX"]),
+                          max_accel_m_s2=p["MPC_ACC_HOR"], max_climb_m_s=max(p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"]),
+                          max_alt_m=self._max_alt_m, params=p)
 
     def _on_timesync(self, msg: Any, link: str, peer: Hashable) -> list[Emit]:
         if msg.tc1 != 0:
@@ -707,9 +708,9 @@ class SimVehicle:
         old = self._state
         command = self._control(dt_s)
         if command is None:  # on the ground, not climbing: nothing moves
-            new = replace(old, vn_m_s=0.0, ve_m_s=0.0, vd_m_s=0.0, yawspeed_rad_s=0.0)
+            new = KinematicState(old.north_m, old.east_m, old.down_m, yaw_rad=old.yaw_rad)
         else:
-            new = plant.step(old, command, self._limits, dt_s)
+            new = self._plant_step(old, command, self._limits, dt_s)
         self._accel_ned = ((new.vn_m_s - old.vn_m_s) / dt_s, (new.ve_m_s - old.ve_m_s) / dt_s)
         self._state = new
         self.sim_time_s = t1

@@ -29,6 +29,7 @@ from shapely.geometry import Point
 
 from uav_model.frames import GeoOrigin
 from uav_model.mission_points import latlon_slips, localise
+from uav_model.plant import Plant
 from uav_model.world import Obstacle, Orbit, Patrol, Shuttle, Static, World, make_obstacle
 
 Variant = Literal["astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa"]
@@ -141,6 +142,7 @@ class Mission:
     vehicles: tuple[VehicleSpec, ...]  # in file order
     planner: PlannerSettings
     safety: SafetySettings
+    plant: Plant = Plant.MULTICOPTER  # the dynamics the stub and the headless runner fly
 
     @property
     def by_priority(self) -> tuple[VehicleSpec, ...]:
@@ -474,7 +476,8 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
         return None
     return Mission(name=data.get("name", Path(source).stem), source=source,
                    description=data.get("description", ""), origin=origin, world=world,
-                   stations=stations, vehicles=tuple(vehicles), planner=planner, safety=safety)
+                   stations=stations, vehicles=tuple(vehicles), planner=planner, safety=safety,
+                   plant=Plant(data.get("plant", mission_schema()["properties"]["plant"]["default"])))
 
 
 def shared_goals(mission: Mission) -> dict[str, list[str]]:

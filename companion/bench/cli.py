@@ -6,6 +6,7 @@ Registered on the main parser by :func:`add_parser`; also runs as ``python -m co
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -56,6 +57,9 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="output directory (default bench_s<seed>_n<N>)")
     parser.add_argument("--scenario-config", type=Path, default=None, metavar="FILE",
                         help="YAML mapping overriding the generator defaults (companion.scenarios.ScenarioConfig)")
+    parser.add_argument("--plant", choices=("multicopter", "unicycle"), default=None,
+                        help="the scenarios' dynamics (default: the scenario config's, multicopter); "
+                             "unicycle is the paper's ideal vehicle, for its Table IV")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(handler=main)
     return parser
@@ -106,6 +110,8 @@ def _bench(args: argparse.Namespace) -> int:
     from companion.scenarios import config_dict
 
     config = _scenario_config(args.scenario_config)
+    if args.plant is not None:
+        config = dataclasses.replace(config, plant=args.plant)
     out = args.out or Path(f"bench_s{args.seed}_n{args.scenarios}")
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -123,7 +129,7 @@ def _bench(args: argparse.Namespace) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     (out / "table.md").write_text(markdown_table(summary) + "\n", encoding="utf-8")
     command = (f"companion bench --scenarios {args.scenarios} --seed {args.seed} "
-               f"--variants {','.join(args.variants)} --workers {workers} --out {out}")
+               f"--variants {','.join(args.variants)} --plant {config.plant} --workers {workers} --out {out}")
     meta = {"command": command,
             "seed": args.seed, "scenarios": args.scenarios, "variants": list(args.variants),
             "workers": workers, "wall_s": round(wall, 2), "cpu_count": os.cpu_count(),

@@ -2,8 +2,8 @@
 
 No sockets and no clocks: the same per-tick planner code the live companion runs
 (:class:`VehiclePlanner.tick` on an :class:`ObstacleSnapshot` of the obstacles' state *now*),
-the same plant as the SITL stub (:func:`uav_model.plant.step`, fed a BODY_NED velocity and
-a PX4 yawspeed converted by :mod:`uav_model.frames`), and the same scoring as every other flight
+the same plant as the SITL stub (the mission's :class:`uav_model.plant.Plant`, fed a BODY_NED
+velocity and a PX4 yawspeed converted by :mod:`uav_model.frames`), and the same scoring as every other flight
 (:func:`companion.planning.metrics.summarize`).
 
 The loop ticks at the planner's dt. All vehicles decide from the state at t, then all step.
@@ -31,7 +31,7 @@ from companion.planning.fusion import ObstacleField, TickResult, VehiclePlanner,
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
 from companion.planning.routes import Route, plan_routes
-from uav_model.plant import HOVER, KinematicState, VehicleLimits, VelocityCommand, VelocityFrame, step
+from uav_model.plant import HOVER, KinematicState, VelocityCommand, VelocityFrame, initial_state, limits_for, step_for
 
 
 @dataclass(frozen=True)
@@ -99,16 +99,18 @@ def simulate(mission: Mission, variant: str | None = None, *,
         routes = plan_routes(mission) if variant_needs_route(variant) else {}
     vehicles = mission.by_priority
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant) for v in vehicles}
-    limits = {v.name: VehicleLimits(max_speed_m_s=v.speed_m_s, max_yaw_rate_rad_s=v.max_yaw_rate_rad_s,
-                                    max_accel_m_s2=v.max_accel_m_s2) for v in vehicles}
+    step = step_for(mission.plant)
+    limits = {v.name: limits_for(mission.plant, speed_m_s=v.speed_m_s, max_yaw_rate_rad_s=v.max_yaw_rate_rad_s,
+                                 max_accel_m_s2=v.max_accel_m_s2) for v in vehicles}
     states: dict[str, KinematicState] = {}
     for v in vehicles:
         h = v.initial_heading_rad
         # Already at cruise speed on the initial heading: the paper's UAVs depart at constant v.
         north, east, down = enu_to_ned(v.start_enu_m[0], v.start_enu_m[1], v.cruise_alt_m)
         vn, ve, _ = enu_to_ned(v.speed_m_s * math.cos(h), v.speed_m_s * math.sin(h))
-        states[v.name] = KinematicState(north_m=north, east_m=east, down_m=down, vn_m_s=vn, ve_m_s=ve,
-                                        yaw_rad=enu_heading_to_ned_yaw(h))
+        states[v.name] = initial_state(mission.plant, KinematicState(
+            north_m=north, east_m=east, down_m=down, vn_m_s=vn, ve_m_s=ve, yaw_rad=enu_heading_to_ned_yaw(h)),
+            limits[v.name])
     field = ObstacleField.from_world(mission.world)
     truth = TruthGeometry(mission.world)
     dt = mission.planner.dt_s

@@ -111,3 +111,15 @@ def test_a_document_in_memory_validates_like_its_yaml():
         mission_from_data(doc, "ref")
     with pytest.raises(MissionError, match="must be a mapping"):
         mission_from_data(["not", "a", "mapping"], "ref")
+
+
+def test_plant_defaults_to_the_multicopter_and_the_reference_keeps_the_paper_unicycle():
+    from uav_model.plant import Plant
+
+    assert tuple(mission_schema()["properties"]["plant"]["enum"]) == tuple(p.value for p in Plant)
+    text = REFERENCE.read_text()
+    assert load_mission(REFERENCE).plant is Plant.UNICYCLE  # Tables I-IV stay reproducible
+    assert parse_mission(text.replace("plant: unicycle", ""), "m.yaml").plant is Plant.MULTICOPTER
+    line = text.splitlines().index(next(s for s in text.splitlines() if s.startswith("plant:"))) + 1
+    with pytest.raises(MissionError, match=rf"^m.yaml:{line}: plant: 'bicycle' is not one of multicopter, unicycle$"):
+        parse_mission(text.replace("plant: unicycle", "plant: bicycle"), "m.yaml")

@@ -21,8 +21,11 @@ from sim_bridge.vehicle import ADSB_ICAO_BASE, LandedState, SimVehicle
 
 pytestmark = pytest.mark.timeout(60)
 
+# The state machine's tests assert the unicycle's exact kinematics; the multicopter plant's are
+# in tests/model/test_plant_fit.py and test_sim_multicopter.py.
 MISSION_YAML = """
 name: unit
+plant: unicycle
 origin: {lat_deg: 47.397742, lon_deg: 8.545594, alt_m: 488.0}
 area: {x_min_m: 0, y_min_m: 0, x_max_m: 1000, y_max_m: 1000, geofence_margin_m: 100}
 stations: {A: [100, 100], B: [900, 900]}
