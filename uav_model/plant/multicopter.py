@@ -123,17 +123,21 @@ def attitude(state: KinematicState) -> tuple[float, float, float]:
     return roll, pitch, state.yawspeed_rad_s * math.cos(roll) * math.cos(pitch)
 
 
+def _substeps(limits: MulticopterLimits, dt_s: float) -> tuple[int, float, float, float, float]:
+    """(count, length, attitude / yaw / climb lag factors per substep) for a step of ``dt_s``."""
+    n = max(1, math.ceil(dt_s / MAX_SUBSTEP_S - 1e-9))
+    h = dt_s / n
+    return (n, h, 1.0 - math.exp(-h / limits.attitude_tau_s), 1.0 - math.exp(-h / limits.yaw_tau_s),
+            1.0 - math.exp(-h * limits.mpc_z_vel_p_acc))
+
+
 def step(state: KinematicState, command: VelocityCommand, limits: MulticopterLimits, dt_s: float) -> KinematicState:
     """Advance the multicopter by ``dt_s`` seconds under ``command``. Pure; non-finite commands hover."""
     isfinite = math.isfinite
     if not (isfinite(command.x_m_s) and isfinite(command.y_m_s) and isfinite(command.z_m_s)
             and isfinite(command.yawspeed_rad_s)):
         command = HOVER
-    n = max(1, math.ceil(dt_s / MAX_SUBSTEP_S - 1e-9))
-    h = dt_s / n
-    k_att = 1.0 - math.exp(-h / limits.attitude_tau_s)
-    k_yaw = 1.0 - math.exp(-h / limits.yaw_tau_s)
-    k_z = 1.0 - math.exp(-h * limits.mpc_z_vel_p_acc)
+    n, h, k_att, k_yaw, k_z = _substeps(limits, dt_s)
     drag, a_max, r_max = limits.derived
     p, i_h, d = limits.mpc_xy_vel_p_acc, limits.mpc_xy_vel_i_acc * h, limits.mpc_xy_vel_d_acc
     arw = 2.0 / p  # PX4's tracking anti-windup gain
