@@ -768,9 +768,10 @@ class SimVehicle:
 
     # ---------------------------------------------------------------- controllers --------
     def _yawspeed_toward(self, yaw_target: float, dt_s: float) -> float:
+        """Auto-mode yaw: P on the angle (dead-beat on the unicycle), within MPC_YAWRAUTO_MAX."""
         err = wrap_pi(yaw_target - self._state.yaw_rad)
-        rate = self._limits.max_yaw_rate_rad_s
-        return _clip(err / dt_s, -rate, rate)
+        rate = math.radians(self._params["MPC_YAWRAUTO_MAX"])
+        return _clip(err * min(1.0 / dt_s, self._limits.yaw_p_1_s), -rate, rate)
 
     def _goto(self, target: tuple[float, float, float], speed_m_s: float, dt_s: float, *, stop: bool = True,
               yaw_rad: float | None = None, face_travel: bool = False, climb_m_s: float | None = None) -> VelocityCommand:

@@ -11,7 +11,8 @@ import math
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
-from test_sim_vehicle import MISSION_YAML, enter_offboard, fly_offboard, run, send, setpoint_body, takeoff
+from test_sim_vehicle import (MISSION_YAML, enter_offboard, fly_offboard, run, send, setpoint_body, setpoint_ned_yaw,
+                              takeoff)
 
 from uav_model.mission import parse_mission
 from uav_model.plant import MulticopterLimits, Plant
@@ -63,6 +64,19 @@ def test_yaw_in_place_is_not_limited_by_the_mission_turn_radius(vehicle, gcs):
     takeoff(vehicle, gcs)
     _offboard(vehicle, gcs, 0.0, math.radians(90.0), 4.0)
     assert 86.0 <= math.degrees(vehicle.state.yawspeed_rad_s) <= 90.0  # the mission's v/r is 19.1
+
+
+def test_a_yaw_angle_setpoint_turns_within_mpc_yawrauto_max_without_overshoot(vehicle, gcs):
+    """Auto-mode yaw on the lagging heading rate: settles on the angle, no swing past it."""
+    takeoff(vehicle, gcs)
+    target = vehicle.state.yaw_rad + math.radians(120.0)
+    make = lambda: setpoint_ned_yaw(gcs, 0.0, 0.0, 0.0, target)  # noqa: E731
+    enter_offboard(vehicle, gcs, make)
+    errors, rates = [], []
+    fly_offboard(vehicle, gcs, make, 15.0, check=lambda v: (errors.append(math.remainder(v.state.yaw_rad - target, 2 * math.pi)),
+                                                           rates.append(abs(v.state.yawspeed_rad_s))))
+    assert max(rates) <= math.radians(vehicle.param("MPC_YAWRAUTO_MAX")) + 1e-9
+    assert abs(errors[-1]) < math.radians(0.5) and max(errors) < math.radians(3.0)  # approaches from below
 
 
 def test_over_speed_is_held_to_the_tilt_limited_speed(vehicle, gcs):

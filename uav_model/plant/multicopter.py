@@ -89,6 +89,11 @@ class MulticopterLimits:
         return self.mpc_z_vel_max_up
 
     @property
+    def yaw_p_1_s(self) -> float:
+        """Yaw-angle gain that settles the lagging heading rate without overshoot (damping 0.7)."""
+        return 1.0 / (2.0 * self.yaw_tau_s)
+
+    @property
     def drag_1_s(self) -> float:
         return self.derived[0]
 

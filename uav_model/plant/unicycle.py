@@ -23,6 +23,11 @@ class VehicleLimits:
     max_climb_m_s: float = 3.0
     max_alt_m: float = 500.0  # above home
 
+    @property
+    def yaw_p_1_s(self) -> float:
+        """Yaw-angle gain an autopilot can use: the unicycle turns at once, so any (dead-beat)."""
+        return math.inf
+
 
 def _clip(value: float, limit: float) -> float:
     return max(-limit, min(limit, value))
