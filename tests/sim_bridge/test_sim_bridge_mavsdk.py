@@ -28,8 +28,11 @@ from sim_bridge.testing import sim_connection_url, stub_on_free_ports
 
 T = TypeVar("T")
 
+# The link contract is asserted with the unicycle's exact kinematics (8.00 m/s in a turn, the yaw
+# rate clipped to v/r); the multicopter's responses are in test_sim_multicopter.py.
 MISSION_YAML = """
 name: mavsdk_scenario
+plant: unicycle
 origin: {lat_deg: 47.397742, lon_deg: 8.545594, alt_m: 488.0}
 area: {x_min_m: 0, y_min_m: 0, x_max_m: 1000, y_max_m: 1000, geofence_margin_m: 100}
 stations: {A: [100, 100], B: [900, 900]}
