@@ -103,6 +103,16 @@ def test_config_from_mapping_names_bad_keys_and_ranges():
         ScenarioConfig.from_mapping({"moving_speed_m_s": [5, 2]})
     with pytest.raises(ScenarioError, match="static_shapes"):
         ScenarioConfig.from_mapping({"static_shapes": ["hexagon"]})
+    with pytest.raises(ScenarioError, match=r"plant: use multicopter or unicycle \(got 'bicycle'\)"):
+        ScenarioConfig.from_mapping({"plant": "bicycle"})
+
+
+def test_scenarios_carry_their_plant_and_the_plant_does_not_change_the_draw():
+    from uav_model.plant import Plant
+
+    multi, uni = generate_scenario(7, 3), generate_scenario(7, 3, ScenarioConfig(plant="unicycle"))
+    assert (multi.mission.plant, uni.mission.plant) == (Plant.MULTICOPTER, Plant.UNICYCLE)
+    assert {k: v for k, v in multi.doc.items() if k != "plant"} == {k: v for k, v in uni.doc.items() if k != "plant"}
 
 
 def test_a_scenario_that_cannot_be_drawn_is_a_clear_error():
