@@ -106,10 +106,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     summary = run.summary.summary_dict()
     summary.update(mission=mission.name, variant=run.variant, wall_s=round(run.wall_s, 3),
                    speed_factor=round(run.speed_factor, 1))
+    from companion.planning.certificate import mission_certificate
+    certificate = mission_certificate(mission.with_variant(run.variant), run.routes)
+    summary["occlusion_certificate"] = None if certificate is None else certificate.summary_dict()
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     save_trajectory(out / "trajectory.png", mission, run.tracks, run.routes,
                     title=f"{mission.name} ({run.variant})")
     print(format_summary(run))
+    if certificate is not None:
+        print(certificate.describe())
     print(f"wrote {out / 'summary.json'} and {out / 'trajectory.png'}")
     return EXIT_OK if run.success else EXIT_FAILED
 

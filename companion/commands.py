@@ -212,6 +212,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
     routes = ", ".join(f"{n}: {r.nodes_raw} -> {r.nodes_sparse} nodes" for n, r in plan.routes.items())
     print(f"{m.source}: ok: {len(m.vehicles)} vehicle(s), {len(m.world.obstacles)} obstacle(s) "
           f"({len(m.world.moving_obstacles)} moving), variant {plan.variant}" + (f"; routes {routes}" if routes else ""))
+    if plan.certificate is not None:
+        print(plan.certificate.describe())
     return EXIT_OK
 
 
@@ -242,6 +244,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
         print(f"{v.name}: {v.start} -> {v.goal}: "
               + (f"{route.nodes_raw} A* nodes -> {route.nodes_sparse} sparse" if route else "no global route (variant)")
               + f"; lower bound {bound:.1f} s")
+    if plan.certificate is not None:
+        doc["occlusion_certificate"] = plan.certificate.summary_dict()
+        print(plan.certificate.describe())
     (out / "routes.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     from companion.formats.qgc_plan import plan_document
     for v in plan.mission.vehicles:

@@ -131,6 +131,14 @@ class SafetySettings:
     telemetry_timeout_s: float
 
 
+@dataclass(frozen=True, slots=True)
+class CoordinationSettings:
+    """Coordinated timing (docs/design.md): who may wait, and the space-time plan's step."""
+
+    hold_s_max: float = 0.0  # the first vehicle in priority may hold at its station this long (paper: 0)
+    step_s: float = 5.0      # nominal time step of the space-time plan
+
+
 @dataclass(frozen=True)
 class Mission:
     name: str
@@ -143,6 +151,7 @@ class Mission:
     planner: PlannerSettings
     safety: SafetySettings
     plant: Plant = Plant.MULTICOPTER  # the dynamics the stub and the headless runner fly
+    coordination: CoordinationSettings = CoordinationSettings()
 
     @property
     def by_priority(self) -> tuple[VehicleSpec, ...]:
@@ -384,6 +393,9 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
     )
     safety_raw = data.get("safety", {})
     safety = SafetySettings(**{k: float(opt(safety_raw, sdef, k)) for k in sdef})
+    coord_raw = data.get("coordination", {})
+    cdef = schema["coordination"]["properties"]
+    coordination = CoordinationSettings(**{k: float(opt(coord_raw, cdef, k)) for k in cdef})
 
     area = data["area"]
     adef = mission_schema()["properties"]["area"]["properties"]
@@ -477,7 +489,8 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
     return Mission(name=data.get("name", Path(source).stem), source=source,
                    description=data.get("description", ""), origin=origin, world=world,
                    stations=stations, vehicles=tuple(vehicles), planner=planner, safety=safety,
-                   plant=Plant(data.get("plant", mission_schema()["properties"]["plant"]["default"])))
+                   plant=Plant(data.get("plant", mission_schema()["properties"]["plant"]["default"])),
+                   coordination=coordination)
 
 
 def shared_goals(mission: Mission) -> dict[str, list[str]]:

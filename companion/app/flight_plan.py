@@ -9,12 +9,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from uav_model import frames
 from companion.errors import MissionUploadError
 from uav_model.mission import Mission, VehicleSpec, mission_error
+from companion.planning.certificate import OcclusionCertificate, mission_certificate
 from companion.planning.errors import NoPath
 from companion.planning.fusion import VARIANT_GOALS, variant_needs_route
 from companion.vehicle.port import GeoWaypoint
@@ -32,6 +34,11 @@ class FlightPlan:
     mission: Mission
     variant: str
     routes: dict[str, Route]  # empty for the station-goal variants (bdwa, dwa)
+
+    @cached_property
+    def certificate(self) -> OcclusionCertificate | None:
+        """The occlusion certificate (seconds of pure work; computed on first use)."""
+        return mission_certificate(self.mission, self.routes)
 
     def nodes_enu_m(self, vehicle: VehicleSpec) -> np.ndarray:
         """The local goals the vehicle's planner follows, start first (what gets uploaded)."""

@@ -35,6 +35,7 @@ from companion.errors import (CommandRefused, CompanionError, MissionAborted, Mi
 from uav_model.mission import VehicleSpec
 from companion.planning.dwa import OtherUav, Pose, inflated_clearance
 from companion.planning.fusion import ObstacleField, ObstacleTrack, TickResult, VehiclePlanner
+from companion.planning.routes import higher_routes
 from companion.vehicle.port import (HOVER, FlightMode, LandedState, PoseSample, TrafficReport, Vehicle,
                                     VelocityYawRateSetpoint)
 
@@ -117,7 +118,8 @@ class Pilot:
         self.spec = spec
         self.name = spec.name
         self.vehicle = ctx.vehicles[spec.name]
-        self.planner = VehiclePlanner.build(ctx.mission, spec, ctx.plan.routes.get(spec.name), ctx.plan.variant)
+        self.planner = VehiclePlanner.build(ctx.mission, spec, ctx.plan.routes.get(spec.name), ctx.plan.variant,
+                                            earlier=higher_routes(ctx.mission, ctx.plan.routes, spec.name))
         self.outcome = PilotOutcome(spec.name)
         self.setpoint: VelocityYawRateSetpoint = HOVER
         self._offboard_live = False  # the keep-alive resends only while this is set

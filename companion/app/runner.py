@@ -105,12 +105,18 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
 
         summary = _score(plan, log, outcomes, reason)
         doc = _summary_doc(plan, summary, outcomes, reason, message, time.monotonic() - started, extra)
+        # Seconds of pure work: in a worker thread, and only once the vehicles are done with.
+        doc["occlusion_certificate"] = await asyncio.to_thread(_certificate_doc, plan)
         if out_dir is not None:
             (out_dir / "summary.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
             _plot(out_dir / "trajectory.png", plan, log)
     final_reason = reason if reason is not None else (None if summary is not None and summary.success
                                                       else (summary.reason if summary else "incomplete"))
     return RunResult(summary, doc, outcomes, final_reason, message, time.monotonic() - started)
+
+
+def _certificate_doc(plan: FlightPlan) -> dict[str, Any] | None:
+    return None if plan.certificate is None else plan.certificate.summary_dict()
 
 
 def _reason_of(exc: CompanionError) -> str:

@@ -296,6 +296,8 @@ class Replanning:
     world: World
     resolution_m: float
     sparse: bool  # sparse nodes (astar-bdwa) or every A* cell (astar-bdwa-nosparse)
+    earlier: tuple["Route", ...] = ()  # higher-priority routes: the detour keeps the priority rule first
+    separation_m: float = 0.0
 
 
 class VehiclePlanner:
@@ -323,8 +325,10 @@ class VehiclePlanner:
 
     @classmethod
     def build(cls, mission: "Mission", vehicle: "VehicleSpec", route: "Route | None",
-              variant: str | None = None) -> "VehiclePlanner":
-        """The planner for ``vehicle``; ``route`` is required for the A* variants.
+              variant: str | None = None, *, earlier: "Iterable[Route]" = ()) -> "VehiclePlanner":
+        """The planner for ``vehicle``; ``route`` is required for the A* variants. ``earlier``:
+        the routes of the vehicles above it (:func:`routes.higher_routes`), which a detour after a
+        stall keeps to the priority rule first.
 
         Priority (paper §II.B: the UAV leaving A "is prioritized to arrive"): the first vehicle in
         priority order has right of way and flies without the sightline term; every other
@@ -344,7 +348,8 @@ class VehiclePlanner:
         config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline, fence_m=fence)
         tracker = LocalGoalTracker(nodes, mission.planner.acceptance_radius_m)
         replanning = None if goals_from == "station" else Replanning(
-            mission.planner.replan_after_s, mission.world, mission.planner.grid_resolution_m, goals_from == "sparse")
+            mission.planner.replan_after_s, mission.world, mission.planner.grid_resolution_m, goals_from == "sparse",
+            tuple(earlier), mission.safety.min_separation_m)
         return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, replanning)
 
     def plan_detour(self, x_m: float, y_m: float) -> np.ndarray | None:
@@ -356,7 +361,8 @@ class VehiclePlanner:
         if self._grid is None:
             self._grid = rasterise(r.world, r.resolution_m)
         try:
-            return detour_route(self._grid, r.world, (x_m, y_m), self._station_xy, sparse=r.sparse)
+            return detour_route(self._grid, r.world, (x_m, y_m), self._station_xy, sparse=r.sparse,
+                                earlier=r.earlier, separation_m=r.separation_m)
         except (NoPath, BudgetExceeded):
             return None
 

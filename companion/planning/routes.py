@@ -24,7 +24,7 @@ sparse optimisation never pulls it back across.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -33,7 +33,7 @@ import shapely
 from shapely.geometry import LineString, Point
 from shapely.geometry.base import BaseGeometry
 
-from uav_model.mission import Mission, VehicleSpec
+from uav_model.mission import Mission
 from companion.planning.astar import astar, path_length_m
 from companion.planning.errors import BudgetExceeded, NoPath
 from companion.planning.grid import OccupancyGrid, rasterise
@@ -86,7 +86,8 @@ def plan_routes(mission: Mission, *, max_expansions: int | None = None) -> dict[
     for vehicle in mission.by_priority:
         earlier = list(routes.values())
         failure: NoPath | None = None
-        ladder = _constraint_ladder(earlier, vehicle, mission.safety.min_separation_m, resolution_m, world.geofence)
+        ladder = _constraint_ladder(earlier, (vehicle.start_enu_m, vehicle.goal_enu_m),
+                                    mission.safety.min_separation_m, resolution_m, world.geofence)
         for constraint, blocked in ladder:
             grid = base.with_geometry_blocked(blocked) if blocked else base
             try:
@@ -107,11 +108,16 @@ def plan_routes(mission: Mission, *, max_expansions: int | None = None) -> dict[
 
 def detour_route(grid: OccupancyGrid, world: World, from_xy: tuple[float, float],
                  goal_xy: tuple[float, float], *, sparse: bool = True,
-                 max_expansions: int | None = None) -> np.ndarray:
+                 max_expansions: int | None = None, earlier: Sequence[Route] = (),
+                 separation_m: float = 0.0) -> np.ndarray:
     """A new route (M, 2) from where a vehicle is now to its goal, sparse or every A* cell, on
-    the static ``grid``
-    (the world rasterised as for :func:`plan_routes`). No priority constraint: this is a way out
-    for a vehicle that stopped making progress, not a plan to coordinate.
+    the static ``grid`` (the world rasterised as for :func:`plan_routes`), for a vehicle that
+    stopped making progress.
+
+    The priority rule still holds: with the ``earlier`` (higher-priority) routes given, the
+    constrained steps are tried first, as :func:`plan_routes` does (opposite side, then off their
+    routes), with discs around the vehicle's position and its goal exempt; only when none gives
+    a route is the plain grid used.
 
     A vehicle skirting an obstacle may sit in a cell the conservative rasterisation marks
     occupied; the search then starts from the nearest free cell (within 10 cells), and the
@@ -120,10 +126,27 @@ def detour_route(grid: OccupancyGrid, world: World, from_xy: tuple[float, float]
     """
     x, y = float(from_xy[0]), float(from_xy[1])
     start = _nearest_free_centre(grid, x, y, 10)
-    raw = astar(grid, start, goal_xy, max_expansions=max_expansions)
-    if (start[0], start[1]) != (x, y):
-        raw = np.vstack([[x, y], raw])
-    return sparsify(raw, world) if sparse else raw
+    ladder = _constraint_ladder(list(earlier), (start, tuple(goal_xy)), separation_m, grid.resolution_m, world.geofence)
+    for constraint, blocked in ladder:
+        try:
+            raw = astar(grid.with_geometry_blocked(blocked) if blocked else grid, start, goal_xy,
+                        max_expansions=max_expansions)
+        except BudgetExceeded:
+            raise
+        except NoPath:
+            if constraint == "none":
+                raise
+            continue
+        if (start[0], start[1]) != (x, y):
+            raw = np.vstack([[x, y], raw])
+        return sparsify(raw, world, extra=blocked) if sparse else raw
+    raise AssertionError("the constraint ladder always ends with 'none'")
+
+
+def higher_routes(mission: Mission, routes: Mapping[str, Route], name: str) -> list[Route]:
+    """The routes of the vehicles planned before ``name`` (higher priority), in that order."""
+    order = [v.name for v in mission.by_priority]
+    return [routes[n] for n in order[:order.index(name)] if n in routes]
 
 
 def _nearest_free_centre(grid: OccupancyGrid, x: float, y: float, cells: int) -> tuple[float, float]:
@@ -144,13 +167,14 @@ def _nearest_free_centre(grid: OccupancyGrid, x: float, y: float, cells: int) ->
     return grid.cell_to_world(int(free_x[k]) + x0, int(free_y[k]) + y0)
 
 
-def _constraint_ladder(earlier: Sequence[Route], vehicle: VehicleSpec, separation_m: float,
+def _constraint_ladder(earlier: Sequence[Route], ends: tuple[Sequence[float], Sequence[float]], separation_m: float,
                        resolution_m: float, box: BaseGeometry) -> list[tuple[Constraint, list[BaseGeometry]]]:
-    """The constraints to try for ``vehicle``, strictest first, each with the geometry it blocks."""
+    """The constraints to try for a vehicle going between ``ends``, strictest first, each with
+    the geometry it blocks."""
     if not earlier:
         return [("none", [])]
     exempt_m = separation_m + 2.0 * resolution_m
-    exempt = shapely.union(Point(vehicle.start_enu_m).buffer(exempt_m), Point(vehicle.goal_enu_m).buffer(exempt_m))
+    exempt = shapely.union(Point(ends[0]).buffer(exempt_m), Point(ends[1]).buffer(exempt_m))
     bands = shapely.union_all([LineString(r.sparse_enu_m).buffer(separation_m) for r in earlier])
     sides = shapely.union_all([side_region(r.sparse_enu_m, box) for r in earlier])
     ladder: list[tuple[Constraint, list[BaseGeometry]]] = []

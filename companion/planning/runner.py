@@ -30,7 +30,7 @@ from companion.planning.dwa import OtherUav, Pose
 from companion.planning.fusion import ObstacleField, TickResult, VehiclePlanner, variant_needs_route
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
-from companion.planning.routes import Route, plan_routes
+from companion.planning.routes import Route, higher_routes, plan_routes
 from uav_model.plant import HOVER, KinematicState, VelocityCommand, VelocityFrame, initial_state, limits_for, step_for
 
 
@@ -98,7 +98,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
     if routes is None:
         routes = plan_routes(mission) if variant_needs_route(variant) else {}
     vehicles = mission.by_priority
-    planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant) for v in vehicles}
+    planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
+                                             earlier=higher_routes(mission, routes, v.name)) for v in vehicles}
     step = step_for(mission.plant)
     limits = {v.name: limits_for(mission.plant, speed_m_s=v.speed_m_s, max_yaw_rate_rad_s=v.max_yaw_rate_rad_s,
                                  max_accel_m_s2=v.max_accel_m_s2) for v in vehicles}

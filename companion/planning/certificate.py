@@ -1,0 +1,142 @@
+"""The occlusion certificate: can the sight line between the two vehicles first in priority be
+kept blocked, for the whole flight and at closest approach, and if not, after what departure hold?
+
+Both questions are decided exactly on the space-time graph of :mod:`spacetime` (the mission
+grid, the second vehicle's step, waits allowed for it), against the first vehicle flying its A*
+route at cruise speed after a hold at its station. A longer hold never hurts: the second vehicle
+can spend it waiting where it is (its start is as blocked as at time 0), so the least hold is
+found by bisection over multiples of the step, up to the longest hold that still lets the first
+vehicle arrive within the time limit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
+
+from companion.planning.coordination import Blocking, feasible, problem_for
+from companion.planning.grid import OccupancyGrid, rasterise
+from companion.planning.shadow import SightShadows
+from companion.planning.timed import forecast
+
+if TYPE_CHECKING:
+    from uav_model.mission import Mission
+    from companion.planning.routes import Route
+
+
+@dataclass(frozen=True)
+class OcclusionCertificate:
+    """Whether the line ``higher``-``lower`` can be kept blocked, under the mission's rule (the
+    higher vehicle may hold up to ``hold_s_max``) and with the least hold that allows it."""
+
+    higher: str
+    lower: str
+    hold_s_max: float
+    step_s: float
+    resolution_m: float
+    whole_flight: bool
+    closest_approach: bool
+    whole_flight_min_hold_s: float | None    # None: no hold up to ``searched_hold_s`` suffices
+    closest_approach_min_hold_s: float | None
+    searched_hold_s: float
+
+    @property
+    def verdict(self) -> str:
+        """One word for tables: feasible / needs-hold / infeasible (closest approach)."""
+        if self.closest_approach_min_hold_s is None:
+            return "infeasible"
+        return "feasible" if self.closest_approach_min_hold_s == 0 else "needs-hold"
+
+    def summary_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["verdict"] = self.verdict
+        return out
+
+    def describe(self) -> str:
+        """Two lines for ``companion plan`` / ``validate``."""
+        def part(ok: bool, hold: float | None) -> str:
+            if ok and not hold:
+                return "feasible"
+            if ok:
+                return f"feasible with a {hold:.0f} s hold"
+            if hold is None:
+                return f"infeasible (no hold up to {self.searched_hold_s:.0f} s helps)"
+            return f"infeasible under the rule; needs a {hold:.0f} s hold"
+        rule = "never waits" if self.hold_s_max == 0 else f"may hold up to {self.hold_s_max:g} s"
+        return (f"occlusion certificate ({self.higher} {rule}; {self.resolution_m:g} m cells, "
+                f"{self.step_s:.2f} s steps): sight line {self.higher}-{self.lower} blocked\n"
+                f"  whole flight: {part(self.whole_flight, self.whole_flight_min_hold_s)}\n"
+                f"  at closest approach: {part(self.closest_approach, self.closest_approach_min_hold_s)}")
+
+
+def least_hold(mission: "Mission", routes: dict[str, "Route"], blocking: Blocking, max_hold_s: float,
+               grid: OccupancyGrid, shadows: SightShadows, memo: dict | None = None,
+               margin_m: float = 0.0, known_at_max: bool = False) -> float | None:
+    """The least hold (a multiple of the lower vehicle's step, <= ``max_hold_s``) of the first
+    vehicle that makes ``blocking`` feasible for the second, or None. ``margin_m``: see
+    :func:`coordination.solve`; ``known_at_max``: the caller knows ``max_hold_s`` suffices."""
+    higher, lower = mission.by_priority[0], mission.by_priority[1]
+    route = routes[higher.name].sparse_enu_m
+    memo = {} if memo is None else memo
+
+    def ok(i: int) -> bool:
+        others = (forecast(higher.name, route, higher.speed_m_s, i * step),)
+        return feasible(problem_for(mission, grid, shadows, lower.name, others, higher.speed_m_s, memo), blocking, margin_m)
+
+    step = problem_for(mission, grid, shadows, lower.name, (), higher.speed_m_s).model.step_s
+    hi = math.floor(max_hold_s / step + 1e-9)
+    if ok(0):
+        return 0.0
+    if hi <= 0 or not (known_at_max or ok(hi)):
+        return None
+    lo = 0  # ok(lo) is False, ok(hi) is True
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if ok(mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi * step
+
+
+def certify(mission: "Mission", routes: dict[str, "Route"], *, grid: OccupancyGrid | None = None,
+            shadows: SightShadows | None = None, max_hold_s: float | None = None) -> OcclusionCertificate | None:
+    """The certificate of the two vehicles first in priority (None with a single vehicle).
+    Holds are searched up to ``max_hold_s`` (default: the longest that lets the first vehicle
+    still arrive within the time limit)."""
+    if len(mission.vehicles) < 2:
+        return None
+    grid = grid or rasterise(mission.world, mission.planner.grid_resolution_m)
+    shadows = shadows or SightShadows(mission.world, grid)
+    higher, lower = mission.by_priority[0], mission.by_priority[1]
+    flight_s = routes[higher.name].length_m / higher.speed_m_s
+    searched = max(0.0, mission.safety.time_limit_s - flight_s) if max_hold_s is None else max_hold_s
+    step = problem_for(mission, grid, shadows, lower.name, (), higher.speed_m_s).model.step_s
+    memo: dict = {}
+    whole = least_hold(mission, routes, Blocking.WHOLE_FLIGHT, searched, grid, shadows, memo)
+    near = whole if whole == 0.0 else least_hold(  # whole-flight blocking is blocked at closest approach
+        mission, routes, Blocking.CLOSEST_APPROACH, searched if whole is None else whole, grid, shadows, memo,
+        known_at_max=whole is not None)
+    limit = mission.coordination.hold_s_max
+    return OcclusionCertificate(
+        higher=higher.name, lower=lower.name, hold_s_max=limit, step_s=step,
+        resolution_m=grid.resolution_m,
+        whole_flight=whole is not None and whole <= limit + 1e-9,
+        closest_approach=near is not None and near <= limit + 1e-9,
+        whole_flight_min_hold_s=whole, closest_approach_min_hold_s=near, searched_hold_s=searched)
+
+
+def mission_certificate(mission: "Mission", routes: dict[str, "Route"] | None = None) -> OcclusionCertificate | None:
+    """:func:`certify` for a mission whose routes may not be planned yet (station-goal
+    variants plan none); None with a single vehicle or when the first vehicle has no route."""
+    from companion.planning.errors import NoPath
+    from companion.planning.routes import plan_routes
+    if len(mission.vehicles) < 2:
+        return None
+    if not routes or mission.by_priority[0].name not in routes:
+        try:
+            routes = plan_routes(mission)
+        except NoPath:
+            return None
+    return certify(mission, routes)

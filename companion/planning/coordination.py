@@ -1,0 +1,248 @@
+"""Coordinated timing: prioritised space-time planning that keeps the sight lines blocked.
+
+Vehicles are planned in ``mission.by_priority`` order (the paper's rule, section III.A). The
+first flies its A* route at cruise speed, after a departure hold when the mission allows one
+(``coordination.hold_s_max``). Every later vehicle is planned on the space-time graph of
+:mod:`spacetime` against the forecasts of all vehicles above it, the strictest rule first:
+
+    Blocking.WHOLE_FLIGHT       the sight line to every higher vehicle crosses a true obstacle at
+                                every step instant, from departure until everyone has arrived
+    Blocking.CLOSEST_APPROACH   the sight line is blocked at the closest approach: at a blocked
+                                instant no farther than any instant at which it is open (exact
+                                for two vehicles; with more it holds for one pair)
+    Blocking.NONE               separation only (the line is not kept blocked)
+
+and, when even separation cannot be planned, its route at cruise speed (``timed=False``). The
+result records which held. A* cells of the inflated obstacles keep static clearance throughout.
+
+Closest approach: a path has its closest approach blocked iff some D has every open instant
+farther than D and some blocked instant within D. Forbidding open instants within D shrinks the
+reachable set R(D) as D grows, so g(D) = the least distance of a blocked state in R(D) grows
+too; iterating D <- g(D) from 0 never passes a feasible D, and stops at one (g(D) <= D) or at
+an empty R: infeasible.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from companion.planning.grid import OccupancyGrid, rasterise
+from companion.planning.shadow import SightShadows
+from companion.planning.spacetime import (AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, backward,
+                                          earliest_arrival, forward, stay_from, step_model)
+from companion.planning.timed import TimedRoute, forecast
+
+if TYPE_CHECKING:
+    from uav_model.mission import Mission
+    from companion.planning.routes import Route
+
+_MAX_NEAR_ROUNDS = 200  # D <- g(D) rounds; each raises D to a new state distance
+
+
+class Blocking(Enum):
+    """How well a vehicle's plan keeps its sight lines to the vehicles above it blocked."""
+
+    WHOLE_FLIGHT = "whole-flight"
+    CLOSEST_APPROACH = "closest-approach"
+    NONE = "none"
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """One vehicle's space-time path: a cell per step (step 0 is departure time 0)."""
+
+    cells: list[tuple[int, int]]
+    step_s: float
+    blocking: Blocking
+
+
+@dataclass(frozen=True, eq=False)
+class CoordinatedPlan:
+    """Timed routes for every vehicle, the departure hold of the first, and what each achieved."""
+
+    hold_s: float
+    step_s: dict[str, float]
+    timed: dict[str, TimedRoute]
+    blocking: dict[str, Blocking]
+    planned: dict[str, bool]  # False: no space-time plan at all, the route at cruise speed
+
+
+def solve(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.0) -> Solution | None:
+    """The earliest-arriving path under ``blocking``, or None when there is none. ``margin_m``
+    (closest approach only): the line must also be blocked wherever the distance is within
+    this much of the closest approach, so that the closest approach of the flown (continuous,
+    imperfectly tracked) paths falls on a blocked stretch too."""
+    if blocking is Blocking.CLOSEST_APPROACH:
+        return _solve_near(problem, margin_m)
+    rule = SightRule.BLOCKED if blocking is Blocking.WHOLE_FLIGHT else SightRule.FREE
+    table = allowed_table(problem, rule)
+    start = problem.cell_mask(problem.start) & table[0]
+    if not start.any():
+        return None
+    layers = forward(problem, table, start, 0)
+    stay = None if layers.empty else stay_from(problem, table)
+    arrive = None if stay is None else earliest_arrival(problem, layers, stay)
+    if arrive is None:
+        return None
+    return Solution(backtrack(problem, layers, problem.goal, arrive, 0), problem.model.step_s, blocking)
+
+
+def feasible(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.0) -> bool:
+    """Whether any path exists under ``blocking`` (no path is built); ``margin_m`` as for
+    :func:`solve`."""
+    if blocking is Blocking.CLOSEST_APPROACH:
+        return _near_witness(problem, margin_m) is not None
+    rule = SightRule.BLOCKED if blocking is Blocking.WHOLE_FLIGHT else SightRule.FREE
+    table = allowed_table(problem, rule)
+    start = problem.cell_mask(problem.start) & table[0]
+    if not start.any():
+        return False
+    layers = forward(problem, table, start, 0)
+    stay = None if layers.empty else stay_from(problem, table)
+    return stay is not None and earliest_arrival(problem, layers, stay) is not None
+
+
+def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[AllowedTable, Layers, tuple[int, int], int] | None:
+    """(allowed table, forward layers, s* cell, s* step) for the D <- g(D) fixed point, or None."""
+    near = 0.0
+    for _ in range(_MAX_NEAR_ROUNDS):
+        table = allowed_table(problem, SightRule.BLOCKED_WHEN_NEAR, near + margin_m)
+        start = problem.cell_mask(problem.start) & table[0]
+        if not start.any():
+            return None
+        fwd = forward(problem, table, start, 0)
+        stay = None if fwd.empty else stay_from(problem, table)
+        if stay is None or earliest_arrival(problem, fwd, stay) is None:
+            return None  # no path at all: no need for the backward pass
+        bwd = backward(problem, table)
+        best = _closest_blocked(problem, fwd, bwd)
+        if best is None:
+            return None
+        d, cell, k = best
+        if d <= near:
+            return table, fwd, cell, k
+        near = d
+    raise RuntimeError(f"closest-approach search did not settle in {_MAX_NEAR_ROUNDS} rounds")
+
+
+def _closest_blocked(problem: SpaceTimeProblem, fwd: Layers, bwd: Layers) -> tuple[float, tuple[int, int], int] | None:
+    """The least distance to the nearest higher vehicle over states on a full path that are
+    blocked from all of them: (distance, cell, step), earliest step on ties."""
+    steps = sorted(set(range(0, fwd.first + len(fwd.head) + 1)) | set(range(len(bwd.head) + 1))
+                   | set(range(problem.horizon - len(bwd.tail), problem.horizon + 1)))
+    best = None
+    for k in steps:
+        if k > problem.horizon:
+            continue
+        if k < fwd.first:
+            continue
+        states = fwd[k] & bwd[k] & problem.blocked_by_all(k)
+        if not states.any():
+            continue
+        d2, cell = problem.nearest_d2(k, states)
+        if best is None or d2 < best[0] ** 2:
+            best = (math.sqrt(d2), cell, k)
+    return best
+
+
+def _solve_near(problem: SpaceTimeProblem, margin_m: float) -> Solution | None:
+    witness = _near_witness(problem, margin_m)
+    if witness is None:
+        return None
+    table, fwd, cell, k_star = witness
+    stay = stay_from(problem, table)
+    seed = problem.cell_mask(cell)
+    after = forward(problem, table, seed, k_star)
+    arrive = earliest_arrival(problem, after, max(stay, k_star))
+    if arrive is None:  # s* is on a full path, so the goal is reachable from it
+        raise AssertionError("closest-approach witness does not reach the goal")
+    tail = backtrack(problem, after, problem.goal, arrive, k_star)
+    head = backtrack(problem, fwd, cell, k_star, 0)
+    return Solution(head + tail[1:], problem.model.step_s, Blocking.CLOSEST_APPROACH)
+
+
+def to_timed(name: str, grid: OccupancyGrid, solution: Solution, start_xy, goal_xy) -> TimedRoute:
+    """The solution's cell centres at their step times (exact stations at the ends), keeping
+    only the points where speed or heading changes."""
+    xs, ys = grid.cell_centres()
+    xy = np.array([(xs[ix], ys[iy]) for ix, iy in solution.cells], dtype=float)
+    same_start = np.all(np.array(solution.cells) == solution.cells[0], axis=1)
+    xy[np.cumprod(same_start).astype(bool)] = start_xy
+    same_goal = np.all(np.array(solution.cells) == solution.cells[-1], axis=1)
+    xy[np.cumprod(same_goal[::-1]).astype(bool)[::-1]] = goal_xy
+    t = np.arange(len(xy)) * solution.step_s
+    keep = np.ones(len(xy), dtype=bool)
+    if len(xy) > 2:
+        mid = (xy[:-2] + xy[2:]) / 2.0  # equal steps: a point on a constant-velocity run is the mean
+        keep[1:-1] = np.hypot(*(xy[1:-1] - mid).T) > 1e-6
+    return TimedRoute(name, t[keep], xy[keep])
+
+
+def problem_for(mission: "Mission", grid: OccupancyGrid, shadows: SightShadows, name: str,
+                others: tuple[TimedRoute, ...], fastest_other_m_s: float, memo: dict | None = None) -> SpaceTimeProblem:
+    """Vehicle ``name`` against ``others``; ``memo`` shares masks between problems on ``grid``."""
+    v = mission.vehicle(name)
+    c = mission.coordination
+    model = step_model(grid.resolution_m, v.speed_m_s, c.step_s, mission.safety.min_separation_m, fastest_other_m_s)
+    return SpaceTimeProblem(grid, shadows, model, v.start_enu_m, v.goal_enu_m, others,
+                            mission.safety.time_limit_s, memo)
+
+
+def near_margin_m(mission: "Mission", name: str, fastest_other_m_s: float) -> float:
+    """How much the distance between two vehicles may change within one step of ``name``'s
+    plan: both at full speed."""
+    v = mission.vehicle(name)
+    model = step_model(mission.planner.grid_resolution_m, v.speed_m_s, mission.coordination.step_s,
+                       mission.safety.min_separation_m, fastest_other_m_s)
+    return (v.speed_m_s + fastest_other_m_s) * model.step_s
+
+
+def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: float | None = None,
+                     grid: OccupancyGrid | None = None, shadows: SightShadows | None = None) -> CoordinatedPlan:
+    """Timed routes for every vehicle (see the module doc). ``hold_s``: the first vehicle's
+    departure hold; by default the least hold within ``coordination.hold_s_max`` that lets the
+    second vehicle keep the line blocked the whole flight, else at closest approach, else 0."""
+    grid = grid or rasterise(mission.world, mission.planner.grid_resolution_m)
+    shadows = shadows or SightShadows(mission.world, grid)
+    order = mission.by_priority
+    top = order[0]
+    memo: dict = {}
+    if hold_s is None:
+        hold_s = 0.0
+        if len(order) > 1 and mission.coordination.hold_s_max > 0:
+            from companion.planning.certificate import least_hold
+            margin = near_margin_m(mission, order[1].name, top.speed_m_s)
+            for blocking, margin_m in ((Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
+                                       (Blocking.CLOSEST_APPROACH, 0.0)):
+                found = least_hold(mission, routes, blocking, mission.coordination.hold_s_max, grid, shadows,
+                                   memo, margin_m)
+                if found is not None:
+                    hold_s = found
+                    break
+    timed = {top.name: forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s, hold_s)}
+    blocking = {top.name: Blocking.WHOLE_FLIGHT}
+    planned = {top.name: True}
+    steps = {top.name: 0.0}
+    for v in order[1:]:
+        others = tuple(timed.values())
+        fastest = max(mission.vehicle(o.vehicle).speed_m_s for o in others)
+        problem = problem_for(mission, grid, shadows, v.name, others, fastest, memo)
+        steps[v.name] = problem.model.step_s
+        margin = near_margin_m(mission, v.name, fastest)
+        ladder = [(Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
+                  (Blocking.CLOSEST_APPROACH, 0.0), (Blocking.NONE, 0.0)]
+        for level, margin_m in ladder:
+            sol = solve(problem, level, margin_m)
+            if sol is not None:
+                timed[v.name] = to_timed(v.name, grid, sol, v.start_enu_m, v.goal_enu_m)
+                blocking[v.name], planned[v.name] = level, True
+                break
+        else:
+            timed[v.name] = forecast(v.name, routes[v.name].sparse_enu_m, v.speed_m_s)
+            blocking[v.name], planned[v.name] = Blocking.NONE, False
+    return CoordinatedPlan(hold_s, steps, timed, blocking, planned)

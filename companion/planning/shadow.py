@@ -1,0 +1,93 @@
+"""Sight shadows: which grid cells see a point only through a TRUE static obstacle.
+
+``SightShadows(world, grid).blocked_from((x, y))`` is the (ny, nx) mask of cell centres q whose
+segment to (x, y) meets a true (un-inflated) static obstacle footprint: the cells where a vehicle
+is out of sight of a vehicle at (x, y), in the sense of SPEC §2's ``los_blocked_fraction``.
+Vectorised over every cell at once, one obstacle at a time:
+
+  * a circle blocks when the centre's distance to the segment is below the radius (as
+    :class:`metrics.TruthGeometry` scores a flight);
+  * a convex polygon blocks unless a separating axis exists: one of its edge normals with both
+    segment ends outside, or the segment's own line with every vertex strictly on one side;
+  * a non-convex polygon is split into triangles (constrained Delaunay), each convex.
+
+Moving obstacles are left out: a plan made before flight must not count on a shadow that moves.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+
+from companion.planning.grid import OccupancyGrid
+from uav_model.world import World
+
+
+def convex_pieces(footprint: shapely.Polygon) -> list[np.ndarray]:
+    """The footprint as convex CCW vertex arrays (V, 2): itself when convex, else its triangles."""
+    if footprint.convex_hull.area - footprint.area <= 1e-9 * max(footprint.area, 1.0):
+        return [_ccw(np.asarray(footprint.exterior.coords, dtype=float)[:-1])]
+    tris = shapely.constrained_delaunay_triangles(footprint)
+    return [_ccw(np.asarray(t.exterior.coords, dtype=float)[:-1]) for t in tris.geoms]
+
+
+def _ccw(v: np.ndarray) -> np.ndarray:
+    area2 = np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1])
+    return v if area2 > 0 else v[::-1].copy()
+
+
+class SightShadows:
+    """The true static obstacles prepared for fast shadow masks over one grid's cell centres."""
+
+    def __init__(self, world: World, grid: OccupancyGrid):
+        xs, ys = grid.cell_centres()
+        self.shape = grid.shape
+        self._qx = xs[None, :]
+        self._qy = ys[:, None]
+        circles = [o for o in world.static_obstacles if o.is_circle]
+        self._circles = [(o.center[0], o.center[1], o.size_m) for o in circles]
+        self._inside = [(self._qx - cx) ** 2 + (self._qy - cy) ** 2 < r * r for cx, cy, r in self._circles]
+        self._pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (vertices, normals, offsets)
+        for o in world.static_obstacles:
+            if o.is_circle:
+                continue
+            for v in convex_pieces(o.footprint):
+                edge = np.roll(v, -1, axis=0) - v
+                normal = np.stack([edge[:, 1], -edge[:, 0]], axis=1)  # outward for CCW
+                self._pieces.append((v, normal, np.einsum("ij,ij->i", normal, v)))
+
+    def blocked_from(self, xy: tuple[float, float]) -> np.ndarray:
+        """(ny, nx) bool: the segment from each cell centre to ``xy`` meets a true obstacle."""
+        px, py = float(xy[0]), float(xy[1])
+        dx, dy = self._qx - px, self._qy - py  # q - p, broadcast (1, nx) and (ny, 1)
+        out = np.zeros(self.shape, dtype=bool)
+        len2 = dx * dx + dy * dy
+        for (cx, cy, r), inside in zip(self._circles, self._inside):
+            # p is outside the disc (a vehicle never is inside); with w = c - p the segment
+            # meets the disc when q is inside, or when the foot of c on the line lies within the
+            # segment (0 < w.d < |d|^2) at a distance below r (cross^2 < r^2 |d|^2).
+            wx, wy = cx - px, cy - py
+            along = wx * dx + wy * dy
+            cross = dx * wy - dy * wx
+            if wx * wx + wy * wy < r * r:  # p inside: everything is blocked
+                out[:] = True
+                break
+            out |= inside | ((along > 0) & (along < len2) & (cross * cross < r * r * len2))
+        for v, normal, offset in self._pieces:
+            out |= self._meets_convex(px, py, dx, dy, v, normal, offset)
+        return out
+
+    def _meets_convex(self, px: float, py: float, dx: np.ndarray, dy: np.ndarray, v: np.ndarray,
+                      normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        separated = np.zeros(self.shape, dtype=bool)
+        p_side = normal @ (px, py) - offset
+        for k in np.flatnonzero(p_side > 0):  # only edges with p outside can separate
+            nx, ny = normal[k]
+            separated |= nx * self._qx + ny * self._qy > offset[k]
+        above = np.ones(self.shape, dtype=bool)
+        below = np.ones(self.shape, dtype=bool)
+        for vx, vy in v:
+            cross = dx * (vy - py) - dy * (vx - px)
+            above &= cross > 0
+            below &= cross < 0
+        return ~(separated | above | below)

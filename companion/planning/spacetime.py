@@ -1,0 +1,314 @@
+"""Space-time reachability for one lower-priority vehicle, as a numpy wavefront over the grid.
+
+The vehicle lives on the mission grid's free cells (the inflated static obstacles, so static
+clearance holds), one time step of ``step_s`` at a time. In a step it makes a few sub-steps
+through free cells, alternating 4- and 8-neighbour moves (an octagon that never exceeds its
+cruise speed; see :func:`step_model`), or stays: waits and slow moves are the same sub-steps cut
+short. At each step instant k it must be ``allowed``: far enough from every higher-priority
+vehicle (at its forecast position) and, depending on the :class:`SightRule`, out of its sight.
+
+Reachability is a set per step, so each step is a few shifted ORs of a boolean array:
+
+    F[k+1] = grow(F[k]) & allowed(k+1)          forward, from the start cell at k = 0
+    B[k]   = grow(B[k+1]) & allowed(k)          backward, from the goal cell at the horizon
+
+F[k] & B[k] are the states on some start-to-goal path. Once every higher-priority vehicle has
+arrived, ``allowed`` no longer changes; each pass stops there as soon as its set stops changing
+(the sets are the same for every later step).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from companion.planning import bitgrid
+from companion.planning.grid import OccupancyGrid
+from companion.planning.shadow import SightShadows
+from companion.planning.timed import TimedRoute
+
+
+class SightRule(Enum):
+    """What a step instant requires of the sight line to each higher-priority vehicle."""
+
+    BLOCKED = "blocked"          # always blocked (the whole flight)
+    BLOCKED_WHEN_NEAR = "near"   # blocked whenever the distance is <= a threshold D
+    FREE = "free"                # no requirement (separation only)
+
+
+@dataclass(frozen=True)
+class StepModel:
+    """How a vehicle moves on the space-time graph."""
+
+    step_s: float
+    moves: tuple[int, ...]  # the sub-steps of one step: 4- or 8-neighbour, a palindrome
+    min_distance_m: float   # to each higher-priority vehicle at step instants (covers the step)
+
+
+def step_model(resolution_m: float, speed_m_s: float, nominal_step_s: float, min_separation_m: float,
+               fastest_other_m_s: float) -> StepModel:
+    """n sub-steps (n = cells flown at cruise in ``nominal_step_s``), of which k = floor(0.414 n)
+    may be diagonal. Their octagon reaches at most sqrt(n^2 + k^2) cells, so the step lasts
+    that many cells' flight time: no direction is faster than cruise, none much slower (n = 5:
+    within 8 %). Separation is required at step instants with the margin that keeps it between
+    them: two vehicles moving linearly, ``sep`` apart at both ends of a step of relative length
+    L, are at least sqrt(d^2 - (L/2)^2) apart in between."""
+    n = max(1, round(nominal_step_s * speed_m_s / resolution_m))
+    k = math.floor((math.sqrt(2.0) - 1.0) * n)
+    eights = {round((j + 0.5) * n / k - 0.5) for j in range(k)} if k else set()
+    moves = [8 if i in eights else 4 for i in range(n)]
+    moves = moves[:(n + 1) // 2] + moves[:n // 2][::-1]  # a palindrome, so paths reverse
+    step_s = math.hypot(n, moves.count(8)) * resolution_m / speed_m_s
+    rel_m = (speed_m_s + fastest_other_m_s) * step_s
+    return StepModel(step_s, tuple(moves), math.hypot(min_separation_m, rel_m / 2.0))
+
+
+def grow(bits: np.ndarray, free_bits: np.ndarray, moves: tuple[int, ...]) -> np.ndarray:
+    """Cells reachable from packed ``bits`` in one step of sub-steps ``moves`` through
+    ``free_bits`` (see :mod:`bitgrid`), on the rows that can be reached at all."""
+    rows = np.flatnonzero(bits.any(axis=1))
+    out = np.zeros_like(bits)
+    if not rows.size:
+        return out
+    r = len(moves)
+    y0, y1 = max(rows[0] - r, 0), min(rows[-1] + r + 1, bits.shape[0])
+    m = bits[y0:y1]
+    f = free_bits[y0:y1]
+    for kind in moves:
+        m = bitgrid.dilate(m, kind) & f
+    out[y0:y1] = m
+    return out
+
+
+class SpaceTimeProblem:
+    """One lower-priority vehicle against the forecasts of the vehicles above it. Masks are
+    packed (:mod:`bitgrid`); ``memo`` may be shared by problems on the same grid and model."""
+
+    def __init__(self, grid: OccupancyGrid, shadows: SightShadows, model: StepModel,
+                 start_xy: tuple[float, float], goal_xy: tuple[float, float],
+                 others: tuple[TimedRoute, ...], horizon_s: float, memo: dict | None = None):
+        self.grid = grid
+        self.shadows = shadows
+        self.model = model
+        self.start = _cell(grid, start_xy)
+        self.goal = _cell(grid, goal_xy)
+        free = ~grid.occupied
+        free[self.start[1], self.start[0]] = True  # a station's cell may touch the inflation
+        free[self.goal[1], self.goal[0]] = True
+        self.free = free
+        self.free_bits = bitgrid.pack(free)
+        self.nx = free.shape[1]
+        self.others = others
+        self.horizon = max(1, int(horizon_s // model.step_s))
+        settled_s = max((o.arrival_s for o in others), default=0.0)
+        self.settled = min(self.horizon, math.ceil(settled_s / model.step_s))  # allowed is fixed from here
+        xs, ys = grid.cell_centres()
+        self._xs, self._ys = xs, ys
+        self._qx, self._qy = xs[None, :], ys[:, None]
+        self._memo = {} if memo is None else memo
+        self._positions = [self._positions_at(k) for k in range(self.settled + 1)]
+
+    def _positions_at(self, k: int) -> list[tuple[float, float]]:
+        t = k * self.model.step_s
+        return [(round(float(x), 6), round(float(y), 6)) for x, y in (o.planned_position_at(t) for o in self.others)]
+
+    def positions(self, k: int) -> list[tuple[float, float]]:
+        return self._positions[min(k, self.settled)]
+
+    def _memoised(self, key: tuple, make) -> np.ndarray:
+        value = self._memo.get(key)
+        if value is None:
+            value = self._memo[key] = make()
+        return value
+
+    def shadow_bits(self, xy: tuple[float, float]) -> np.ndarray:
+        return self._memoised(("shadow", xy), lambda: bitgrid.pack(self.shadows.blocked_from(xy)))
+
+    def far_bits(self, xy: tuple[float, float]) -> np.ndarray:
+        return self._memoised(("far", xy, self.model.min_distance_m),
+                              lambda: bitgrid.pack(self.distance2(xy) >= self.model.min_distance_m ** 2))
+
+    def distance2(self, xy: tuple[float, float]) -> np.ndarray:
+        return (self._qx - xy[0]) ** 2 + (self._qy - xy[1]) ** 2
+
+    def allowed(self, k: int, rule: SightRule, near_m: float = math.inf) -> np.ndarray:
+        ok = self.free_bits.copy()
+        for xy in self.positions(k):
+            ok &= self.far_bits(xy)
+            if rule is SightRule.BLOCKED:
+                ok &= self.shadow_bits(xy)
+            elif rule is SightRule.BLOCKED_WHEN_NEAR:
+                ok &= self.shadow_bits(xy) | bitgrid.pack(self.distance2(xy) > near_m * near_m)
+        return ok
+
+    def blocked_by_all(self, k: int) -> np.ndarray:
+        out = self.free_bits.copy()
+        for xy in self.positions(k):
+            out &= self.shadow_bits(xy)
+        return out
+
+    def nearest_d2(self, k: int, bits: np.ndarray) -> tuple[float, tuple[int, int]]:
+        """The least squared distance to a higher vehicle over the cells of ``bits`` at step k."""
+        rows = np.flatnonzero(bits.any(axis=1))
+        iy, ix = np.nonzero(bitgrid.unpack(bits[rows], self.nx))
+        iy = rows[iy]
+        d2 = np.min([(self._xs[ix] - x) ** 2 + (self._ys[iy] - y) ** 2 for x, y in self.positions(k)], axis=0)
+        i = int(np.argmin(d2))
+        return float(d2[i]), (int(ix[i]), int(iy[i]))
+
+    def grow(self, bits: np.ndarray) -> np.ndarray:
+        return grow(bits, self.free_bits, self.model.moves)
+
+    def cell_mask(self, cell: tuple[int, int]) -> np.ndarray:
+        return bitgrid.single(self.free_bits.shape, cell[0], cell[1])
+
+    def has(self, bits: np.ndarray, cell: tuple[int, int]) -> bool:
+        return bitgrid.test(bits, cell[0], cell[1])
+
+
+def _cell(grid: OccupancyGrid, xy: tuple[float, float]) -> tuple[int, int]:
+    ny, nx = grid.shape
+    ix, iy = grid.world_to_cell(float(xy[0]), float(xy[1]))
+    return min(max(ix, 0), nx - 1), min(max(iy, 0), ny - 1)
+
+
+class Layers:
+    """Reachable sets per step k = first..horizon: ``head`` from ``first`` on, ``tail`` (latest
+    first) ending at the horizon, and between them the last of ``head`` (a set that stopped
+    changing once ``allowed`` did)."""
+
+    def __init__(self, first: int, head: list[np.ndarray], horizon: int, tail: list[np.ndarray] | None = None):
+        self.first = first
+        self.head = head
+        self.horizon = horizon
+        self.tail = tail or []
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        if k - self.first < len(self.head):
+            return self.head[k - self.first]
+        if k > self.horizon - len(self.tail):
+            return self.tail[self.horizon - k]
+        return self.head[-1]
+
+    @property
+    def empty(self) -> bool:
+        return not self.head[-1].any()
+
+
+def forward(problem: SpaceTimeProblem, allowed: "AllowedTable", seed: np.ndarray, k0: int) -> Layers:
+    """F[k] for k = k0..horizon from ``seed`` (already allowed at k0)."""
+    masks = [seed]
+    for k in range(k0 + 1, problem.horizon + 1):
+        nxt = problem.grow(masks[-1]) & allowed[k]
+        if k > problem.settled and np.array_equal(nxt, masks[-1]):
+            break
+        masks.append(nxt)
+        if not nxt.any():
+            break
+    return Layers(k0, masks, problem.horizon)
+
+
+def backward(problem: SpaceTimeProblem, allowed: "AllowedTable") -> Layers:
+    """B[k] for k = 0..horizon: the states from which the goal is reached by the horizon."""
+    tail = [problem.cell_mask(problem.goal) & allowed[problem.horizon]]
+    k = problem.horizon  # tail[-1] is B[k]
+    while k > problem.settled:  # allowed is fixed here: grow until the set stops changing
+        nxt = problem.grow(tail[-1]) & allowed[k - 1]
+        if np.array_equal(nxt, tail[-1]):
+            break
+        tail.append(nxt)
+        k -= 1
+    steady = tail.pop()
+    head = [steady]
+    for _ in range(min(k, problem.settled)):
+        j = min(k, problem.settled) - len(head)
+        head.append(problem.grow(head[-1]) & allowed[j])
+    head.reverse()  # head[j] = B[j], its last entry the steady set
+    return Layers(0, head, problem.horizon, tail)
+
+
+class AllowedTable:
+    """allowed(k) under one rule, computed on first use (a dead forward pass never asks for
+    the later steps); from ``settled`` on every step is the same."""
+
+    def __init__(self, problem: SpaceTimeProblem, rule: SightRule, near_m: float = math.inf):
+        self.problem, self.rule, self.near_m = problem, rule, near_m
+        self._masks: dict[int, np.ndarray] = {}
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        k = min(k, self.problem.settled)
+        mask = self._masks.get(k)
+        if mask is None:
+            mask = self._masks[k] = self.problem.allowed(k, self.rule, self.near_m)
+        return mask
+
+    def __len__(self) -> int:
+        return self.problem.settled + 1
+
+
+def allowed_table(problem: SpaceTimeProblem, rule: SightRule, near_m: float = math.inf) -> AllowedTable:
+    return AllowedTable(problem, rule, near_m)
+
+
+def stay_from(problem: SpaceTimeProblem, table: AllowedTable) -> int | None:
+    """The first step from which the goal cell stays allowed to the horizon (None: never)."""
+    ok = np.array([problem.has(table[k], problem.goal) for k in range(len(table))])
+    if not ok[-1]:
+        return None
+    bad = np.flatnonzero(~ok)
+    return int(bad[-1]) + 1 if bad.size else 0
+
+
+def earliest_arrival(problem: SpaceTimeProblem, layers: Layers, not_before: int) -> int | None:
+    """The first step k >= ``not_before`` at which the goal cell is in ``layers``."""
+    last = layers.first + len(layers.head) - 1
+    for k in range(max(not_before, layers.first), min(last, problem.horizon) + 1):
+        if problem.has(layers[k], problem.goal):
+            return k
+    if problem.has(layers.head[-1], problem.goal) and max(not_before, last) <= problem.horizon:
+        return max(not_before, last)
+    return None
+
+
+def backtrack(problem: SpaceTimeProblem, layers: Layers, end: tuple[int, int], k_end: int,
+              k_start: int) -> list[tuple[int, int]]:
+    """Cells at steps k_start..k_end of a path in ``layers`` that ends at ``end``. Among the
+    possible predecessors it takes the one deepest inside the reachable set (most slack for a
+    vehicle that strays from the plan), then the nearest (a wait rather than a detour)."""
+    r = len(problem.model.moves)
+    ny, nx = problem.free.shape
+    cells = [end]
+    for k in range(k_end, k_start, -1):
+        cx, cy = cells[-1]
+        x0, x1, y0, y1 = max(cx - r, 0), min(cx + r + 1, nx), max(cy - r, 0), min(cy + r + 1, ny)
+        seed = np.zeros((y1 - y0, x1 - x0), dtype=bool)
+        seed[cy - y0, cx - x0] = True
+        prev = bitgrid.unpack(layers[k - 1], nx)
+        cand = _grow_bool(seed, problem.free[y0:y1, x0:x1], problem.model.moves) & prev[y0:y1, x0:x1]
+        ys, xs = np.nonzero(cand)
+        if not len(xs):  # cannot happen for a cell of layers[k]: report, don't guess
+            raise AssertionError(f"no predecessor of {cells[-1]} at step {k}")
+        best = max(zip(xs + x0, ys + y0),
+                   key=lambda c: (int(prev[max(c[1] - 2, 0):c[1] + 3, max(c[0] - 2, 0):c[0] + 3].sum()),
+                                  -((c[0] - cx) ** 2 + (c[1] - cy) ** 2)))
+        cells.append((int(best[0]), int(best[1])))
+    cells.reverse()
+    return cells
+
+
+def _grow_bool(mask: np.ndarray, free: np.ndarray, moves: tuple[int, ...]) -> np.ndarray:
+    """:func:`grow` on a small unpacked window (for backtracking)."""
+    m = mask
+    for kind in moves:
+        row = m.copy()
+        row[:, 1:] |= m[:, :-1]
+        row[:, :-1] |= m[:, 1:]
+        src = row if kind == 8 else m
+        out = row.copy()
+        out[1:, :] |= src[:-1, :]
+        out[:-1, :] |= src[1:, :]
+        m = out & free
+    return m

@@ -1,0 +1,129 @@
+"""Routes with arrival times: where a vehicle is planned to be, and how fast it should go, at t.
+
+A :class:`TimedRoute` is a polyline whose vertices carry sim times (s, from the common mission
+start). Position is linear in time between vertices and held before the first and after the last,
+so a vertex repeated at two times is a wait. Every query is vectorised over arrays of times (and
+positions), so a dynamic window can score a whole batch of rollouts against the plan at once:
+
+    route = forecast("a", sparse_xy, speed_m_s=10.0, hold_s=75.0)   # cruise after a hold
+    route.planned_position_at(t)           # (..., 2) ENU metres
+    route.planned_speed_at(t)              # (...,) m/s of the plan itself (0 while waiting)
+    route.target_speed_at(xy, t, v_max)    # (...,) m/s that brings a vehicle at xy back onto it
+    route.is_waiting_at(t)                 # (...,) bool: the plan holds here (a scheduled wait)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.planning.errors import PlanningError
+
+_WAIT_SPEED_M_S = 1e-6  # slower than this, a planned segment is a wait
+
+
+@dataclass(frozen=True, eq=False)
+class TimedRoute:
+    """One vehicle's planned motion: ``xy_enu_m`` (N, 2) reached at ``t_s`` (N,), non-decreasing."""
+
+    vehicle: str
+    t_s: np.ndarray
+    xy_enu_m: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.array(self.t_s, dtype=float).ravel()
+        xy = np.array(self.xy_enu_m, dtype=float).reshape(-1, 2)
+        if len(t) != len(xy) or len(t) == 0:
+            raise PlanningError(f"timed route of {self.vehicle!r}: {len(t)} times for {len(xy)} points")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(xy))) or np.any(np.diff(t) < 0):
+            raise PlanningError(f"timed route of {self.vehicle!r}: times must be finite and non-decreasing")
+        for name, a in (("t_s", t), ("xy_enu_m", xy)):
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+    @property
+    def departure_s(self) -> float:
+        """When the vehicle first leaves its start point (after any hold)."""
+        moved = np.flatnonzero(np.any(self.xy_enu_m != self.xy_enu_m[0], axis=1))
+        return float(self.t_s[moved[0] - 1]) if moved.size else float(self.t_s[-1])
+
+    @property
+    def arrival_s(self) -> float:
+        """When the vehicle reaches its last point."""
+        last = np.flatnonzero(np.any(self.xy_enu_m != self.xy_enu_m[-1], axis=1))
+        return float(self.t_s[last[-1] + 1]) if last.size else float(self.t_s[0])
+
+    @property
+    def length_m(self) -> float:
+        return float(np.hypot(*np.diff(self.xy_enu_m, axis=0).T).sum()) if len(self.t_s) > 1 else 0.0
+
+    @property
+    def wait_s(self) -> float:
+        """Total planned waiting between departure and arrival (holds before departure excluded)."""
+        dt, v = self._segments()
+        t0, t1 = self.t_s[:-1], self.t_s[1:]
+        inside = (t0 >= self.departure_s) & (t1 <= self.arrival_s)
+        return float(dt[inside & (v < _WAIT_SPEED_M_S)].sum())
+
+    def _segments(self) -> tuple[np.ndarray, np.ndarray]:
+        dt = np.diff(self.t_s)
+        d = np.hypot(*np.diff(self.xy_enu_m, axis=0).T)
+        return dt, np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
+
+    def _segment_index(self, t: np.ndarray) -> np.ndarray:
+        """Index i of the segment [t_i, t_i+1] holding each t (clipped to the ends)."""
+        if len(self.t_s) < 2:
+            return np.zeros(t.shape, dtype=int)
+        return np.clip(np.searchsorted(self.t_s, t, side="right") - 1, 0, len(self.t_s) - 2)
+
+    def planned_position_at(self, t_s: np.ndarray | float) -> np.ndarray:
+        """Planned positions (..., 2) at times ``t_s`` (...,)."""
+        t = np.asarray(t_s, dtype=float)
+        if len(self.t_s) == 1:
+            return np.broadcast_to(self.xy_enu_m[0], t.shape + (2,)).copy()
+        i = self._segment_index(t)
+        t0, t1 = self.t_s[i], self.t_s[i + 1]
+        span = t1 - t0
+        u = np.clip(np.where(span > 0, (t - t0) / np.where(span > 0, span, 1.0), 1.0), 0.0, 1.0)
+        p0, p1 = self.xy_enu_m[i], self.xy_enu_m[i + 1]
+        return p0 + (p1 - p0) * u[..., None]
+
+    def planned_speed_at(self, t_s: np.ndarray | float) -> np.ndarray:
+        """Speed (...,) of the plan itself at ``t_s``: 0 while waiting and outside the route."""
+        t = np.asarray(t_s, dtype=float)
+        if len(self.t_s) == 1:
+            return np.zeros(t.shape)
+        _, v = self._segments()
+        inside = (t >= self.t_s[0]) & (t < self.t_s[-1])
+        return np.where(inside, v[self._segment_index(t)], 0.0)
+
+    def is_waiting_at(self, t_s: np.ndarray | float) -> np.ndarray:
+        """Whether the plan holds the vehicle still at ``t_s`` (before departure included, after
+        arrival excluded: an arrived vehicle is done, not waiting)."""
+        t = np.asarray(t_s, dtype=float)
+        return (self.planned_speed_at(t) < _WAIT_SPEED_M_S) & (t < self.arrival_s)
+
+    def target_speed_at(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, max_speed_m_s: float,
+                        lookahead_s: float = 5.0) -> np.ndarray:
+        """The speed (...,) that takes a vehicle at ``xy_enu_m`` (..., 2) to where the plan will be
+        ``lookahead_s`` later, capped at ``max_speed_m_s``: cruise when it lags, slower when it is
+        ahead, 0 when it is already where a scheduled wait holds it."""
+        xy = np.asarray(xy_enu_m, dtype=float)
+        ahead = self.planned_position_at(np.asarray(t_s, dtype=float) + lookahead_s)
+        return np.minimum(np.hypot(*(ahead - xy).T).T / lookahead_s, max_speed_m_s)
+
+
+def forecast(vehicle: str, route_enu_m: np.ndarray, speed_m_s: float, hold_s: float = 0.0,
+             start_s: float = 0.0) -> TimedRoute:
+    """A vehicle flying ``route_enu_m`` (M, 2) at constant ``speed_m_s`` after holding ``hold_s``
+    at its first point (the forecast of a higher-priority vehicle)."""
+    if not speed_m_s > 0:
+        raise PlanningError(f"forecast of {vehicle!r}: speed must be positive, got {speed_m_s!r}")
+    if not hold_s >= 0:
+        raise PlanningError(f"forecast of {vehicle!r}: hold must be >= 0 s, got {hold_s!r}")
+    p = np.asarray(route_enu_m, dtype=float).reshape(-1, 2)
+    t = start_s + hold_s + np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))]) / speed_m_s
+    if hold_s > 0:
+        p, t = np.vstack([p[:1], p]), np.concatenate([[start_s], t])
+    return TimedRoute(vehicle, t, p)

@@ -1,0 +1,189 @@
+"""Coordinated timing: timed routes, sight shadows, the space-time plan, the detour's priority rule."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from uav_model.mission import load_mission, mission_from_data
+from companion.planning.coordination import Blocking, plan_coordinated
+from companion.planning.errors import NoPath
+from companion.planning.grid import rasterise
+from companion.planning.metrics import TruthGeometry, pair_min_distance
+from companion.planning.routes import detour_route, plan_routes
+from companion.planning.shadow import SightShadows
+from companion.planning.spacetime import step_model
+from companion.planning.timed import TimedRoute, forecast
+from world_strategies import worlds
+
+REFERENCE = Path(__file__).resolve().parents[2] / "missions" / "paper_reference.yaml"
+
+
+# --- timed routes -------------------------------------------------------------------------------
+
+def test_forecast_holds_then_cruises_and_parks():
+    route = forecast("a", np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 50.0]]), speed_m_s=10.0, hold_s=20.0)
+    assert route.departure_s == 20.0 and route.arrival_s == pytest.approx(35.0)
+    t = np.array([-5.0, 0.0, 10.0, 25.0, 30.0, 32.5, 35.0, 99.0])
+    np.testing.assert_allclose(route.planned_position_at(t),
+                               [[0, 0], [0, 0], [0, 0], [50, 0], [100, 0], [100, 25], [100, 50], [100, 50]])
+    np.testing.assert_allclose(route.planned_speed_at(t), [0, 0, 0, 10, 10, 10, 0, 0])
+    assert list(route.is_waiting_at(t)) == [True, True, True, False, False, False, False, False]
+    assert route.wait_s == 0.0  # the hold is before departure, not a wait on the way
+
+
+def test_target_speed_catches_up_and_waits_where_the_plan_waits():
+    route = TimedRoute("b", np.array([0.0, 10.0, 30.0, 40.0]),
+                       np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 0.0], [200.0, 0.0]]))
+    assert route.wait_s == 20.0
+    xy = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 0.0], [150.0, 0.0]])
+    speed = route.target_speed_at(xy, np.array([0.0, 12.0, 26.0, 35.0]), max_speed_m_s=10.0)
+    np.testing.assert_allclose(speed, [10.0, 0.0, 2.0, 10.0])  # lagging: cruise; waiting: 0, then a ramp
+    assert np.all(speed <= 10.0)
+
+
+# --- sight shadows ------------------------------------------------------------------------------
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(worlds(1, 4), st.tuples(st.floats(0.0, 1000.0), st.floats(0.0, 1000.0)))
+def test_shadow_masks_agree_with_the_metric_sight_test(world, p):
+    grid = rasterise(world, 40.0)
+    assume(not any(o.footprint.contains(shapely.Point(p)) for o in world.obstacles))
+    mask = SightShadows(world, grid).blocked_from(p)
+    xs, ys = grid.cell_centres()
+    qx, qy = np.meshgrid(xs, ys)
+    truth = TruthGeometry(world).sight_blocked(qx.ravel(), qy.ravel(), np.full(qx.size, p[0]),
+                                               np.full(qx.size, p[1]), np.zeros(qx.size))
+    disagree = np.flatnonzero(mask.ravel() != truth)
+    # The metric tests circles exactly and polygons with shapely; the only allowed differences
+    # are grazing segments, within a millimetre of an obstacle's outline.
+    for i in disagree:
+        seg = shapely.LineString([(qx.flat[i], qy.flat[i]), p])
+        assert min(seg.distance(o.footprint.exterior) for o in world.obstacles) < 1e-3
+
+
+# --- the space-time plan ------------------------------------------------------------------------
+
+def _check_plan(mission, plan, sample_s: float = 0.5) -> dict:
+    """Independent checks of the timed routes, sampled every ``sample_s``: separation (exact
+    between samples), static clearance to the inflated obstacles, speed."""
+    end = max(r.arrival_s for r in plan.timed.values())
+    t = np.arange(0.0, end + sample_s, sample_s)
+    xy = {n: r.planned_position_at(t) for n, r in plan.timed.items()}
+    names = list(xy)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            pa, pb = xy[a], xy[b]
+            d = pair_min_distance(pa[:-1, 0], pa[:-1, 1], pa[1:, 0], pa[1:, 1], pb[:-1, 0], pb[:-1, 1], pb[1:, 0], pb[1:, 1])
+            assert d.min() >= mission.safety.min_separation_m, (a, b, d.min())
+    truth = TruthGeometry(mission.world)
+    for n, p in xy.items():
+        clear = truth.segment_clearance_m(p[:-1, 0], p[:-1, 1], p[1:, 0], p[1:, 1], t[:-1], t[1:])
+        margin = min(o.margin_m for o in mission.world.static_obstacles)
+        assert clear.min() >= margin - 1e-6, n
+        v = mission.vehicle(n)
+        # exact stations replace cell centres at the ends: at most half a cell diagonal faster
+        step = plan.step_s[n] or math.inf  # 0 for the first vehicle: it flies its forecast
+        assert plan.timed[n].planned_speed_at(t).max() <= v.speed_m_s + 8.0 / step + 1e-9
+    return xy
+
+
+@pytest.fixture(scope="module")
+def reference():
+    mission = load_mission(REFERENCE)
+    return mission, plan_routes(mission)
+
+
+def test_reference_plan_with_a_hold_keeps_the_line_blocked_the_whole_flight(reference):
+    mission, routes = reference
+    mission = replace(mission, coordination=replace(mission.coordination, hold_s_max=200.0))
+    plan = plan_coordinated(mission, routes)
+    assert plan.blocking["b"] is Blocking.WHOLE_FLIGHT and 100.0 < plan.hold_s <= 200.0
+    xy = _check_plan(mission, plan)
+    t = np.arange(0.0, len(xy["a"])) * 0.5
+    blocked = TruthGeometry(mission.world).sight_blocked(xy["a"][:, 0], xy["a"][:, 1], xy["b"][:, 0], xy["b"][:, 1], t)
+    assert blocked.mean() >= 0.99
+    a, b = plan.timed["a"], plan.timed["b"]
+    assert a.departure_s == pytest.approx(plan.hold_s)
+    assert b.arrival_s <= 1.25 * 473.8  # b needs no detour to wait for a: a waited
+
+
+def test_reference_plan_under_the_papers_rule_says_what_it_could_not_do(reference):
+    mission, routes = reference  # a never waits: the certificate says the line cannot be kept blocked
+    plan = plan_coordinated(mission, routes)
+    assert plan.hold_s == 0.0 and plan.blocking["b"] is Blocking.NONE and plan.planned["b"]
+    _check_plan(mission, plan)
+
+
+def _four_vehicles(seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    side = 600.0
+    obstacles = [{"id": f"o{i}", "shape": "circle", "center": [float(x), float(y)], "radius_m": float(r)}
+                 for i, (x, y, r) in enumerate(zip(rng.uniform(200, 400, 3), rng.uniform(200, 400, 3),
+                                                    rng.uniform(30, 70, 3)))]
+    stations = {"A": [20.0, 20.0], "B": [580.0, 580.0], "C": [20.0, 580.0], "D": [580.0, 20.0]}
+    pairs = [("A", "B"), ("B", "A"), ("C", "D"), ("D", "C")]
+    return {"name": f"four-{seed}", "area": {"x_min_m": 0, "y_min_m": 0, "x_max_m": side, "y_max_m": side},
+            "stations": stations, "obstacles": obstacles,
+            "vehicles": [{"name": f"v{i}", "start": s, "goal": g, "speed_m_s": 10.0, "priority": i}
+                         for i, (s, g) in enumerate(pairs)],
+            "planner": {"grid_resolution_m": 10.0}, "safety": {"min_separation_m": 50.0, "time_limit_s": 400.0},
+            "coordination": {"hold_s_max": 60.0}}
+
+
+@pytest.mark.parametrize("seed", [3, 11])
+def test_four_vehicles_every_pair_keeps_its_separation(seed):
+    mission = mission_from_data(_four_vehicles(seed))
+    try:
+        routes = plan_routes(mission)
+    except NoPath:
+        pytest.skip("the generated world walls a station in")
+    plan = plan_coordinated(mission, routes)
+    assert set(plan.timed) == {"v0", "v1", "v2", "v3"} and all(plan.planned.values())
+    _check_plan(mission, plan)
+    for name, route in plan.timed.items():
+        v = mission.vehicle(name)
+        np.testing.assert_allclose(route.xy_enu_m[0], v.start_enu_m)
+        np.testing.assert_allclose(route.xy_enu_m[-1], v.goal_enu_m)
+
+
+def test_step_model_is_never_faster_than_cruise():
+    for n_cells in range(1, 12):
+        m = step_model(10.0, 10.0, n_cells * 1.0, 50.0, 10.0)
+        n, k = len(m.moves), m.moves.count(8)
+        assert m.moves == m.moves[::-1]
+        assert math.hypot(n, k) * 10.0 / m.step_s == pytest.approx(10.0)  # the octagon's far corner
+        assert (n + k) / math.sqrt(2.0) <= math.hypot(n, k) + 1e-9        # its diagonal is no farther
+        assert m.min_distance_m >= 50.0
+
+
+# --- the detour keeps the priority rule first ---------------------------------------------------
+
+def test_detour_after_a_stall_keeps_to_the_lower_vehicles_side(reference):
+    mission, routes = reference
+    a_route = routes["a"]
+    grid = rasterise(mission.world, mission.planner.grid_resolution_m)
+    start, goal = np.array([0.0, 0.0]), np.array([3181.98, 3181.98])
+    u = (goal - start) / np.linalg.norm(goal - start)
+    n = np.array([-u[1], u[0]])
+    a_side = np.sign(np.median((a_route.sparse_enu_m - start) @ n))
+    here = tuple(np.array([707.11, 707.11]) + 1500.0 * u + 40.0 * a_side * n)  # just on a's side of A-B
+
+    def side_of(route):
+        far = np.hypot(*(route - np.array(here)).T) > 100.0
+        far &= np.hypot(*(route - start).T) > 100.0
+        return np.sign((route[far] - start) @ n)
+
+    free = detour_route(grid, mission.world, here, tuple(start), sparse=False)
+    assert np.any(side_of(free) == a_side)  # without the rule the shorter way is a's side
+    kept = detour_route(grid, mission.world, here, tuple(start), sparse=False, earlier=[a_route],
+                        separation_m=mission.safety.min_separation_m)
+    assert np.all(side_of(kept) == -a_side)
+    assert tuple(kept[0]) == here and np.allclose(kept[-1], start)
