@@ -59,6 +59,7 @@ class Solution:
     cells: list[tuple[int, int]]
     step_s: float
     blocking: Blocking
+    t0_s: float = 0.0  # mission time of step 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,7 +90,7 @@ def solve(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.0) 
     arrive = None if stay is None else earliest_arrival(problem, layers, stay)
     if arrive is None:
         return None
-    return Solution(backtrack(problem, layers, problem.goal, arrive, 0), problem.model.step_s, blocking)
+    return Solution(backtrack(problem, layers, problem.goal, arrive, 0), problem.model.step_s, blocking, problem.t0_s)
 
 
 def feasible(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.0) -> bool:
@@ -163,7 +164,7 @@ def _solve_near(problem: SpaceTimeProblem, margin_m: float) -> Solution | None:
         raise AssertionError("closest-approach witness does not reach the goal")
     tail = backtrack(problem, after, problem.goal, arrive, k_star)
     head = backtrack(problem, fwd, cell, k_star, 0)
-    return Solution(head + tail[1:], problem.model.step_s, Blocking.CLOSEST_APPROACH)
+    return Solution(head + tail[1:], problem.model.step_s, Blocking.CLOSEST_APPROACH, problem.t0_s)
 
 
 def to_timed(name: str, grid: OccupancyGrid, solution: Solution, start_xy, goal_xy) -> TimedRoute:
@@ -175,7 +176,7 @@ def to_timed(name: str, grid: OccupancyGrid, solution: Solution, start_xy, goal_
     xy[np.cumprod(same_start).astype(bool)] = start_xy
     same_goal = np.all(np.array(solution.cells) == solution.cells[-1], axis=1)
     xy[np.cumprod(same_goal[::-1]).astype(bool)[::-1]] = goal_xy
-    t = np.arange(len(xy)) * solution.step_s
+    t = solution.t0_s + np.arange(len(xy)) * solution.step_s
     keep = np.ones(len(xy), dtype=bool)
     if len(xy) > 2:
         mid = (xy[:-2] + xy[2:]) / 2.0  # equal steps: a point on a constant-velocity run is the mean
@@ -184,13 +185,38 @@ def to_timed(name: str, grid: OccupancyGrid, solution: Solution, start_xy, goal_
 
 
 def problem_for(mission: "Mission", grid: OccupancyGrid, shadows: SightShadows, name: str,
-                others: tuple[TimedRoute, ...], fastest_other_m_s: float, memo: dict | None = None) -> SpaceTimeProblem:
-    """Vehicle ``name`` against ``others``; ``memo`` shares masks between problems on ``grid``."""
+                others: tuple[TimedRoute, ...], fastest_other_m_s: float, memo: dict | None = None, *,
+                from_xy: tuple[float, float] | None = None, t0_s: float = 0.0) -> SpaceTimeProblem:
+    """Vehicle ``name`` against ``others``; ``memo`` shares masks between problems on ``grid``.
+    A re-plan starts at ``from_xy`` at mission time ``t0_s`` (default: its station at 0)."""
     v = mission.vehicle(name)
     c = mission.coordination
     model = step_model(grid.resolution_m, v.speed_m_s, c.step_s, mission.safety.min_separation_m, fastest_other_m_s)
-    return SpaceTimeProblem(grid, shadows, model, v.start_enu_m, v.goal_enu_m, others,
-                            mission.safety.time_limit_s, memo)
+    start = v.start_enu_m if from_xy is None else (float(from_xy[0]), float(from_xy[1]))
+    return SpaceTimeProblem(grid, shadows, model, start, v.goal_enu_m, others,
+                            mission.safety.time_limit_s, memo, t0_s)
+
+
+def plan_vehicle(mission: "Mission", name: str, others: tuple[TimedRoute, ...], grid: OccupancyGrid,
+                 shadows: SightShadows, memo: dict | None = None, *, from_xy: tuple[float, float] | None = None,
+                 t0_s: float = 0.0) -> tuple[TimedRoute, Blocking, float] | None:
+    """One lower-priority vehicle against ``others`` (forecasts of the vehicles above it), the
+    strictest rule first: (timed route, rule kept, step s), or None when not even separation can
+    be planned. Before flight it starts at its station at 0; a re-plan (it strayed from its
+    plan, or one above it did: re-forecast them with :func:`timed.forecast_from`) starts at
+    ``from_xy`` at ``t0_s``."""
+    fastest = max((mission.vehicle(o.vehicle).speed_m_s for o in others), default=0.0)
+    problem = problem_for(mission, grid, shadows, name, others, fastest, memo, from_xy=from_xy, t0_s=t0_s)
+    margin = near_margin_m(mission, name, fastest)
+    ladder = [(Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
+              (Blocking.CLOSEST_APPROACH, 0.0), (Blocking.NONE, 0.0)]
+    v = mission.vehicle(name)
+    start = v.start_enu_m if from_xy is None else from_xy
+    for level, margin_m in ladder:
+        sol = solve(problem, level, margin_m)
+        if sol is not None:
+            return to_timed(name, grid, sol, start, v.goal_enu_m), level, problem.model.step_s
+    return None
 
 
 def near_margin_m(mission: "Mission", name: str, fastest_other_m_s: float) -> float:
@@ -229,20 +255,11 @@ def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: 
     planned = {top.name: True}
     steps = {top.name: 0.0}
     for v in order[1:]:
-        others = tuple(timed.values())
-        fastest = max(mission.vehicle(o.vehicle).speed_m_s for o in others)
-        problem = problem_for(mission, grid, shadows, v.name, others, fastest, memo)
-        steps[v.name] = problem.model.step_s
-        margin = near_margin_m(mission, v.name, fastest)
-        ladder = [(Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
-                  (Blocking.CLOSEST_APPROACH, 0.0), (Blocking.NONE, 0.0)]
-        for level, margin_m in ladder:
-            sol = solve(problem, level, margin_m)
-            if sol is not None:
-                timed[v.name] = to_timed(v.name, grid, sol, v.start_enu_m, v.goal_enu_m)
-                blocking[v.name], planned[v.name] = level, True
-                break
+        found = plan_vehicle(mission, v.name, tuple(timed.values()), grid, shadows, memo)
+        if found is not None:
+            timed[v.name], blocking[v.name], steps[v.name] = found
+            planned[v.name] = True
         else:
             timed[v.name] = forecast(v.name, routes[v.name].sparse_enu_m, v.speed_m_s)
-            blocking[v.name], planned[v.name] = Blocking.NONE, False
+            blocking[v.name], planned[v.name], steps[v.name] = Blocking.NONE, False, 0.0
     return CoordinatedPlan(hold_s, steps, timed, blocking, planned)

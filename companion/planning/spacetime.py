@@ -89,7 +89,7 @@ class SpaceTimeProblem:
 
     def __init__(self, grid: OccupancyGrid, shadows: SightShadows, model: StepModel,
                  start_xy: tuple[float, float], goal_xy: tuple[float, float],
-                 others: tuple[TimedRoute, ...], horizon_s: float, memo: dict | None = None):
+                 others: tuple[TimedRoute, ...], horizon_s: float, memo: dict | None = None, t0_s: float = 0.0):
         self.grid = grid
         self.shadows = shadows
         self.model = model
@@ -102,9 +102,10 @@ class SpaceTimeProblem:
         self.free_bits = bitgrid.pack(free)
         self.nx = free.shape[1]
         self.others = others
-        self.horizon = max(1, int(horizon_s // model.step_s))
-        settled_s = max((o.arrival_s for o in others), default=0.0)
-        self.settled = min(self.horizon, math.ceil(settled_s / model.step_s))  # allowed is fixed from here
+        self.t0_s = t0_s  # step 0 is this mission time (a re-plan starts mid-flight)
+        self.horizon = max(1, int((horizon_s - t0_s) // model.step_s))
+        settled_s = max((o.arrival_s for o in others), default=t0_s)
+        self.settled = min(self.horizon, max(0, math.ceil((settled_s - t0_s) / model.step_s)))  # allowed is fixed from here
         xs, ys = grid.cell_centres()
         self._xs, self._ys = xs, ys
         self._qx, self._qy = xs[None, :], ys[:, None]
@@ -112,7 +113,7 @@ class SpaceTimeProblem:
         self._positions = [self._positions_at(k) for k in range(self.settled + 1)]
 
     def _positions_at(self, k: int) -> list[tuple[float, float]]:
-        t = k * self.model.step_s
+        t = self.t0_s + k * self.model.step_s
         return [(round(float(x), 6), round(float(y), 6)) for x, y in (o.planned_position_at(t) for o in self.others)]
 
     def positions(self, k: int) -> list[tuple[float, float]]:

@@ -127,3 +127,21 @@ def forecast(vehicle: str, route_enu_m: np.ndarray, speed_m_s: float, hold_s: fl
     if hold_s > 0:
         p, t = np.vstack([p[:1], p]), np.concatenate([[start_s], t])
     return TimedRoute(vehicle, t, p)
+
+
+def forecast_from(vehicle: str, route_enu_m: np.ndarray, xy_enu_m: tuple[float, float], t_s: float,
+                  speed_m_s: float) -> TimedRoute:
+    """A vehicle seen at ``xy_enu_m`` at time ``t_s`` flying the rest of ``route_enu_m`` at
+    ``speed_m_s``: from its nearest point on the route (a re-forecast of a higher-priority vehicle
+    that strayed from its plan)."""
+    p = np.asarray(route_enu_m, dtype=float).reshape(-1, 2)
+    here = np.asarray(xy_enu_m, dtype=float)
+    if len(p) < 2:
+        return forecast(vehicle, np.vstack([here, p]), speed_m_s, start_s=t_s)
+    a, d = p[:-1], np.diff(p, axis=0)
+    len2 = np.einsum("ij,ij->i", d, d)
+    u = np.clip(np.einsum("ij,ij->i", here - a, d) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
+    foot = a + d * u[:, None]
+    i = int(np.argmin(np.hypot(*(foot - here).T)))
+    rest = np.vstack([here, foot[i], p[i + 1:]])
+    return forecast(vehicle, rest, speed_m_s, start_s=t_s)

@@ -13,14 +13,14 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from uav_model.mission import load_mission, mission_from_data
-from companion.planning.coordination import Blocking, plan_coordinated
+from companion.planning.coordination import Blocking, plan_coordinated, plan_vehicle
 from companion.planning.errors import NoPath
 from companion.planning.grid import rasterise
 from companion.planning.metrics import TruthGeometry, pair_min_distance
 from companion.planning.routes import detour_route, plan_routes
 from companion.planning.shadow import SightShadows
 from companion.planning.spacetime import step_model
-from companion.planning.timed import TimedRoute, forecast
+from companion.planning.timed import TimedRoute, forecast, forecast_from
 from world_strategies import worlds
 
 REFERENCE = Path(__file__).resolve().parents[2] / "missions" / "paper_reference.yaml"
@@ -37,6 +37,13 @@ def test_forecast_holds_then_cruises_and_parks():
     np.testing.assert_allclose(route.planned_speed_at(t), [0, 0, 0, 10, 10, 10, 0, 0])
     assert list(route.is_waiting_at(t)) == [True, True, True, False, False, False, False, False]
     assert route.wait_s == 0.0  # the hold is before departure, not a wait on the way
+
+
+def test_forecast_from_where_a_vehicle_strayed_flies_the_rest_of_its_route():
+    route = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 100.0]])
+    f = forecast_from("a", route, (60.0, 10.0), 30.0, speed_m_s=10.0)
+    np.testing.assert_allclose(f.planned_position_at(np.array([30.0, 31.0, 35.0, 49.0, 200.0])),
+                               [[60, 10], [60, 0], [100, 0], [100, 100], [100, 100]])
 
 
 def test_target_speed_catches_up_and_waits_where_the_plan_waits():
@@ -113,6 +120,23 @@ def test_reference_plan_with_a_hold_keeps_the_line_blocked_the_whole_flight(refe
     a, b = plan.timed["a"], plan.timed["b"]
     assert a.departure_s == pytest.approx(plan.hold_s)
     assert b.arrival_s <= 1.25 * 473.8  # b needs no detour to wait for a: a waited
+
+
+def test_reference_replan_mid_flight_from_where_the_vehicle_strayed(reference):
+    mission, routes = reference
+    mission = replace(mission, coordination=replace(mission.coordination, hold_s_max=200.0))
+    plan = plan_coordinated(mission, routes)
+    grid = rasterise(mission.world, mission.planner.grid_resolution_m)
+    strayed = tuple(plan.timed["b"].planned_position_at(120.0) + np.array([40.0, -30.0]))
+    found = plan_vehicle(mission, "b", (plan.timed["a"],), grid, SightShadows(mission.world, grid),
+                         from_xy=strayed, t0_s=120.0)
+    assert found is not None
+    timed, kept, _ = found
+    assert kept is Blocking.WHOLE_FLIGHT
+    assert timed.t_s[0] == 120.0 and tuple(timed.xy_enu_m[0]) == strayed
+    t = np.arange(120.0, max(timed.arrival_s, plan.timed["a"].arrival_s), 0.5)
+    pa, pb = plan.timed["a"].planned_position_at(t), timed.planned_position_at(t)
+    assert TruthGeometry(mission.world).sight_blocked(pa[:, 0], pa[:, 1], pb[:, 0], pb[:, 1], t).mean() >= 0.99
 
 
 def test_reference_plan_under_the_papers_rule_says_what_it_could_not_do(reference):
