@@ -80,17 +80,24 @@ def solve(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.0) 
     imperfectly tracked) paths falls on a blocked stretch too."""
     if blocking is Blocking.CLOSEST_APPROACH:
         return _solve_near(problem, margin_m)
+    found = _earliest(problem, blocking)
+    if found is None:
+        return None
+    layers, arrive = found
+    return Solution(backtrack(problem, layers, problem.goal, arrive, 0), problem.model.step_s, blocking, problem.t0_s)
+
+
+def _earliest(problem: SpaceTimeProblem, blocking: Blocking) -> tuple[Layers, int] | None:
+    """Forward layers up to the earliest arrival under a per-instant rule, and that step."""
     rule = SightRule.BLOCKED if blocking is Blocking.WHOLE_FLIGHT else SightRule.FREE
     table = allowed_table(problem, rule)
     start = problem.cell_mask(problem.start) & table[0]
     if not start.any():
         return None
-    layers = forward(problem, table, start, 0)
+    layers = forward(problem, table, start, 0, stop_at_arrival=True)
     stay = None if layers.empty else stay_from(problem, table)
     arrive = None if stay is None else earliest_arrival(problem, layers, stay)
-    if arrive is None:
-        return None
-    return Solution(backtrack(problem, layers, problem.goal, arrive, 0), problem.model.step_s, blocking, problem.t0_s)
+    return None if arrive is None else (layers, arrive)
 
 
 def feasible(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.0) -> bool:
@@ -98,14 +105,7 @@ def feasible(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.
     :func:`solve`."""
     if blocking is Blocking.CLOSEST_APPROACH:
         return _near_witness(problem, margin_m) is not None
-    rule = SightRule.BLOCKED if blocking is Blocking.WHOLE_FLIGHT else SightRule.FREE
-    table = allowed_table(problem, rule)
-    start = problem.cell_mask(problem.start) & table[0]
-    if not start.any():
-        return False
-    layers = forward(problem, table, start, 0)
-    stay = None if layers.empty else stay_from(problem, table)
-    return stay is not None and earliest_arrival(problem, layers, stay) is not None
+    return _earliest(problem, blocking) is not None
 
 
 def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[AllowedTable, Layers, tuple[int, int], int] | None:
@@ -158,7 +158,7 @@ def _solve_near(problem: SpaceTimeProblem, margin_m: float) -> Solution | None:
     table, fwd, cell, k_star = witness
     stay = stay_from(problem, table)
     seed = problem.cell_mask(cell)
-    after = forward(problem, table, seed, k_star)
+    after = forward(problem, table, seed, k_star, stop_at_arrival=True)
     arrive = earliest_arrival(problem, after, max(stay, k_star))
     if arrive is None:  # s* is on a full path, so the goal is reachable from it
         raise AssertionError("closest-approach witness does not reach the goal")

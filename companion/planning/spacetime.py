@@ -199,9 +199,12 @@ class Layers:
         return not self.head[-1].any()
 
 
-def forward(problem: SpaceTimeProblem, allowed: "AllowedTable", seed: np.ndarray, k0: int) -> Layers:
-    """F[k] for k = k0..horizon from ``seed`` (already allowed at k0)."""
+def forward(problem: SpaceTimeProblem, allowed: "AllowedTable", seed: np.ndarray, k0: int,
+            stop_at_arrival: bool = False) -> Layers:
+    """F[k] for k = k0..horizon from ``seed`` (already allowed at k0). With ``stop_at_arrival``
+    it stops at the earliest arrival (the goal reached, and allowed from then on)."""
     masks = [seed]
+    stay: int | None = None
     for k in range(k0 + 1, problem.horizon + 1):
         nxt = problem.grow(masks[-1]) & allowed[k]
         if k > problem.settled and np.array_equal(nxt, masks[-1]):
@@ -209,6 +212,10 @@ def forward(problem: SpaceTimeProblem, allowed: "AllowedTable", seed: np.ndarray
         masks.append(nxt)
         if not nxt.any():
             break
+        if stop_at_arrival and problem.has(nxt, problem.goal):
+            stay = stay_from(problem, allowed) if stay is None else stay
+            if stay is not None and k >= stay:
+                break
     return Layers(k0, masks, problem.horizon)
 
 
