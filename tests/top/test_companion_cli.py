@@ -43,6 +43,7 @@ def test_validate_reports_routes_for_a_good_mission(capsys):
     assert main(["validate", str(REFERENCE)]) == 0
     out = capsys.readouterr().out
     assert "ok" in out and "a:" in out and "nodes" in out
+    assert "occlusion certificate (a never waits" in out and "at closest approach: infeasible under the rule" in out
 
 
 @pytest.mark.parametrize("connects, message", [
@@ -78,6 +79,9 @@ def test_plan_writes_routes_and_a_plot(tmp_path, capsys):
     a = doc["vehicles"]["a"]
     assert a["nodes_sparse"] == len(a["waypoints_enu_m"]) == len(a["waypoints_geodetic"])
     assert a["lower_bound_s"] == pytest.approx(473.8, abs=0.1)
+    cert = doc["occlusion_certificate"]
+    assert (cert["higher"], cert["lower"], cert["whole_flight"], cert["closest_approach"]) == ("a", "b", False, False)
+    assert 0 < cert["closest_approach_min_hold_s"] < cert["whole_flight_min_hold_s"]
     assert (tmp_path / "trajectory.png").stat().st_size > 10_000
 
 

@@ -28,6 +28,7 @@ def test_reference_mission_in_process_matches_the_headless_runner(tmp_path, caps
 
     summary = json.loads((out / "summary.json").read_text())
     assert summary["success"] and summary["live"]["connections"] == "in-process"
+    assert summary["occlusion_certificate"]["verdict"] == "needs-hold"  # a would have to hold (docs/design.md)
     headless = simulate(load_mission(REFERENCE)).summary
     for name in ("a", "b"):
         flown = summary["vehicles"][name]
