@@ -110,9 +110,10 @@ def feasible(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.
 
 def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[AllowedTable, Layers, tuple[int, int], int] | None:
     """(allowed table, forward layers, s* cell, s* step) for the D <- g(D) fixed point, or None."""
-    near = 0.0
+    near2 = 0.0  # D^2: squared throughout, so that a tie between two states stays a tie
     for _ in range(_MAX_NEAR_ROUNDS):
-        table = allowed_table(problem, SightRule.BLOCKED_WHEN_NEAR, near + margin_m)
+        table = allowed_table(problem, SightRule.BLOCKED_WHEN_NEAR,
+                              (math.sqrt(near2) + margin_m) ** 2 if margin_m else near2)
         start = problem.cell_mask(problem.start) & table[0]
         if not start.any():
             return None
@@ -124,16 +125,16 @@ def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[All
         best = _closest_blocked(problem, fwd, bwd)
         if best is None:
             return None
-        d, cell, k = best
-        if d <= near:
+        d2, cell, k = best
+        if d2 <= near2:
             return table, fwd, cell, k
-        near = d
+        near2 = d2
     raise RuntimeError(f"closest-approach search did not settle in {_MAX_NEAR_ROUNDS} rounds")
 
 
 def _closest_blocked(problem: SpaceTimeProblem, fwd: Layers, bwd: Layers) -> tuple[float, tuple[int, int], int] | None:
-    """The least distance to the nearest higher vehicle over states on a full path that are
-    blocked from all of them: (distance, cell, step), earliest step on ties."""
+    """The least squared distance to the nearest higher vehicle over states on a full path that are
+    blocked from all of them: (squared distance, cell, step), earliest step on ties."""
     steps = sorted(set(range(0, fwd.first + len(fwd.head) + 1)) | set(range(len(bwd.head) + 1))
                    | set(range(problem.horizon - len(bwd.tail), problem.horizon + 1)))
     best = None
@@ -146,8 +147,8 @@ def _closest_blocked(problem: SpaceTimeProblem, fwd: Layers, bwd: Layers) -> tup
         if not states.any():
             continue
         d2, cell = problem.nearest_d2(k, states)
-        if best is None or d2 < best[0] ** 2:
-            best = (math.sqrt(d2), cell, k)
+        if best is None or d2 < best[0]:
+            best = (d2, cell, k)
     return best
 
 

@@ -35,7 +35,7 @@ class SightRule(Enum):
     """What a step instant requires of the sight line to each higher-priority vehicle."""
 
     BLOCKED = "blocked"          # always blocked (the whole flight)
-    BLOCKED_WHEN_NEAR = "near"   # blocked whenever the distance is <= a threshold D
+    BLOCKED_WHEN_NEAR = "near"   # blocked whenever the squared distance is <= a threshold D^2
     FREE = "free"                # no requirement (separation only)
 
 
@@ -135,14 +135,16 @@ class SpaceTimeProblem:
     def distance2(self, xy: tuple[float, float]) -> np.ndarray:
         return (self._qx - xy[0]) ** 2 + (self._qy - xy[1]) ** 2
 
-    def allowed(self, k: int, rule: SightRule, near_m: float = math.inf) -> np.ndarray:
+    def allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf) -> np.ndarray:
+        """Packed cells allowed at step k; ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR
+        (squared, so that a tie with the distance it came from stays a tie)."""
         ok = self.free_bits.copy()
         for xy in self.positions(k):
             ok &= self.far_bits(xy)
             if rule is SightRule.BLOCKED:
                 ok &= self.shadow_bits(xy)
             elif rule is SightRule.BLOCKED_WHEN_NEAR:
-                ok &= self.shadow_bits(xy) | bitgrid.pack(self.distance2(xy) > near_m * near_m)
+                ok &= self.shadow_bits(xy) | bitgrid.pack(self.distance2(xy) > near2_m2)
         return ok
 
     def blocked_by_all(self, k: int) -> np.ndarray:
@@ -242,23 +244,23 @@ class AllowedTable:
     """allowed(k) under one rule, computed on first use (a dead forward pass never asks for
     the later steps); from ``settled`` on every step is the same."""
 
-    def __init__(self, problem: SpaceTimeProblem, rule: SightRule, near_m: float = math.inf):
-        self.problem, self.rule, self.near_m = problem, rule, near_m
+    def __init__(self, problem: SpaceTimeProblem, rule: SightRule, near2_m2: float = math.inf):
+        self.problem, self.rule, self.near2_m2 = problem, rule, near2_m2
         self._masks: dict[int, np.ndarray] = {}
 
     def __getitem__(self, k: int) -> np.ndarray:
         k = min(k, self.problem.settled)
         mask = self._masks.get(k)
         if mask is None:
-            mask = self._masks[k] = self.problem.allowed(k, self.rule, self.near_m)
+            mask = self._masks[k] = self.problem.allowed(k, self.rule, self.near2_m2)
         return mask
 
     def __len__(self) -> int:
         return self.problem.settled + 1
 
 
-def allowed_table(problem: SpaceTimeProblem, rule: SightRule, near_m: float = math.inf) -> AllowedTable:
-    return AllowedTable(problem, rule, near_m)
+def allowed_table(problem: SpaceTimeProblem, rule: SightRule, near2_m2: float = math.inf) -> AllowedTable:
+    return AllowedTable(problem, rule, near2_m2)
 
 
 def stay_from(problem: SpaceTimeProblem, table: AllowedTable) -> int | None:

@@ -73,6 +73,22 @@ def test_certificate_agrees_with_brute_force(case):
                                      and cert.closest_approach_min_hold_s <= limit)
 
 
+def test_an_open_instant_as_near_as_the_blocked_one_is_not_a_blocked_closest_approach():
+    """Found by the property test: the fast search compared a squared distance with the square of
+    its own square root, so an open state exactly as near as the blocked one slipped through."""
+    data = {"name": "tie", "area": {"x_min_m": 0, "y_min_m": 0, "x_max_m": 80, "y_max_m": 80, "geofence_margin_m": 0},
+            "stations": {"A": [3, 40], "B": [77, 40]},
+            "obstacles": [{"id": "o0", "shape": "polygon", "vertices": [[17, 38], [25, 25], [25, 10]]}],
+            "vehicles": [{"name": "a", "start": "A", "goal": "B"}, {"name": "b", "start": "B", "goal": "A"}],
+            "planner": {"grid_resolution_m": 10.0}, "safety": {"min_separation_m": 0.0, "time_limit_s": 30.0},
+            "coordination": {"step_s": 1.0}}
+    mission = mission_from_data(data)
+    routes = plan_routes(mission)
+    brute = BruteForce(mission, routes)
+    cert = certify(mission, routes, max_hold_s=6.0)
+    assert cert.closest_approach_min_hold_s == brute.least_hold(brute.closest_approach, 6.0) is None
+
+
 def test_reference_certificate_agrees_with_the_issues_independent_analysis():
     """Issue 10's own space-time check (10 m cells, 5 s steps): with a departing at t = 0 the line
     cannot be blocked at closest approach; a hold of about 75 s makes that feasible, about 150 s
