@@ -247,9 +247,14 @@ def write_mission_yaml(doc: dict[str, Any], path: str | Path) -> Path:
     """Write a scenario so that ``companion simulate`` / ``companion run`` can replay it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    header = f"# {doc['description']}\n" if doc.get("description") else ""
-    path.write_text(header + yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+    path.write_text(mission_yaml_text(doc), encoding="utf-8")
     return path
+
+
+def mission_yaml_text(doc: dict[str, Any]) -> str:
+    """The YAML text :func:`write_mission_yaml` writes (its description as a header comment)."""
+    header = f"# {doc['description']}\n" if doc.get("description") else ""
+    return header + yaml.safe_dump(doc, sort_keys=False)
 
 
 def config_dict(config: ScenarioConfig) -> dict[str, Any]:

@@ -6,7 +6,6 @@ Registered on the main parser by :func:`add_parser`; also runs as ``python -m co
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import platform
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import yaml
 
+from companion.bench.executors import CONNECT_TIMEOUT_S, ExecutorError, ExecutorKind, ExecutorSpec
 from uav_model.mission import VARIANTS
 
 DEFAULT_VARIANTS = ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa")
@@ -51,18 +51,31 @@ def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=2026, help="scenario seed (default 2026)")
     parser.add_argument("--variants", type=_variant_list, default=DEFAULT_VARIANTS, metavar="V[,V...]",
                         help=f"comma-separated planner variants (default {','.join(DEFAULT_VARIANTS)})")
-    parser.add_argument("--workers", type=_positive_int, default=None, metavar="N",
-                        help="worker processes (default: os.cpu_count(); 1 runs in-process)")
     parser.add_argument("--out", type=Path, default=None, metavar="DIR",
                         help="output directory (default bench_s<seed>_n<N>)")
-    parser.add_argument("--scenario-config", type=Path, default=None, metavar="FILE",
-                        help="YAML mapping overriding the generator defaults (companion.scenarios.ScenarioConfig)")
-    parser.add_argument("--plant", choices=("multicopter", "unicycle"), default=None,
-                        help="the scenarios' dynamics (default: the scenario config's, multicopter); "
-                             "unicycle is the paper's ideal vehicle, for its Table IV")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_common_arguments(parser)
     parser.set_defaults(handler=main)
     return parser
+
+
+def add_common_arguments(parser: argparse.ArgumentParser) -> None:
+    """Where the runs execute, the generator config and the progress bar (bench and sweep)."""
+    parser.add_argument("--executor", choices=[k.value for k in ExecutorKind], default="local",
+                        help="local: a process pool on this machine (default); dask: a Dask cluster")
+    parser.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                        help="local processes, or the workers of a local Dask cluster (default: os.cpu_count(); "
+                             "local 1 runs in-process)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="with --executor dask: an existing scheduler, e.g. tcp://10.0.0.5:8786 "
+                             f"(connect timeout {CONNECT_TIMEOUT_S:g} s)")
+    parser.add_argument("--scenario-config", type=Path, default=None, metavar="FILE",
+                        help="YAML mapping overriding the generator defaults (companion.scenarios.ScenarioConfig)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def executor_spec(args: argparse.Namespace) -> ExecutorSpec:
+    """The executor the options name (:class:`ExecutorError` when they contradict each other)."""
+    return ExecutorSpec(ExecutorKind(args.executor), workers=args.workers, scheduler=args.scheduler)
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -77,7 +90,15 @@ class BadInput(Exception):
     """Bench input that cannot be used; ``str()`` is the one line shown to the user."""
 
 
-def _scenario_config(path: Path | None):
+def make_out_dir(out: Path) -> Path:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BadInput(f"cannot create output directory {out}: {exc.strerror}") from None
+    return out
+
+
+def scenario_config(path: Path | None):
     from companion.scenarios import ScenarioConfig, ScenarioError
     if path is None:
         return ScenarioConfig()
@@ -99,40 +120,37 @@ def main(args: argparse.Namespace) -> int:
     (timeouts and holds are results, not errors)."""
     try:
         return _bench(args)
-    except BadInput as exc:
+    except (BadInput, ExecutorError) as exc:
         print(f"companion bench: {exc}", file=sys.stderr)
         return 2
 
 
 def _bench(args: argparse.Namespace) -> int:
     from companion.bench import execute, figures
+    from companion.bench.executors import open_pool
     from companion.bench.table import aggregate, format_table, markdown_table, write_runs_csv
     from companion.scenarios import config_dict
 
-    config = _scenario_config(args.scenario_config)
-    if args.plant is not None:
-        config = dataclasses.replace(config, plant=args.plant)
-    out = args.out or Path(f"bench_s{args.seed}_n{args.scenarios}")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise BadInput(f"cannot create output directory {out}: {exc.strerror}") from None
+    spec = executor_spec(args)
+    config = scenario_config(args.scenario_config)
+    out = make_out_dir(args.out or Path(f"bench_s{args.seed}_n{args.scenarios}"))
     execute.clear_failures(out)
-    workers = args.workers or os.cpu_count() or 1
-    started = time.perf_counter()
-    rows = execute.run_bench(args.seed, args.scenarios, args.variants, workers=workers, out_dir=out,
-                             config=config, progress=None if args.quiet else sys.stderr)
-    wall = time.perf_counter() - started
+    with open_pool(spec) as pool:
+        started = time.perf_counter()
+        rows = execute.run_bench(args.seed, args.scenarios, args.variants, pool=pool, out_dir=out,
+                                 config=config, progress=None if args.quiet else sys.stderr)
+        wall = time.perf_counter() - started
 
     summary = aggregate(rows)
     write_runs_csv(rows, out / "runs.csv")
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     (out / "table.md").write_text(markdown_table(summary) + "\n", encoding="utf-8")
     command = (f"companion bench --scenarios {args.scenarios} --seed {args.seed} "
-               f"--variants {','.join(args.variants)} --plant {config.plant} --workers {workers} --out {out}")
+               f"--variants {','.join(args.variants)} {spec.describe()} --out {out}")
     meta = {"command": command,
             "seed": args.seed, "scenarios": args.scenarios, "variants": list(args.variants),
-            "workers": workers, "wall_s": round(wall, 2), "cpu_count": os.cpu_count(),
+            "executor": pool.where, "workers": spec.workers or (None if spec.scheduler else os.cpu_count()),
+            "wall_s": round(wall, 2), "cpu_count": os.cpu_count(),
             "python": platform.python_version(), "scenario_config": config_dict(config)}
     (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     figures.save(figures.violin_figure(rows), out / "violin.png")
@@ -141,7 +159,7 @@ def _bench(args: argparse.Namespace) -> int:
 
     print(format_table(summary))
     print(f"\n{len(rows)} runs ({args.scenarios} scenarios x {len(args.variants)} variants, seed {args.seed}) "
-          f"in {wall:.1f} s wall on {workers} worker(s); results in {out}/")
+          f"in {wall:.1f} s wall on {pool.where}; results in {out}/")
     bad = sum(s["unsafe"] + s["reasons"].get("error", 0) for s in summary.values())
     if bad:
         print(f"companion bench: {bad} run(s) unsafe or errored; see {out}/failures/index.md", file=sys.stderr)

@@ -1,36 +1,41 @@
-"""Fly seeded scenarios x variants, headless, across processes; keep every failure replayable.
+"""Fly seeded scenarios x variants (x score weights) on any executor; keep every failure replayable.
 
-The unit of work is one scenario with all its variants: the scenario is generated once, and
-its A* routes (which the generator plans anyway to prove a static route exists) are reused by
-both A* variants, since routes do not depend on the variant. Every run is deterministic, so the
-rows are the same for any worker count; they are returned sorted by (index, variant).
+The unit of work is one scenario with all its runs: the scenario is generated once, and its A*
+routes (which the generator plans anyway to prove a static route exists) are reused by every A*
+run, since routes depend on neither the variant nor the score weights. Every run is
+deterministic, so the rows are the same for any executor and worker count; they are returned
+sorted by (index, variant, weights).
 
-A failed run leaves ``failures/<variant>_s<seed>_i<index>/`` with the scenario YAML (variant set,
-so ``companion simulate scenario.yaml`` replays it exactly), its summary.json and trajectory.png.
+Workers return what they made instead of writing it: a failed run's files (the scenario YAML with
+its variant and weights set, so ``companion simulate scenario.yaml`` replays it exactly, its
+summary.json and trajectory.png) travel back with the rows, and this process writes them under
+``failures/<run>/``. So the gallery is complete even when the workers are other machines.
 """
 
 from __future__ import annotations
 
-import contextlib
-import gc
+import io
 import json
-import os
 import shutil
 import sys
 import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
 from companion.bench.diagnose import diagnose, hold_ticks
+from companion.bench.executors import ExecutorError, ExecutorSpec, Pool, open_pool
 from companion.bench.table import run_row
+from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
+from companion.bench.weights import Weights
 from companion.planning.errors import NoPath
 from companion.planning.fusion import variant_needs_route
 from companion.planning.metrics import vehicle_lower_bound_s
 from companion.planning.runner import simulate
-from companion.scenarios import ScenarioConfig, ScenarioError, generate_scenario, with_variant, write_mission_yaml
+from companion.scenarios import (ScenarioConfig, ScenarioError, generate_scenario, mission_yaml_text,
+                                 with_variant)
 
 EXAMPLE_NAME = "trajectory_example.png"
 
@@ -43,66 +48,95 @@ class ScenarioTask:
     index: int
     variants: tuple[str, ...]
     config: ScenarioConfig = field(default_factory=ScenarioConfig)
-    out_dir: str | None = None  # None: write no files
-    example: bool = False  # also draw this scenario's first variant as the example trajectory
+    artefacts: bool = False  # return the failure gallery's files (and the example) with the rows
+    example: bool = False  # also draw this scenario's first run as the example trajectory
+    weight_sets: tuple[Weights | None, ...] = (None,)  # None: the mission's weights
+
+    def runs(self) -> Iterator[tuple[str, Weights | None]]:
+        for variant in self.variants:
+            for weights in self.weight_sets:
+                yield variant, weights
 
 
-def failure_dir_name(variant: str, seed: int, index: int) -> str:
-    return f"{variant}_s{seed}_i{index:03d}"
+@dataclass(frozen=True)
+class ScenarioOutcome:
+    """A worker's answer: one row per run, and the files to write (path relative to --out)."""
+
+    rows: list[dict[str, Any]]
+    files: tuple[tuple[str, bytes], ...] = ()
 
 
-def run_scenario(task: ScenarioTask) -> list[dict[str, Any]]:
-    """Generate one scenario and fly every variant of the task on it; one row per variant."""
+def failure_dir_name(variant: str, seed: int, index: int, weights: Weights | None = None) -> str:
+    tag = "" if weights is None else f"_{weights.tag}"
+    return f"{variant}{tag}_s{seed}_i{index:03d}"
+
+
+def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
+    """Generate one scenario and fly every run of the task on it; one row per run."""
     try:
         scenario = generate_scenario(task.seed, task.index, task.config)
     except ScenarioError as exc:
-        return [run_row(task.seed, task.index, f"random_s{task.seed}_i{task.index}", v, None,
-                        wall_s=0.0, reason="no_scenario", error=str(exc)) for v in task.variants]
-    rows = []
+        return ScenarioOutcome([_weighted(run_row(task.seed, task.index, f"random_s{task.seed}_i{task.index}", v,
+                                                  None, wall_s=0.0, reason="no_scenario", error=str(exc)), w)
+                                for v, w in task.runs()])
+    rows, files = [], []
     bounds = {v.name: vehicle_lower_bound_s(scenario.mission, v.name) for v in scenario.mission.vehicles}
-    for k, variant in enumerate(task.variants):
-        started = time.perf_counter()
-        result = None
-        try:
-            routes = scenario.routes if variant_needs_route(variant) else {}
-            result = simulate(scenario.mission, variant, routes=routes, lower_bounds_s=bounds)
-            summary = result.summary.summary_dict()
-            facts = {"hold_ticks": hold_ticks(result.ticks), **diagnose(result.mission, result.tracks, summary)}
-            row = run_row(task.seed, task.index, scenario.doc["name"], variant, summary,
-                          wall_s=time.perf_counter() - started, facts=facts)
-        except NoPath as exc:
-            row = run_row(task.seed, task.index, scenario.doc["name"], variant, None,
-                          wall_s=time.perf_counter() - started, reason="no_path", error=str(exc))
-        except Exception as exc:  # a bug in one run must not sink the other 479; it is reported
-            row = run_row(task.seed, task.index, scenario.doc["name"], variant, None,
-                          wall_s=time.perf_counter() - started, reason="error",
-                          error=f"{type(exc).__name__}: {exc}".splitlines()[0])
-        rows.append(row)
-        if task.out_dir is not None:
-            out = Path(task.out_dir)
-            if not row["success"]:
-                _write_failure(out / "failures" / failure_dir_name(variant, task.seed, task.index),
-                               scenario.doc, variant, row, result)
-            if task.example and k == 0 and result is not None:
-                _draw(out / EXAMPLE_NAME, result, f"{scenario.doc['name']} - {variant}")
-    return rows
+    for k, (variant, weights) in enumerate(task.runs()):
+        mission = scenario.mission if weights is None else weights.apply(scenario.mission)
+        routes = scenario.routes if variant_needs_route(variant) else {}
+        row, result = _fly(task, scenario.doc["name"], mission, variant, routes, bounds)
+        rows.append(_weighted(row, weights))
+        if not task.artefacts:
+            continue
+        if not row["success"]:
+            doc = with_variant(scenario.doc if weights is None else weights.apply_doc(scenario.doc), variant)
+            files += _failure_files(failure_dir_name(variant, task.seed, task.index, weights), doc, rows[-1], result)
+        if task.example and k == 0 and result is not None:
+            files.append((EXAMPLE_NAME, _png(result, f"{scenario.doc['name']} - {variant}")))
+    return ScenarioOutcome(rows, tuple(files))
 
 
-def _draw(path: Path, result: Any, title: str) -> None:
-    from companion.plots import save_trajectory  # matplotlib only where a figure is drawn
-    save_trajectory(path, result.mission, result.tracks, result.routes or None, title=title)
+def _weighted(row: dict[str, Any], weights: Weights | None) -> dict[str, Any]:
+    return row if weights is None else {**row, **weights.columns()}
 
 
-def _write_failure(folder: Path, doc: dict[str, Any], variant: str, row: dict[str, Any], result: Any) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    write_mission_yaml(with_variant(doc, variant), folder / "scenario.yaml")
+def _fly(task: ScenarioTask, name: str, mission: Any, variant: str, routes: dict,
+         bounds: dict) -> tuple[dict[str, Any], Any]:
+    """One run as a row (and its result, None when it did not fly)."""
+    started = time.perf_counter()
+    try:
+        result = simulate(mission, variant, routes=routes, lower_bounds_s=bounds)
+        summary = result.summary.summary_dict()
+        facts = {"hold_ticks": hold_ticks(result.ticks), **diagnose(result.mission, result.tracks, summary)}
+        return run_row(task.seed, task.index, name, variant, summary,
+                       wall_s=time.perf_counter() - started, facts=facts), result
+    except NoPath as exc:
+        return run_row(task.seed, task.index, name, variant, None, wall_s=time.perf_counter() - started,
+                       reason="no_path", error=str(exc)), None
+    except Exception as exc:  # a bug in one run must not sink the other 479; it is reported
+        return run_row(task.seed, task.index, name, variant, None, wall_s=time.perf_counter() - started,
+                       reason="error", error=f"{type(exc).__name__}: {exc}".splitlines()[0]), None
+
+
+def _png(result: Any, title: str) -> bytes:
+    from companion.plots import trajectory_figure  # matplotlib only where a figure is drawn
+    buffer = io.BytesIO()
+    trajectory_figure(result.mission, result.tracks, result.routes or None, title=title).savefig(buffer, format="png")
+    return buffer.getvalue()
+
+
+def _failure_files(name: str, doc: dict[str, Any], row: dict[str, Any], result: Any) -> list[tuple[str, bytes]]:
+    folder = f"failures/{name}"
     body = result.summary.summary_dict() if result is not None else {}
-    body = {"seed": row["seed"], "index": row["index"], "variant": variant, "reason": row["reason"],
-            "error": row.get("error"), **body}
-    (folder / "summary.json").write_text(json.dumps(body, indent=2) + "\n", encoding="utf-8")
+    body = {"seed": row["seed"], "index": row["index"], "variant": row["variant"], "reason": row["reason"],
+            "error": row.get("error"), **{k: row[k] for k in WEIGHT_COLUMNS if k in row},
+            **body}
+    files = [(f"{folder}/scenario.yaml", mission_yaml_text(doc).encode()),
+             (f"{folder}/summary.json", (json.dumps(body, indent=2) + "\n").encode())]
     if result is not None:
-        _draw(folder / "trajectory.png", result,
-              f"{doc['name']} - {variant}: {row['reason']} at {row.get('failure_t_s') or 0:.0f} s")
+        files.append((f"{folder}/trajectory.png", _png(
+            result, f"{doc['name']} - {row['variant']}: {row['reason']} at {row.get('failure_t_s') or 0:.0f} s")))
+    return files
 
 
 def clear_failures(out_dir: Path) -> None:
@@ -146,64 +180,76 @@ class Progress:
 
 
 def run_bench(seed: int, count: int, variants: Sequence[str], *, workers: int | None = None,
-              out_dir: str | Path | None = None, config: ScenarioConfig | None = None,
-              progress: TextIO | None = sys.stderr,
+              pool: Pool | None = None, out_dir: str | Path | None = None, config: ScenarioConfig | None = None,
+              progress: TextIO | None = sys.stderr, weight_sets: Sequence[Weights | None] = (None,),
               on_rows: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
-    """Fly scenarios 0..count-1 of ``seed`` with every variant; rows sorted by (index, variant).
+    """Fly scenarios 0..count-1 of ``seed`` with every variant (x weight set); rows sorted by
+    (index, variant, weight set), in the order given.
 
-    ``workers=1`` runs in this process (tests, profiling); more uses a process pool.
+    Runs on ``pool`` (see :func:`companion.bench.executors.open_pool`), else on a local pool of
+    ``workers`` processes (1: in this process). Raises :class:`ExecutorError` when a worker fails.
     """
-    workers = workers or os.cpu_count() or 1
     config = config or ScenarioConfig()
-    out = None if out_dir is None else str(out_dir)
-    tasks = [ScenarioTask(seed, i, tuple(variants), config, out, example=(i == 0)) for i in range(count)]
+    weight_sets = tuple(weight_sets)
+    artefacts = out_dir is not None
+    tasks = [ScenarioTask(seed, i, tuple(variants), config, artefacts, example=(i == 0), weight_sets=weight_sets)
+             for i in range(count)]
     bar = Progress(len(tasks), progress)
     rows: list[dict[str, Any]] = []
     failed = 0
 
-    def collect(new: list[dict[str, Any]]) -> None:
+    def collect(outcome: ScenarioOutcome) -> None:
         nonlocal failed
-        rows.extend(new)
-        failed += sum(1 for r in new if not r["success"])
+        for name, content in outcome.files:
+            path = Path(out_dir) / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(content)
+        rows.extend(outcome.rows)
+        failed += sum(1 for r in outcome.rows if not r["success"])
         if on_rows is not None:
-            on_rows(new)
-        bar.update(len(rows) // max(len(variants), 1), f"{failed} failed runs")
+            on_rows(outcome.rows)
+        bar.update(len(rows) // max(len(variants) * len(weight_sets), 1), f"{failed} failed runs")
 
     bar.update(0)
-    if workers == 1:
-        with _fewer_gc_passes():
-            for task in tasks:
-                collect(run_scenario(task))
+    if pool is not None:
+        _run_tasks(pool, tasks, collect)
     else:
-        with ProcessPoolExecutor(max_workers=workers, initializer=_worker_init) as pool:
-            pending = {pool.submit(run_scenario, t) for t in tasks}
-            while pending:
-                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    collect(fut.result())
+        with open_pool(ExecutorSpec(workers=workers)) as own:
+            _run_tasks(own, tasks, collect)
     order = {v: k for k, v in enumerate(variants)}
-    return sorted(rows, key=lambda r: (r["index"], order[r["variant"]]))
+    w_order = {w: k for k, w in enumerate(weight_sets)}
+    return sorted(rows, key=lambda r: (r["index"], order[r["variant"]], w_order[Weights.from_row(r)]))
 
 
-@contextlib.contextmanager
-def _fewer_gc_passes(gen0: int = 20_000):
-    """A run allocates a few small objects per vehicle-tick (results, commands, snapshots) that
-    die young and form no cycles, so the default young-generation threshold (700) makes the
-    collector scan over and over for nothing: 5-10 % of the bench's CPU. The long-lived objects
-    imported so far are frozen out of the scans, and the threshold raised, until exit."""
-    saved = gc.get_threshold()
-    gc.freeze()
-    gc.set_threshold(gen0, saved[1], saved[2])
+def _run_tasks(pool: Pool, tasks: Sequence[ScenarioTask], collect: Callable[[ScenarioOutcome], None]) -> None:
+    """Keep ``pool.window`` tasks submitted, collect each outcome as it finishes."""
+    queue = iter(tasks)
+    pending: set[Future] = set()
+
+    def top_up() -> None:
+        for task in queue:
+            pending.add(pool.executor.submit(run_scenario, task))
+            if len(pending) >= pool.window:
+                return
+
     try:
-        yield
+        top_up()
+        while pending:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in finished:
+                collect(_outcome(future))
+            top_up()
     finally:
-        gc.set_threshold(*saved)
-        gc.unfreeze()
+        for future in pending:
+            future.cancel()
 
 
-def _worker_init() -> None:
-    """A pool worker lives for the bench only: fewer collector passes for good."""
-    _fewer_gc_passes().__enter__()
+def _outcome(future: Future) -> ScenarioOutcome:
+    try:
+        return future.result()
+    except Exception as exc:  # every run's own errors are rows; this is the worker or its link
+        text = str(exc).strip().splitlines()
+        raise ExecutorError(f"a worker failed: {type(exc).__name__}{': ' + text[0] if text else ''}") from None
 
 
 def _dash(value: Any) -> str:
@@ -224,7 +270,7 @@ def write_failure_index(rows: Sequence[dict[str, Any]], out_dir: Path) -> Path:
     names = sorted({k[:-len("_min_obstacle_clearance_m")] for r in rows for k in r
                     if k.endswith("_min_obstacle_clearance_m")})
     for r in failed:
-        name = failure_dir_name(r["variant"], r["seed"], r["index"])
+        name = failure_dir_name(r["variant"], r["seed"], r["index"], Weights.from_row(r))
         clear = [r.get(f"{n}_min_obstacle_clearance_m") for n in names]
         clear = [c for c in clear if c is not None]
         fail_t = r.get("failure_t_s")

@@ -14,6 +14,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
+
 UNSAFE_REASONS = ("collision", "separation", "geofence")
 
 RUN_COLUMNS: tuple[tuple[str, type], ...] = (
@@ -64,7 +66,10 @@ def vehicle_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
 
 
 def columns(rows: Sequence[Mapping[str, Any]]) -> list[str]:
-    return [k for k, _ in RUN_COLUMNS] + [f"{n}_{k}" for n in vehicle_names(rows) for k, _ in VEHICLE_COLUMNS]
+    """runs.csv's header: the run columns, the score weights when a sweep set them, per vehicle."""
+    weights = [k for k in WEIGHT_COLUMNS if any(k in r for r in rows)]
+    return ([k for k, _ in RUN_COLUMNS] + weights
+            + [f"{n}_{k}" for n in vehicle_names(rows) for k, _ in VEHICLE_COLUMNS])
 
 
 def _cell(value: Any) -> str:
@@ -98,7 +103,7 @@ def _typed(kind: type, text: str) -> Any:
 
 def read_runs_csv(path: str | Path) -> list[dict[str, Any]]:
     """runs.csv back as typed rows (empty cells are None)."""
-    kinds = dict(RUN_COLUMNS)
+    kinds = {**dict(RUN_COLUMNS), **{k: float for k in WEIGHT_COLUMNS}}
     suffix_kinds = dict(VEHICLE_COLUMNS)
     with Path(path).open(newline="", encoding="utf-8") as fh:
         reader = csv.DictReader(fh)
