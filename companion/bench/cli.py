@@ -34,6 +34,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds (got {text})")
+    return value
+
+
 def _variant_list(text: str) -> tuple[str, ...]:
     chosen = tuple(v.strip() for v in text.split(",") if v.strip())
     unknown = [v for v in chosen if v not in VARIANTS]
@@ -67,7 +77,10 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                              "local 1 runs in-process)")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="with --executor dask: an existing scheduler, e.g. tcp://10.0.0.5:8786 "
-                             f"(connect timeout {CONNECT_TIMEOUT_S:g} s)")
+                             "(start workers with `dask worker ADDRESS --nthreads 1`)")
+    parser.add_argument("--connect-timeout", type=_positive_float, default=CONNECT_TIMEOUT_S, metavar="S",
+                        help=f"with --executor dask: give up reaching the scheduler or its first worker after S "
+                             f"seconds (default {CONNECT_TIMEOUT_S:g})")
     parser.add_argument("--scenario-config", type=Path, default=None, metavar="FILE",
                         help="YAML mapping overriding the generator defaults (companion.scenarios.ScenarioConfig)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -75,7 +88,8 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 
 def executor_spec(args: argparse.Namespace) -> ExecutorSpec:
     """The executor the options name (:class:`ExecutorError` when they contradict each other)."""
-    return ExecutorSpec(ExecutorKind(args.executor), workers=args.workers, scheduler=args.scheduler)
+    return ExecutorSpec(ExecutorKind(args.executor), workers=args.workers, scheduler=args.scheduler,
+                        connect_timeout_s=args.connect_timeout)
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

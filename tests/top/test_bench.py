@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 
+import distributed
 import numpy as np
 import pytest
 import yaml
@@ -103,6 +104,29 @@ def test_rows_do_not_depend_on_the_worker_count():
     assert strip == [{k: v for k, v in r.items() if k not in ("wall_s", "planner_ms_per_tick")} for r in pooled]
 
 
+def _timeless(path):
+    return [{k: v for k, v in r.items() if k not in ("wall_s", "planner_ms_per_tick")} for r in read_runs_csv(path)]
+
+
+@pytest.fixture
+def dask_cluster():
+    """A real Dask cluster on loopback: a TCP scheduler and two single-thread workers in this process."""
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, protocol="tcp://",
+                                  host="127.0.0.1", dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+
+
+def test_a_dask_cluster_gives_the_local_runs_csv(small_bench, dask_cluster, tmp_path):
+    local_out, _ = small_bench
+    out = tmp_path / "dask"
+    run(["--scenarios", "2", "--seed", "7", "--variants", "astar-bdwa,bdwa", "--executor", "dask",
+         "--scheduler", dask_cluster, "--out", str(out), "--scenario-config", str(local_out / "small.yaml"), "--quiet"])
+    assert _timeless(out / "runs.csv") == _timeless(local_out / "runs.csv")
+    assert (out / "trajectory_example.png").stat().st_size > 0  # drawn on a worker, written here
+    assert json.loads((out / "meta.json").read_text())["command"].endswith(
+        f"--executor dask --scheduler {dask_cluster} --out {out}")
+
+
 def _row(index, variant, success, reason=None, a=500.0, b=600.0):
     return {"seed": 1, "index": index, "scenario": f"s{index}", "variant": variant, "success": success,
             "success_strict": success and index == 0, "reason": reason, "planner_ms_per_tick": 1.0,
@@ -138,6 +162,29 @@ def test_bad_arguments_are_one_line_errors(capsys, tmp_path):
     err = capsys.readouterr().err
     assert err.startswith("companion bench: ") and "unknown scenario key(s) side" in err
     assert len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.timeout(60)  # the connect timeout bounds it: a hang fails here
+@pytest.mark.parametrize("argv, message", [
+    (["--executor", "dask", "--scheduler", "tcp://127.0.0.1:1", "--connect-timeout", "1"],
+     "cannot use tcp://127.0.0.1:1: Timed out trying to connect"),
+    (["--executor", "dask", "--scheduler", "127.0.0.1"], "--scheduler: not a scheduler address"),
+    (["--scheduler", "tcp://127.0.0.1:8786"], "--scheduler needs --executor dask"),
+    (["--executor", "dask", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2"], "--workers sizes a local cluster"),
+])
+def test_bad_executor_options_are_one_line_errors(capsys, tmp_path, argv, message):
+    assert run(["--scenarios", "1", "--out", str(tmp_path / "o"), "--quiet", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("companion bench: ") and message in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_bad_worker_counts_are_refused(capsys):
+    for bad in ("0", "-3", "two"):
+        with pytest.raises(SystemExit) as exc:
+            run(["--executor", "dask", "--workers", bad])
+        assert exc.value.code == 2
+    assert "--workers" in capsys.readouterr().err
 
 
 def _track(points, dt=0.5):
