@@ -2,6 +2,7 @@
 
     companion simulate MISSION.yaml [--variant V] [--out DIR]   headless flight, summary + plot
     companion sweep table1|table2|table3 [--out DIR]            the paper's Tables I-III
+    companion sweep weights                                     score weights vs flight time (companion.bench)
     companion run | validate | plan | upload | schema           flying commands (companion.app)
     companion bench                                             the Table IV ablation (companion.bench)
     companion import | replay                                   .plan / GeoJSON in, an animation out
@@ -204,16 +205,27 @@ def _diagonal_mission(base: Mission, oa_m: float, ob_m: float) -> Mission:
 
 
 def _add_sweep(sub) -> None:
-    p = sub.add_parser("sweep", help="reproduce the paper's Table I, II or III headless, beside its numbers",
-                       description="Vary the reference mission as the paper's table does, fly each row headless "
-                                   "and print our flight times beside the paper's.")
-    p.add_argument("table", choices=sorted(PAPER_TABLES))
-    p.add_argument("--mission", type=Path, default=Path("missions/paper_reference.yaml"),
-                   help="the reference mission to vary (default missions/paper_reference.yaml)")
-    p.add_argument("--variant", choices=VARIANTS, default=None, help="planner variant (default: the mission's)")
-    p.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="write <table>.json and a trajectory per row here")
-    p.set_defaults(func=cmd_sweep)
+    p = sub.add_parser("sweep", help="the paper's Tables I-III beside its numbers, or a score-weight sweep",
+                       description="table1|table2|table3: vary the reference mission as the paper's table does, "
+                                   "fly each row headless and print our flight times beside the paper's. "
+                                   "weights: fly a grid of score weights over seeded random scenarios.")
+    sweeps = p.add_subparsers(dest="sweep", required=True, metavar="SWEEP")
+    for table in sorted(PAPER_TABLES):
+        t = sweeps.add_parser(table, help=PAPER_TABLES[table][0],
+                              description=f"Reproduce the paper's {PAPER_TABLES[table][0]}, headless.")
+        t.add_argument("--mission", type=Path, default=Path("missions/paper_reference.yaml"),
+                       help="the reference mission to vary (default missions/paper_reference.yaml)")
+        t.add_argument("--variant", choices=VARIANTS, default=None, help="planner variant (default: the mission's)")
+        t.add_argument("--out", type=Path, default=None, metavar="DIR",
+                       help="write <table>.json and a trajectory per row here")
+        t.set_defaults(func=cmd_sweep, table=table)
+    try:
+        from companion.bench.sweep_cli import add_weights_parser
+    except ModuleNotFoundError as exc:
+        if not (exc.name or "").startswith("companion.bench"):
+            raise
+        return  # the bench is not installed in this checkout
+    add_weights_parser(sweeps)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

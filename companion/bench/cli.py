@@ -24,7 +24,7 @@ DESCRIPTION = ("Fly seeded random scenarios (SPEC §3) with each planner variant
                "(paper Table IV, Fig. 11-13). Exit 1 if any run was unsafe or crashed, 2 on bad input.")
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -56,7 +56,7 @@ def _variant_list(text: str) -> tuple[str, ...]:
 
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    parser.add_argument("--scenarios", type=_positive_int, default=120, metavar="N",
+    parser.add_argument("--scenarios", type=positive_int, default=120, metavar="N",
                         help="scenarios 0..N-1 of the seed (default 120, as the paper's Table IV)")
     parser.add_argument("--seed", type=int, default=2026, help="scenario seed (default 2026)")
     parser.add_argument("--variants", type=_variant_list, default=DEFAULT_VARIANTS, metavar="V[,V...]",
@@ -72,7 +72,7 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     """Where the runs execute, the generator config and the progress bar (bench and sweep)."""
     parser.add_argument("--executor", choices=[k.value for k in ExecutorKind], default="local",
                         help="local: a process pool on this machine (default); dask: a Dask cluster")
-    parser.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+    parser.add_argument("--workers", type=positive_int, default=None, metavar="N",
                         help="local processes, or the workers of a local Dask cluster (default: os.cpu_count(); "
                              "local 1 runs in-process)")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",

@@ -134,6 +134,50 @@ def lines_figure(rows: Sequence[Mapping[str, Any]], *, title: str | None = None)
     return fig
 
 
+def weight_sweep_figure(rows: Sequence[Mapping[str, Any]], summary: Sequence[Mapping[str, Any]], *,
+                        title: str | None = None) -> Figure:
+    """One box per weight set: above, each UAV's flight time over its time with the paper's
+    weights on the same scenario (the band is +-5 %); below, flight time over the lower bound,
+    with the success count on top. The paper's weights are red."""
+    from companion.bench.sweep import LITTLE, by_weights, paired_ratios
+    from companion.bench.weights import Weights
+
+    groups = by_weights(rows)
+    names = vehicle_names(rows)
+    sets = [Weights.from_row(e["weights"]) for e in summary]
+    reference = sets[[e["reference"] for e in summary].index(True)]
+    fig = Figure(figsize=(max(8.0, 0.38 * len(sets) + 2.0), 7.5), dpi=110)
+    FigureCanvasAgg(fig)
+    top, bottom = fig.add_subplot(2, 1, 1), fig.add_subplot(2, 1, 2, sharex=None)
+    xs = np.arange(len(sets))
+    paired = [paired_ratios(groups[w], groups[reference], names) for w in sets]
+    bounds = [[r[f"{n}_ratio"] for r in groups[w] if r["success"] for n in names if r.get(f"{n}_ratio") is not None]
+              for w in sets]
+    for ax, data in ((top, paired), (bottom, bounds)):
+        kept = [k for k, d in enumerate(data) if d]
+        if kept:
+            boxes = ax.boxplot([data[k] for k in kept], positions=xs[kept], widths=0.6, patch_artist=True,
+                               medianprops={"color": "k"}, flierprops={"markersize": 2.5})
+            for k, box in zip(kept, boxes["boxes"]):
+                box.set_facecolor("tab:red" if sets[k] == reference else "tab:blue")
+                box.set_alpha(0.6)
+        ax.grid(True, axis="y", lw=0.3, alpha=0.6)
+    top.axhspan(1.0 - LITTLE, 1.0 + LITTLE, color="tab:green", alpha=0.12, lw=0, label=f"within {100 * LITTLE:.0f} %")
+    top.axhline(1.0, color="k", lw=0.6)
+    top.set_ylabel("t / t with the paper's weights\n(same UAV, same scenario)")
+    top.legend(fontsize=7, loc="upper right")
+    top.set_xticks(xs, [""] * len(sets))
+    bottom.set_ylabel("flight time / lower bound")
+    for k, e in enumerate(summary):
+        bottom.annotate(f"{e['successes']}/{e['runs']}", (xs[k], 1.0), xycoords=("data", "axes fraction"),
+                        xytext=(0, 2), textcoords="offset points", ha="center", fontsize=6, rotation=90)
+    bottom.set_xticks(xs, [w.label for w in sets], rotation=90, fontsize=7)
+    bottom.set_xlabel("w_h / w_d / w_s (red: the paper's 0.37 / 0.6 / 0.8); success count on top")
+    top.set_title(title or "Score weights vs flight time (successful runs, both UAVs pooled)")
+    fig.tight_layout()
+    return fig
+
+
 def save(fig: Figure, path: str | Path) -> Path:
     path = Path(path)
     fig.savefig(path)

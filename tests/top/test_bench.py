@@ -1,5 +1,6 @@
-"""``companion bench``: the summary it writes is exactly what runs.csv says, failures are
-replayable, and the result does not depend on the worker count.
+"""``companion bench`` and ``companion sweep weights``: the summary they write is exactly what
+runs.csv says, failures are replayable, and the result depends on neither the worker count nor
+the executor (a real Dask cluster on loopback).
 
 The flights are real headless runs of the real planner, on a small world (a 1 km square,
 ~100 s flights) so that the whole file takes seconds.
@@ -15,10 +16,13 @@ import pytest
 import yaml
 
 from companion.bench import aggregate, read_runs_csv
+from companion.bench import sweep
 from companion.bench.cli import run
 from companion.bench.diagnose import diagnose
 from companion.bench.execute import failure_dir_name, run_bench
 from companion.bench.table import format_table, write_runs_csv
+from companion.bench.weights import Weights
+from companion.cli import main as cli_main
 from uav_model.mission import load_mission, parse_mission
 from companion.planning.metrics import Track
 from companion.planning.runner import simulate
@@ -214,3 +218,62 @@ def test_diagnose_names_the_vehicle_and_the_obstacle():
                      {"reason": "timeout", "vehicles": {"a": {"arrived": True}, "b": {"arrived": False}}})
     assert facts["failed_vehicles"] == "b"
     assert diagnose(mission, {"a": a, "b": b}, {"reason": None})["failed_vehicles"] is None
+
+
+def _sweep_row(index, weights, success=True, a=500.0, b=600.0, reason=None):
+    return {**_row(index, "astar-bdwa", success, reason, a, b), **weights.columns()}
+
+
+def test_sweep_summary_pairs_each_uav_with_the_paper_weights_on_the_same_scenario():
+    paper, slow = Weights.default(), Weights(0.74, 0.6, 0.8)
+    rows = [_sweep_row(0, paper, a=500.0, b=600.0), _sweep_row(1, paper, a=400.0, b=400.0),
+            _sweep_row(2, paper, False, reason="timeout"),
+            _sweep_row(0, slow, a=550.0, b=600.0), _sweep_row(1, slow, False, reason="timeout"),
+            _sweep_row(2, slow, a=900.0, b=900.0)]
+    ref, other = sweep.summarise(rows, paper)
+    assert ref["reference"] and ref["paired_ratio"]["median"] == 1.0 and ref["little_effect"]
+    # Only scenario 0 was completed by both: a 550 / 500, b 600 / 600; scenario 2 is not paired.
+    assert other["paired_ratio"]["n"] == 2
+    assert other["paired_ratio"]["median"] == pytest.approx(1.05)
+    assert other["paired_changed_over_little"] == 0.5
+    assert other["flight_time_s"]["a"]["median"] == 725.0  # 550 and 900, over its own successes
+    assert other["median_vs_reference"]["a"] == pytest.approx(725.0 / 450.0 - 1.0, abs=1e-4)
+    assert (other["successes"], other["reasons"]) == (2, {"timeout": 1})
+    assert other["little_effect"] is False
+    v = sweep.verdict([ref, other])
+    assert v["sets_breaking_little_effect"] == ["0.74/0.6/0.8"] and v["claim_holds"] is False
+    assert "does not hold for 1 of 1 weight sets" in sweep.verdict_text(v)
+
+
+def test_sweep_weights_end_to_end_with_a_replayable_gallery(tmp_path):
+    # A 20 s limit makes every run a timeout: each lands in the gallery with its weights set.
+    cfg = tmp_path / "short.yaml"
+    cfg.write_text(yaml.safe_dump({**SMALL, "time_limit_s": 20.0}))
+    out = tmp_path / "out"
+    assert cli_main(["sweep", "weights", "--scenarios", "1", "--seed", "3", "--heading", "0.1", "--distance", "0.6",
+                     "--sightline", "0.8,3", "--workers", "1", "--out", str(out), "--scenario-config", str(cfg),
+                     "--quiet"]) == 0
+    rows = read_runs_csv(out / "runs.csv")
+    # The paper's weights are not in this grid: they are flown first, as the reference.
+    assert [Weights.from_row(r) for r in rows] == [Weights.default(), Weights(0.1, 0.6, 0.8), Weights(0.1, 0.6, 3.0)]
+    saved = json.loads((out / "sweep.json").read_text())
+    assert saved["summary"] == json.loads(json.dumps(sweep.summarise(rows, Weights.default())))
+    for name in ("table.md", "meta.json", "weight_sweep.png", "failures/index.md"):
+        assert (out / name).stat().st_size > 0, name
+    for r in rows:
+        weights = Weights.from_row(r)
+        entry = out / "failures" / failure_dir_name(r["variant"], 3, 0, weights)
+        mission = load_mission(entry / "scenario.yaml")
+        assert (mission.planner.weight_heading, mission.planner.weight_distance,
+                mission.planner.weight_sightline) == (weights.heading, weights.distance, weights.sightline)
+        replay = simulate(mission).summary.summary_dict()
+        assert replay["vehicles"]["b"]["path_length_m"] == pytest.approx(r["b_path_length_m"])
+
+
+def test_sweep_weights_refuses_bad_grids(capsys):
+    for bad in ("-1", "0.3,0.3", "x", "101"):
+        with pytest.raises(SystemExit) as exc:
+            cli_main(["sweep", "weights", "--heading", bad])
+        assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "listed twice" in err and "[0, 100]" in err
