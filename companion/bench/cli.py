@@ -11,7 +11,10 @@ import os
 import platform
 import sys
 import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -56,20 +59,19 @@ def _variant_list(text: str) -> tuple[str, ...]:
 
 
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    parser.add_argument("--scenarios", type=positive_int, default=120, metavar="N",
-                        help="scenarios 0..N-1 of the seed (default 120, as the paper's Table IV)")
-    parser.add_argument("--seed", type=int, default=2026, help="scenario seed (default 2026)")
+    add_common_arguments(parser, scenarios=120, why=", as the paper's Table IV", out="bench_s<seed>_n<N>")
     parser.add_argument("--variants", type=_variant_list, default=DEFAULT_VARIANTS, metavar="V[,V...]",
                         help=f"comma-separated planner variants (default {','.join(DEFAULT_VARIANTS)})")
-    parser.add_argument("--out", type=Path, default=None, metavar="DIR",
-                        help="output directory (default bench_s<seed>_n<N>)")
-    add_common_arguments(parser)
     parser.set_defaults(handler=main)
     return parser
 
 
-def add_common_arguments(parser: argparse.ArgumentParser) -> None:
-    """Where the runs execute, the generator config and the progress bar (bench and sweep)."""
+def add_common_arguments(parser: argparse.ArgumentParser, *, scenarios: int, why: str, out: str) -> None:
+    """The scenarios, the output, where the runs execute, and the progress bar (bench and sweep)."""
+    parser.add_argument("--scenarios", type=positive_int, default=scenarios, metavar="N",
+                        help=f"scenarios 0..N-1 of the seed (default {scenarios}{why})")
+    parser.add_argument("--seed", type=int, default=2026, help="scenario seed (default 2026)")
+    parser.add_argument("--out", type=Path, default=None, metavar="DIR", help=f"output directory (default {out})")
     parser.add_argument("--executor", choices=[k.value for k in ExecutorKind], default="local",
                         help="local: a process pool on this machine (default); dask: a Dask cluster")
     parser.add_argument("--workers", type=positive_int, default=None, metavar="N",
@@ -132,29 +134,63 @@ def main(args: argparse.Namespace) -> int:
     """Run the bench, write every artefact, print the table. Exit codes as the main CLI: 2 for
     bad input, 1 when a run was unsafe (collision, separation, geofence) or crashed, else 0
     (timeouts and holds are results, not errors)."""
+    return guarded("companion bench", _bench, args)
+
+
+def guarded(prog: str, command: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
+    """``command(args)``, with bad input and executor trouble as one line and exit 2."""
     try:
-        return _bench(args)
+        return command(args)
     except (BadInput, ExecutorError) as exc:
-        print(f"companion bench: {exc}", file=sys.stderr)
+        print(f"{prog}: {exc}", file=sys.stderr)
         return 2
 
 
-def _bench(args: argparse.Namespace) -> int:
-    from companion.bench import execute, figures
+@dataclass(frozen=True)
+class Flown:
+    rows: list[dict[str, Any]]
+    out: Path
+    spec: ExecutorSpec
+    where: str  # what ran them
+    wall_s: float
+    config: Any  # companion.scenarios.ScenarioConfig
+
+
+def fly(args: argparse.Namespace, out: Path, variants: Sequence[str], weight_sets: Sequence[Any] = (None,)) -> Flown:
+    """Scenarios 0..args.scenarios-1 of args.seed x variants x weight sets on the executor the
+    options name; the failure gallery (cleared first) is written under ``out``."""
+    from companion.bench import execute
     from companion.bench.executors import open_pool
-    from companion.bench.table import aggregate, format_table, markdown_table, write_runs_csv
-    from companion.scenarios import config_dict
 
     spec = executor_spec(args)
     config = scenario_config(args.scenario_config)
-    out = make_out_dir(args.out or Path(f"bench_s{args.seed}_n{args.scenarios}"))
+    out = make_out_dir(out)
     execute.clear_failures(out)
     with open_pool(spec) as pool:
         started = time.perf_counter()
-        rows = execute.run_bench(args.seed, args.scenarios, args.variants, pool=pool, out_dir=out,
-                                 config=config, progress=None if args.quiet else sys.stderr)
-        wall = time.perf_counter() - started
+        rows = execute.run_bench(args.seed, args.scenarios, variants, pool=pool, out_dir=out, config=config,
+                                 weight_sets=weight_sets, progress=None if args.quiet else sys.stderr)
+        return Flown(rows, out, spec, pool.where, time.perf_counter() - started, config)
 
+
+def finish(prog: str, flown: Flown) -> int:
+    """Write the failure index; exit 1 when a run was unsafe or crashed, else 0."""
+    from companion.bench.execute import write_failure_index
+    from companion.bench.table import UNSAFE_REASONS
+    write_failure_index(flown.rows, flown.out)
+    bad = sum(1 for r in flown.rows if r["reason"] in (*UNSAFE_REASONS, "error"))
+    if bad:
+        print(f"{prog}: {bad} run(s) unsafe or errored; see {flown.out}/failures/index.md", file=sys.stderr)
+    return 1 if bad else 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from companion.bench import figures
+    from companion.bench.table import aggregate, format_table, markdown_table, write_runs_csv
+    from companion.scenarios import config_dict
+
+    flown = fly(args, args.out or Path(f"bench_s{args.seed}_n{args.scenarios}"), args.variants)
+    rows, out, spec = flown.rows, flown.out, flown.spec
     summary = aggregate(rows)
     write_runs_csv(rows, out / "runs.csv")
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
@@ -163,21 +199,17 @@ def _bench(args: argparse.Namespace) -> int:
                f"--variants {','.join(args.variants)} {spec.describe()} --out {out}")
     meta = {"command": command,
             "seed": args.seed, "scenarios": args.scenarios, "variants": list(args.variants),
-            "executor": pool.where, "workers": spec.workers or (None if spec.scheduler else os.cpu_count()),
-            "wall_s": round(wall, 2), "cpu_count": os.cpu_count(),
-            "python": platform.python_version(), "scenario_config": config_dict(config)}
+            "executor": flown.where, "workers": spec.workers or (None if spec.scheduler else os.cpu_count()),
+            "wall_s": round(flown.wall_s, 2), "cpu_count": os.cpu_count(),
+            "python": platform.python_version(), "scenario_config": config_dict(flown.config)}
     (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     figures.save(figures.violin_figure(rows), out / "violin.png")
     figures.save(figures.lines_figure(rows), out / "lines.png")
-    execute.write_failure_index(rows, out)
 
     print(format_table(summary))
     print(f"\n{len(rows)} runs ({args.scenarios} scenarios x {len(args.variants)} variants, seed {args.seed}) "
-          f"in {wall:.1f} s wall on {pool.where}; results in {out}/")
-    bad = sum(s["unsafe"] + s["reasons"].get("error", 0) for s in summary.values())
-    if bad:
-        print(f"companion bench: {bad} run(s) unsafe or errored; see {out}/failures/index.md", file=sys.stderr)
-    return 1 if bad else 0
+          f"in {flown.wall_s:.1f} s wall on {flown.where}; results in {out}/")
+    return finish("companion bench", flown)
 
 
 def run(argv: list[str] | None = None) -> int:

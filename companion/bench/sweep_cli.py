@@ -11,13 +11,9 @@ import argparse
 import json
 import os
 import platform
-import sys
-import time
 from pathlib import Path
 
-from companion.bench.cli import (BadInput, add_common_arguments, executor_spec, make_out_dir, positive_int,
-                                 scenario_config)
-from companion.bench.executors import ExecutorError
+from companion.bench.cli import add_common_arguments, finish, fly, guarded
 from companion.bench.weights import Weights, grid
 from companion.mission import VARIANTS
 
@@ -51,47 +47,30 @@ def add_weights_parser(subparsers) -> argparse.ArgumentParser:
     paper = Weights.default()
     p = subparsers.add_parser("weights", help="fly a grid of score weights over random scenarios; judge the "
                                               "paper's 'little effect on flying time' claim", description=DESCRIPTION)
-    p.add_argument("--scenarios", type=positive_int, default=30, metavar="N", help="scenarios 0..N-1 (default 30)")
-    p.add_argument("--seed", type=int, default=2026, help="scenario seed (default 2026)")
+    add_common_arguments(p, scenarios=30, why="", out="sweep_weights_s<seed>_n<N>")
     p.add_argument("--variant", choices=VARIANTS, default="astar-bdwa", help="planner variant (default astar-bdwa)")
     for name, value in (("heading", paper.heading), ("distance", paper.distance), ("sightline", paper.sightline)):
         p.add_argument(f"--{name}", type=_weight_list, default=_weight_list(_scaled(value)), metavar="W[,W...]",
                        help=f"values of the {name} weight (default {_scaled(value)})")
-    p.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="output directory (default sweep_weights_s<seed>_n<N>)")
-    add_common_arguments(p)
     p.set_defaults(func=main)
     return p
 
 
 def main(args: argparse.Namespace) -> int:
-    try:
-        return _sweep(args)
-    except (BadInput, ExecutorError) as exc:
-        print(f"companion sweep weights: {exc}", file=sys.stderr)
-        return 2
+    return guarded("companion sweep weights", _sweep, args)
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from companion.bench import execute, figures, sweep
-    from companion.bench.executors import open_pool
-    from companion.bench.table import UNSAFE_REASONS, write_runs_csv
+    from companion.bench import figures, sweep
+    from companion.bench.table import write_runs_csv
     from companion.scenarios import config_dict
 
-    spec = executor_spec(args)
-    config = scenario_config(args.scenario_config)
     reference = Weights.default()
     weight_sets = grid(args.heading, args.distance, args.sightline)
     if reference not in weight_sets:  # the paired comparison needs the paper's weights flown
         weight_sets = (reference, *weight_sets)
-    out = make_out_dir(args.out or Path(f"sweep_weights_s{args.seed}_n{args.scenarios}"))
-    execute.clear_failures(out)
-    with open_pool(spec) as pool:
-        started = time.perf_counter()
-        rows = execute.run_bench(args.seed, args.scenarios, (args.variant,), pool=pool, out_dir=out, config=config,
-                                 weight_sets=weight_sets, progress=None if args.quiet else sys.stderr)
-        wall = time.perf_counter() - started
-
+    flown = fly(args, args.out or Path(f"sweep_weights_s{args.seed}_n{args.scenarios}"), (args.variant,), weight_sets)
+    rows, out = flown.rows, flown.out
     summary = sweep.summarise(rows, reference)
     judged = sweep.verdict(summary)
     write_runs_csv(rows, out / "runs.csv")
@@ -102,18 +81,15 @@ def _sweep(args: argparse.Namespace) -> int:
     (out / "table.md").write_text(table + "\n\n" + text + "\n", encoding="utf-8")
     lists = " ".join(f"--{k} {','.join(f'{v:g}' for v in getattr(args, k))}" for k in ("heading", "distance", "sightline"))
     command = (f"companion sweep weights --scenarios {args.scenarios} --seed {args.seed} --variant {args.variant} "
-               f"{lists} {spec.describe()} --out {out}")
+               f"{lists} {flown.spec.describe()} --out {out}")
     meta = {"command": command, "seed": args.seed, "scenarios": args.scenarios, "variant": args.variant,
-            "weight_sets": len(weight_sets), "executor": pool.where, "wall_s": round(wall, 2),
-            "cpu_count": os.cpu_count(), "python": platform.python_version(), "scenario_config": config_dict(config)}
+            "weight_sets": len(weight_sets), "executor": flown.where, "wall_s": round(flown.wall_s, 2),
+            "cpu_count": os.cpu_count(), "python": platform.python_version(),
+            "scenario_config": config_dict(flown.config)}
     (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     figures.save(figures.weight_sweep_figure(rows, summary), out / "weight_sweep.png")
-    execute.write_failure_index(rows, out)
 
     print(table + "\n\n" + text)
     print(f"\n{len(rows)} runs ({args.scenarios} scenarios x {len(weight_sets)} weight sets, {args.variant}, "
-          f"seed {args.seed}) in {wall:.1f} s wall on {pool.where}; results in {out}/")
-    bad = sum(1 for r in rows if r["reason"] in (*UNSAFE_REASONS, "error"))
-    if bad:
-        print(f"companion sweep weights: {bad} run(s) unsafe or errored; see {out}/failures/index.md", file=sys.stderr)
-    return 1 if bad else 0
+          f"seed {args.seed}) in {flown.wall_s:.1f} s wall on {flown.where}; results in {out}/")
+    return finish("companion sweep weights", flown)
