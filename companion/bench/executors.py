@@ -120,10 +120,15 @@ def _dask_pool(spec: ExecutorSpec) -> Iterator[Pool]:
                 client = stack.enter_context(Client(cluster, timeout=spec.connect_timeout_s, set_as_default=False))
                 client.run(worker_init)  # our own worker processes: fewer collector passes for good
                 where = f"dask LocalCluster {cluster.scheduler_address}"
-            client.wait_for_workers(1, timeout=spec.connect_timeout_s)
         except (OSError, TimeoutError, RuntimeError) as exc:
             target = spec.scheduler or "a local Dask cluster"
             raise ExecutorError(f"cannot use {target}: {_first_line(exc)}") from None
+        try:
+            client.wait_for_workers(1, timeout=spec.connect_timeout_s)
+        except (OSError, TimeoutError) as exc:
+            raise ExecutorError(f"no worker joined {spec.scheduler or 'the local Dask cluster'} within "
+                                f"{spec.connect_timeout_s:g} s (start one with `dask worker {spec.scheduler or 'ADDRESS'} "
+                                f"--nthreads 1`): {_first_line(exc)}") from None
         slots = sum(client.nthreads().values())
         yield Pool(client.get_executor(), 2 * max(slots, 1), f"{where} ({slots} worker threads)")
 
