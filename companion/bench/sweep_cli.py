@@ -15,7 +15,7 @@ from pathlib import Path
 
 from companion.bench.cli import add_common_arguments, finish, fly, guarded
 from companion.bench.weights import Weights, grid
-from companion.mission import VARIANTS
+from uav_model.mission import VARIANTS
 
 SCALES = (0.5, 1.0, 2.0)  # the default grid: each of the paper's weights halved, kept, doubled
 DESCRIPTION = ("Fly seeded random scenarios with every (w_h, w_d, w_s) of a grid - by default each of the "

@@ -9,7 +9,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from companion.mission import Mission, mission_schema
+from uav_model.mission import Mission, mission_schema
 
 COLUMNS = ("w_heading", "w_distance", "w_sightline")
 
