@@ -6,6 +6,7 @@ Registered on the main parser by :func:`add_parser`; also runs as ``python -m co
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -85,6 +86,9 @@ def add_common_arguments(parser: argparse.ArgumentParser, *, scenarios: int, why
                              f"seconds (default {CONNECT_TIMEOUT_S:g})")
     parser.add_argument("--scenario-config", type=Path, default=None, metavar="FILE",
                         help="YAML mapping overriding the generator defaults (companion.scenarios.ScenarioConfig)")
+    parser.add_argument("--plant", choices=("multicopter", "unicycle"), default=None,
+                        help="the scenarios' dynamics (default: the scenario config's, multicopter); "
+                             "unicycle is the paper's ideal vehicle, for its Table IV")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -164,6 +168,8 @@ def fly(args: argparse.Namespace, out: Path, variants: Sequence[str], weight_set
 
     spec = executor_spec(args)
     config = scenario_config(args.scenario_config)
+    if args.plant is not None:
+        config = dataclasses.replace(config, plant=args.plant)
     out = make_out_dir(out)
     execute.clear_failures(out)
     with open_pool(spec) as pool:
@@ -196,7 +202,7 @@ def _bench(args: argparse.Namespace) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     (out / "table.md").write_text(markdown_table(summary) + "\n", encoding="utf-8")
     command = (f"companion bench --scenarios {args.scenarios} --seed {args.seed} "
-               f"--variants {','.join(args.variants)} {spec.describe()} --out {out}")
+               f"--variants {','.join(args.variants)} --plant {flown.config.plant} {spec.describe()} --out {out}")
     meta = {"command": command,
             "seed": args.seed, "scenarios": args.scenarios, "variants": list(args.variants),
             "executor": flown.where, "workers": spec.workers or (None if spec.scheduler else os.cpu_count()),

@@ -81,7 +81,7 @@ def _sweep(args: argparse.Namespace) -> int:
     (out / "table.md").write_text(table + "\n\n" + text + "\n", encoding="utf-8")
     lists = " ".join(f"--{k} {','.join(f'{v:g}' for v in getattr(args, k))}" for k in ("heading", "distance", "sightline"))
     command = (f"companion sweep weights --scenarios {args.scenarios} --seed {args.seed} --variant {args.variant} "
-               f"{lists} {flown.spec.describe()} --out {out}")
+               f"{lists} --plant {flown.config.plant} {flown.spec.describe()} --out {out}")
     meta = {"command": command, "seed": args.seed, "scenarios": args.scenarios, "variant": args.variant,
             "weight_sets": len(weight_sets), "executor": flown.where, "wall_s": round(flown.wall_s, 2),
             "cpu_count": os.cpu_count(), "python": platform.python_version(),
