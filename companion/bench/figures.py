@@ -148,7 +148,7 @@ def weight_sweep_figure(rows: Sequence[Mapping[str, Any]], summary: Sequence[Map
     reference = sets[[e["reference"] for e in summary].index(True)]
     fig = Figure(figsize=(max(8.0, 0.38 * len(sets) + 2.0), 7.5), dpi=110)
     FigureCanvasAgg(fig)
-    top, bottom = fig.add_subplot(2, 1, 1), fig.add_subplot(2, 1, 2, sharex=None)
+    top, bottom = fig.add_subplot(2, 1, 1), fig.add_subplot(2, 1, 2)
     xs = np.arange(len(sets))
     paired = [paired_ratios(groups[w], groups[reference], names) for w in sets]
     bounds = [[r[f"{n}_ratio"] for r in groups[w] if r["success"] for n in names if r.get(f"{n}_ratio") is not None]
