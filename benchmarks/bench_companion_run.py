@@ -23,7 +23,7 @@ from pathlib import Path
 
 from uav_model.mission import load_mission
 from companion.planning.runner import simulate
-from companion.testing.plugin import free_udp_port, free_udp_port_block
+from sim_bridge.testing import free_udp_port_block, free_udp_ports
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,7 +44,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             cmd = [sys.executable, "-m", "companion.cli", "run", str(args.mission), "--speedup", f"{args.speedup:g}",
                    "--out", tmp, "--port-base", str(free_udp_port_block(len(mission.vehicles))),
-                   "--gcs-port", str(free_udp_port()), "--seed", str(i)]
+                   "--gcs-port", str(free_udp_ports(1)[0]), "--seed", str(i)]
             if args.loss:
                 cmd += ["--loss", f"{args.loss:g}"]
             if args.latency_ms:

@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import local_to_geodetic
 from uav_model.mission import load_mission
-from companion.testing.plugin import Telemetry
+from companion.testing.telemetry import Telemetry
 from companion.testing.recorder import TelemetryRecorder, mode_name
 
 ROOT = Path(__file__).resolve().parents[2]
