@@ -22,8 +22,8 @@ BAD = ROOT / "tests" / "data" / "bad_missions"
 
 
 @pytest.fixture(scope="module")
-def plan():
-    return prepare(load_mission(REFERENCE))
+def plan(reference_mission):
+    return prepare(reference_mission)
 
 
 def test_uploaded_route_is_the_sparse_route_at_cruise_altitude(plan):
@@ -40,8 +40,8 @@ def test_uploaded_route_is_the_sparse_route_at_cruise_altitude(plan):
 
 
 @pytest.mark.parametrize("variant, expected", [("astar-bdwa-nosparse", "raw"), ("bdwa", 2), ("dwa", 2)])
-def test_every_variant_uploads_the_nodes_its_planner_follows(variant, expected):
-    plan = prepare(load_mission(REFERENCE), variant)
+def test_every_variant_uploads_the_nodes_its_planner_follows(variant, expected, reference_mission):
+    plan = prepare(reference_mission, variant)
     for v in plan.mission.vehicles:
         n = len(plan.waypoints(v))
         assert n == (plan.routes[v.name].nodes_raw if expected == "raw" else expected)

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import textwrap
 import uuid
 from pathlib import Path
@@ -54,20 +52,10 @@ def _processes_with(marker: str) -> dict[int, str]:
 
 
 @pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs procfs to find the processes")
-def test_failed_and_timed_out_scenarios_leave_no_process_behind(tmp_path):
+def test_failed_and_timed_out_scenarios_leave_no_process_behind(tmp_path, inner_pytest):
     (tmp_path / "test_failing.py").write_text(textwrap.dedent(FAILING_TESTS))
     marker = f"HARNESS_CLEANUP_PROBE={uuid.uuid4().hex}"  # inherited by everything the child starts
-    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_")}
-    env.update([marker.split("=", 1)])
-    proc = subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_failing.py"],
-                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
-    try:
-        out, _ = proc.communicate(timeout=150)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+    _, out = inner_pytest("test_failing.py", timeout_s=150, env=dict([marker.split("=", 1)]))
     assert "2 failed" in out, out[-3000:]
     assert "a failure while the companion flies" in out and "Timeout" in out, out[-3000:]
     left = _processes_with(marker)

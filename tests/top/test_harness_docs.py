@@ -3,11 +3,7 @@ copied out of the guide into an empty directory and run with a plain ``pytest`` 
 
 from __future__ import annotations
 
-import os
 import re
-import signal
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -19,21 +15,12 @@ NAMED_BLOCK = re.compile(r"^```\w+ (\S+)\n(.*?)^```", re.MULTILINE | re.DOTALL)
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
 
-def test_the_guides_example_passes_as_written(tmp_path):
+def test_the_guides_example_passes_as_written(tmp_path, inner_pytest):
     files = dict(NAMED_BLOCK.findall(GUIDE.read_text()))
     assert {"depot_swap.yaml", "test_depot_swap.py"} <= set(files), sorted(files)
     for name, text in files.items():
         (tmp_path / name).write_text(text)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_")}
     # The inner run's own timeout lets its fixtures clean up before ours would have to.
-    proc = subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-o", "timeout=150",
-                             "test_depot_swap.py"], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    try:
-        out, _ = proc.communicate(timeout=200)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-    assert proc.returncode == 0, out[-4000:]
+    code, out = inner_pytest("-o", "timeout=150", "test_depot_swap.py", timeout_s=200)
+    assert code == 0, out[-4000:]
     assert "1 passed" in out, out[-2000:]

@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from uav_model.mission import load_mission
-from companion.planning.runner import simulate
 from companion.scenarios import generate, write_mission_yaml
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -25,7 +24,7 @@ SCENARIO_SEED = 2026
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
 
-def test_reference_mission(sitl, companion, tmp_path):
+def test_reference_mission(sitl, companion, tmp_path, reference_headless):
     stub = sitl(REFERENCE, speedup=20, extra=["--tlog", str(tmp_path / "tlog")])
     run = companion(stub)
     assert run.exit_code == 0, run.tail
@@ -37,9 +36,8 @@ def test_reference_mission(sitl, companion, tmp_path):
 
     # Same planner, same plant, same scoring: flight times within 3 % of the headless runner's.
     report = stub.report()
-    headless = simulate(load_mission(REFERENCE)).summary
     for name, v in report.vehicles.items():
-        assert v.flight_time_s == pytest.approx(headless.vehicles[name].flight_time_s, rel=0.03), name
+        assert v.flight_time_s == pytest.approx(reference_headless.vehicles[name].flight_time_s, rel=0.03), name
     # The sight-line metrics from the GCS's recording agree with the companion's from its own links.
     assert report.los_blocked_fraction == pytest.approx(run.summary["los_blocked_fraction"], abs=0.05)
     assert report.min_separation_m == pytest.approx(run.summary["min_separation_m"], rel=0.02)

@@ -10,7 +10,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import local_to_geodetic
-from uav_model.mission import load_mission
+from uav_model.mission import Mission
 from companion.testing.telemetry import Telemetry
 from companion.testing.recorder import TelemetryRecorder, mode_name
 
@@ -24,9 +24,9 @@ MODES = {"HOLD": 4 << 16 | 3 << 24, "TAKEOFF": 4 << 16 | 2 << 24, "OFFBOARD": 6 
 class Feed:
     """Messages from vehicles, as the recorder would decode them, at chosen wall times."""
 
-    def __init__(self):
+    def __init__(self, mission: Mission):
         self.rec = TelemetryRecorder()
-        self.mission = load_mission(REFERENCE)
+        self.mission = mission
         self.telemetry = Telemetry(self.mission, REFERENCE, SimpleNamespace(recorder=self.rec, port=0))
         self._enc: dict[int, mavlink.MAVLink] = {}
 
@@ -55,8 +55,8 @@ class Feed:
 
 
 @pytest.fixture
-def feed() -> Feed:
-    return Feed()
+def feed(reference_mission) -> Feed:
+    return Feed(reference_mission)
 
 
 def _fly(feed: Feed, sysid: int, points, modes=(("HOLD", 0.0), ("OFFBOARD", 0.0))) -> None:

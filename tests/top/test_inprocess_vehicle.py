@@ -44,16 +44,16 @@ async def _airborne(v: InProcessVehicle, alt_m: float = 12.0) -> None:
                        and p is not None and p.alt_rel_m > alt_m - 0.5, WALL_S, "take-off complete")
 
 
-def test_the_adapter_implements_the_whole_port():
-    fleet = InProcessFleet(load_mission(REFERENCE))
+def test_the_adapter_implements_the_whole_port(reference_mission):
+    fleet = InProcessFleet(reference_mission)
     assert isinstance(fleet.vehicle("a"), Vehicle)
     with pytest.raises(KeyError, match="no vehicle 'c'"):
         fleet.vehicle("c")
 
 
-def test_not_ready_until_the_sim_runs_and_arming_refused_on_an_empty_battery():
+def test_not_ready_until_the_sim_runs_and_arming_refused_on_an_empty_battery(reference_mission):
     # A fleet whose clock is not driven sends no telemetry: wait_ready names what is missing.
-    idle = InProcessFleet(load_mission(REFERENCE))
+    idle = InProcessFleet(reference_mission)
     with pytest.raises(VehicleNotReady, match="not ok: sensors, home position, global position"):
         asyncio.run(idle.vehicle("a").wait_ready(0.2))
 
@@ -72,12 +72,12 @@ def test_not_ready_until_the_sim_runs_and_arming_refused_on_an_empty_battery():
     assert not status.armed and not armed and status.health_ok
 
 
-def test_takeoff_climbs_to_the_asked_altitude_then_holds():
+def test_takeoff_climbs_to_the_asked_altitude_then_holds(reference_mission):
     async def body(fleet):
         a = fleet.vehicle("a")
         await _airborne(a, 12.0)
         return a.status(), a.latest_pose(), a.sim
-    status, pose, sim = _fly(load_mission(REFERENCE), body)
+    status, pose, sim = _fly(reference_mission, body)
     assert sim.param("MIS_TAKEOFF_ALT") == 12.0  # set through the param protocol, as MAVSDK does
     assert status.armed and status.landed is LandedState.IN_AIR
     assert pose.alt_rel_m == pytest.approx(-sim.state.down_m, abs=0.5)
@@ -86,7 +86,7 @@ def test_takeoff_climbs_to_the_asked_altitude_then_holds():
     assert math.hypot(pose.x_east_m - x, pose.y_north_m - y) < 0.5  # straight up from home
 
 
-def test_offboard_start_requires_a_setpoint_and_flies_the_body_command():
+def test_offboard_start_requires_a_setpoint_and_flies_the_body_command(reference_mission):
     first = VelocityYawRateSetpoint(forward_m_s=6.0, yaw_rate_enu_rad_s=0.2, climb_m_s=0.5)
 
     async def body(fleet):
@@ -102,7 +102,7 @@ def test_offboard_start_requires_a_setpoint_and_flies_the_body_command():
         while (p := await a.next_pose(a.latest_pose().seq, WALL_S)).t_sim_s < start.t_sim_s + 3.0:
             await a.send_setpoint(first)
         return refused.value, sent, start, p
-    refused, sent, start, end = _fly(load_mission(REFERENCE), body)
+    refused, sent, start, end = _fly(reference_mission, body)
     assert (refused.result, refused.command) == ("COMMAND_DENIED", "offboard start")
     # BODY_NED velocity, down = -climb, PX4's clockwise yawspeed = -(CCW yaw rate).
     assert sent.body and (sent.vx_m_s, sent.vy_m_s, sent.vz_m_s) == (6.0, 0.0, -0.5)
@@ -115,14 +115,14 @@ def test_offboard_start_requires_a_setpoint_and_flies_the_body_command():
     assert math.hypot(end.vx_east_m_s - 6.0 * math.cos(h), end.vy_north_m_s - 6.0 * math.sin(h)) < 0.6
 
 
-def test_offboard_loss_falls_back_to_hold_after_com_of_loss_t():
+def test_offboard_loss_falls_back_to_hold_after_com_of_loss_t(reference_mission):
     async def body(fleet):
         a = fleet.vehicle("a")
         await _airborne(a)
         await a.start_offboard(VelocityYawRateSetpoint(5.0, 0.0))
         await a.wait_until(lambda s, p: s.mode is FlightMode.HOLD, WALL_S, "the offboard-loss failsafe")
         return a.sim.offboard_losses, a.sim.param("COM_OF_LOSS_T"), fleet.options.physics_dt_s, a.clock_s()
-    losses, loss_t, dt, clock = _fly(load_mission(REFERENCE), body)
+    losses, loss_t, dt, clock = _fly(reference_mission, body)
     assert len(losses) == 1
     silent = losses[0].failsafe_t_s - losses[0].last_setpoint_t_s
     assert loss_t < silent <= loss_t + dt + 1e-6  # one physics step after COM_OF_LOSS_T, in sim time
@@ -130,8 +130,8 @@ def test_offboard_loss_falls_back_to_hold_after_com_of_loss_t():
 
 
 @pytest.mark.parametrize("wire", [False, True], ids=["objects", "wire"])
-def test_route_upload_download_round_trip_and_refusals(wire):
-    mission = load_mission(REFERENCE)
+def test_route_upload_download_round_trip_and_refusals(wire, reference_mission):
+    mission = reference_mission
     plan = prepare(mission, None)
 
     async def body(fleet):
@@ -155,7 +155,7 @@ def test_route_upload_download_round_trip_and_refusals(wire):
     assert after_refusal == back  # a refused upload leaves the stored plan as it was
 
 
-def test_land_touches_down_and_auto_disarms():
+def test_land_touches_down_and_auto_disarms(reference_mission):
     async def body(fleet):
         a = fleet.vehicle("a")
         await _airborne(a, 8.0)
@@ -164,7 +164,7 @@ def test_land_touches_down_and_auto_disarms():
         await a.wait_until(lambda s, p: s.landed is LandedState.ON_GROUND, WALL_S, "touchdown")
         await a.wait_until(lambda s, p: not s.armed, WALL_S, "auto-disarm")
         return a.latest_pose(), a.sim
-    pose, sim = _fly(load_mission(REFERENCE), body)
+    pose, sim = _fly(reference_mission, body)
     assert pose.alt_rel_m < 0.05 and not sim.in_air and not sim.armed
 
 
@@ -187,7 +187,7 @@ def test_one_clock_moves_both_vehicles_and_the_traffic():
         assert math.hypot(r.vx_east_m_s - vx, r.vy_north_m_s - vy) < 0.05  # ADS-B course/speed -> ENU
 
 
-def test_the_same_commands_fly_the_same_track_twice():
+def test_the_same_commands_fly_the_same_track_twice(reference_mission):
     async def body(fleet):
         a = fleet.vehicle("a")
         await _airborne(a)
@@ -196,11 +196,11 @@ def test_the_same_commands_fly_the_same_track_twice():
         while (p := await a.next_pose(a.latest_pose().seq, WALL_S)).t_sim_s < start + 4.0:
             await a.send_setpoint(VelocityYawRateSetpoint(8.0, -0.1))
         return p.t_sim_s, p.x_east_m, p.y_north_m, p.heading_enu_rad
-    mission = load_mission(REFERENCE)
+    mission = reference_mission
     assert _fly(mission, body) == _fly(mission, body)
 
 
-def test_paced_never_runs_ahead_of_its_speed_factor():
+def test_paced_never_runs_ahead_of_its_speed_factor(reference_mission):
     speedup = 20.0
 
     async def body(fleet):
@@ -208,7 +208,7 @@ def test_paced_never_runs_ahead_of_its_speed_factor():
         started = time.monotonic()
         await a.wait_until(lambda s, p: p is not None and p.t_sim_s >= 1.0, WALL_S, "1 s of sim time")
         return fleet.sim_time_s, time.monotonic() - started
-    sim_s, wall_s = _fly(load_mission(REFERENCE), body, InProcessOptions(speedup=speedup))
+    sim_s, wall_s = _fly(reference_mission, body, InProcessOptions(speedup=speedup))
     assert sim_s <= speedup * wall_s + 0.1  # a loaded machine only slows it down
 
 

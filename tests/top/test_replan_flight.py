@@ -8,11 +8,8 @@ for one detour (never a reporting seed: see docs/results.md).
 
 from __future__ import annotations
 
-import json
-
 import pytest
 
-from companion.cli import main
 from uav_model.mission import load_mission
 from companion.planning.runner import simulate
 from companion.scenarios import generate_scenario, with_variant, write_mission_yaml
@@ -29,13 +26,11 @@ def stalling_mission(tmp_path_factory):
 
 
 @pytest.mark.parametrize("pacing", [[], ["--speedup", "80"]], ids=["free-running-inline", "paced-worker-thread"])
-def test_the_companion_replans_a_stalled_vehicle_and_arrives(stalling_mission, pacing, tmp_path, capsys,
-                                                             companion_logger):
+def test_the_companion_replans_a_stalled_vehicle_and_arrives(stalling_mission, pacing, run_in_process):
     path, headless = stalling_mission
-    out = tmp_path / "run"
-    assert main(["run", str(path), "--in-process", *pacing, "--out", str(out)]) == 0
-    assert "no progress for 60 s: new route from" in capsys.readouterr().out
-    summary = json.loads((out / "summary.json").read_text())
+    run = run_in_process(path, *pacing)
+    assert "no progress for 60 s: new route from" in run.stdout
+    summary = run.summary
     assert summary["success"]
     a = summary["live"]["vehicles"]["a"]
     assert a["interventions"].get("planner: re-planned", 0) >= 1, a["interventions"]
