@@ -4,11 +4,7 @@ Validation happens here and only here (SPEC §5). A bad file raises :class:`Miss
 message names the file, the line and the field path; everything downstream receives frozen,
 already-valid objects.
 
-    MissionError
-        raised for: unreadable file, YAML syntax, schema violation (unknown key, wrong type,
-        out of range), dangling station names, duplicate names or ids, a station outside the
-        area or inside an inflated obstacle. An unreachable goal is found by the planner and
-        reported through :func:`mission_error` with the vehicle's field path.
+See :mod:`uav_model.mission_errors` for what a MissionError reports and how its lines are found.
 """
 
 from __future__ import annotations
@@ -28,6 +24,8 @@ import yaml
 from shapely.geometry import Point
 
 from uav_model.frames import GeoOrigin
+from uav_model.mission_errors import (MissionError, StrictLoader, dotted, fail, line_of, mission_error,
+                                      schema_reason)
 from uav_model.mission_points import latlon_slips, localise
 from uav_model.plant import Plant
 from uav_model.world import Obstacle, Orbit, Patrol, Shuttle, Static, World, make_obstacle
@@ -35,42 +33,12 @@ from uav_model.world import Obstacle, Orbit, Patrol, Shuttle, Static, World, mak
 Variant = Literal["astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa"]
 VARIANTS: tuple[str, ...] = get_args(Variant)
 
+__all__ = ["API_PORT_BASE", "DEFAULT_ORIGIN", "VARIANTS", "Mission", "MissionError", "PlannerSettings",
+           "SafetySettings", "Variant", "VehicleSpec", "load_mission", "mission_error", "mission_from_data",
+           "mission_schema", "parse_mission", "shared_goals"]
+
 DEFAULT_ORIGIN = GeoOrigin(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)  # PX4 SITL home
 API_PORT_BASE = 14540  # PX4 SITL: vehicle i talks to the companion on 14540 + i
-
-
-class MissionError(ValueError):
-    """A mission file that cannot be flown. ``str()`` is one line: ``file:line: path: reason``."""
-
-    def __init__(self, source: str, field_path: str, reason: str, line: int | None = None):
-        self.source = source
-        self.field_path = field_path
-        self.reason = reason
-        self.line = line
-        self.problems: tuple[MissionError, ...] = (self,)
-        where = f"{source}:{line}" if line is not None else source
-        super().__init__(f"{where}: {field_path}: {reason}" if field_path else f"{where}: {reason}")
-
-    @classmethod
-    def of(cls, problems: list["MissionError"]) -> "MissionError":
-        """One error for several problems, in file order: ``str()`` is one line per problem."""
-        ordered = sorted(problems, key=lambda e: (e.line is None, e.line or 0, e.field_path))
-        first = ordered[0]
-        combined = cls(first.source, first.field_path, first.reason, first.line)
-        combined.problems = tuple(ordered)
-        combined.args = ("\n".join(str(e) for e in ordered),)
-        return combined
-
-    def __reduce__(self):
-        return (_rebuild_error, (self.source, self.field_path, self.reason, self.line,
-                                 tuple((e.field_path, e.reason, e.line) for e in self.problems)))
-
-
-def _rebuild_error(source: str, field_path: str, reason: str, line: int | None,
-                   problems: tuple[tuple[str, str, int | None], ...]) -> MissionError:
-    if len(problems) <= 1:
-        return MissionError(source, field_path, reason, line)
-    return MissionError.of([MissionError(source, f, r, ln) for f, r, ln in problems])
 
 
 @dataclass(frozen=True, slots=True)
@@ -179,92 +147,6 @@ def mission_schema() -> dict[str, Any]:
     return json.loads(text)
 
 
-class _LineLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys (silently dropping one is lost data)."""
-
-
-def _construct_mapping(loader: _LineLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
-    seen: dict[Any, yaml.Node] = {}
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r}", key_node.start_mark)
-        seen[key] = key_node
-    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
-
-
-_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
-
-
-def _line_of(root: yaml.Node | None, path: list[Any]) -> int | None:
-    """1-based line of the deepest YAML node that the path reaches."""
-    node = root
-    line = None if node is None else node.start_mark.line + 1
-    for part in path:
-        if isinstance(node, yaml.MappingNode):
-            nxt = None
-            for k, v in node.value:
-                if k.value == str(part):
-                    nxt = v
-                    line = k.start_mark.line + 1
-                    break
-            node = nxt
-        elif isinstance(node, yaml.SequenceNode) and isinstance(part, int) and part < len(node.value):
-            node = node.value[part]
-            line = node.start_mark.line + 1
-        else:
-            break
-        if node is None:
-            break
-    return line
-
-
-def _dotted(path: list[Any] | tuple[Any, ...]) -> str:
-    out = ""
-    for part in path:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
-    return out
-
-
-def _schema_reason(err: jsonschema.ValidationError) -> tuple[list[Any], str]:
-    """Turn a jsonschema error into (field path, short reason) that a user can act on."""
-    path = list(err.absolute_path)
-    if err.validator == "additionalProperties":
-        allowed = sorted(err.schema.get("properties", {}))
-        extra = [k for k in err.instance if k not in err.schema.get("properties", {})] if isinstance(err.instance, dict) else []
-        if extra:
-            hint = f"; allowed: {', '.join(allowed)}" if allowed else ""
-            return path + [extra[0]], f"unknown key {extra[0]!r}{hint}"
-    if err.validator == "required":
-        return path, err.message.replace("is a required property", "is required")
-    if err.validator == "type":
-        return path, f"expected {err.validator_value}, got {type(err.instance).__name__} {err.instance!r}"
-    if err.validator == "enum":
-        return path, f"{err.instance!r} is not one of {', '.join(map(str, err.validator_value))}"
-    return path, err.message
-
-
-def mission_error(mission_or_source: Mission | str, field_path: str, reason: str,
-                  root: yaml.Node | None = None) -> MissionError:
-    """A MissionError for a semantic problem found after loading (e.g. an unreachable goal)."""
-    source = mission_or_source.source if isinstance(mission_or_source, Mission) else mission_or_source
-    line = None
-    if root is None:
-        try:
-            root = yaml.compose(Path(source).read_text(encoding="utf-8"), Loader=yaml.SafeLoader)
-        except (OSError, yaml.YAMLError, UnicodeDecodeError):
-            root = None
-    if root is not None:
-        parts: list[Any] = []
-        for token in field_path.replace("[", ".[").split("."):
-            if not token:
-                continue
-            parts.append(int(token[1:-1]) if token.startswith("[") else token)
-        line = _line_of(root, parts)
-    return MissionError(source, field_path, reason, line)
-
-
 def load_mission(path: str | Path) -> Mission:
     """Read, validate and type a mission file. Raises MissionError, never anything else."""
     source = str(path)
@@ -281,14 +163,14 @@ def parse_mission(text: str, source: str = "<mission>") -> Mission:
     """Validate and type mission YAML text; ``source`` names it in errors."""
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.load(text, Loader=_LineLoader)
+        data = yaml.load(text, Loader=StrictLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
         problem = getattr(exc, "problem", None) or str(exc)
         raise MissionError(source, "", f"YAML syntax: {problem}", line) from None
     if not isinstance(data, dict):
-        raise MissionError(source, "", "a mission file must be a YAML mapping", _line_of(root, []))
+        raise MissionError(source, "", "a mission file must be a YAML mapping", line_of(root, []))
     return _validated(data, source, root)
 
 
@@ -310,8 +192,8 @@ def _schema_problems(data: dict[str, Any], source: str, root: yaml.Node | None) 
         # Descend into if/then and oneOf branches so the message names the real field.
         while best.context:
             best = jsonschema.exceptions.best_match(best.context)
-        path, reason = _schema_reason(best)
-        problems.setdefault(_dotted(path), MissionError(source, _dotted(path), reason, _line_of(root, path)))
+        path, reason = schema_reason(best)
+        problems.setdefault(dotted(path), MissionError(source, dotted(path), reason, line_of(root, path)))
     return list(problems.values())
 
 
@@ -319,7 +201,7 @@ def _validated(data: dict[str, Any], source: str, root: yaml.Node | None) -> Mis
     """Check the whole document and report every problem at once (``MissionError.problems``)."""
     problems = _schema_problems(data, source, root)
     origin = _origin(data.get("origin")) if not any(p.field_path.startswith("origin") for p in problems) else DEFAULT_ORIGIN
-    problems += [_fail(source, root, path, reason) for path, reason in latlon_slips(data, origin)]
+    problems += [fail(source, root, path, reason) for path, reason in latlon_slips(data, origin)]
     found: list[MissionError] = []
     mission = None
     try:
@@ -333,10 +215,6 @@ def _validated(data: dict[str, Any], source: str, root: yaml.Node | None) -> Mis
         raise MissionError.of(problems)
     assert mission is not None
     return mission
-
-
-def _fail(source: str, root: yaml.Node | None, path: list[Any], reason: str) -> MissionError:
-    return MissionError(source, _dotted(path), reason, _line_of(root, path))
 
 
 def _origin(raw: dict[str, Any] | None) -> GeoOrigin:
@@ -359,6 +237,23 @@ def _motion(spec: dict | None, start: tuple[float, float]):
     return Patrol(loop_m=(start,) + tuple(tuple(p) for p in spec["waypoints"]), speed_m_s=speed)
 
 
+def _opt(raw: dict, defs: dict, key: str):
+    """A field's value, or the schema's default for it."""
+    return raw.get(key, defs[key].get("default"))
+
+
+@dataclass
+class _Problems:
+    """Semantic problems found while building, each at its field's line."""
+
+    source: str
+    root: yaml.Node | None
+    found: list[MissionError]
+
+    def add(self, path: list[Any], reason: str) -> None:
+        self.found.append(fail(self.source, self.root, path, reason))
+
+
 def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
            problems: list[MissionError], broken: set[str] = frozenset()) -> Mission | None:
     """The typed mission; semantic problems are appended to ``problems`` (None if any).
@@ -366,124 +261,16 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
     ``broken`` names the items (``vehicles[1]``, ``obstacles[0]``) the schema already refused:
     they are checked no further, so one wrong value does not hide the next item's problems."""
     schema = mission_schema()["$defs"]
-    planner_raw = copy.deepcopy(data.get("planner", {}))
-    weights = planner_raw.get("weights", {})
-    pdef = schema["planner"]["properties"]
-    wdef = pdef["weights"]["properties"]
-    sdef = schema["safety"]["properties"]
-    vdef = schema["vehicle"]["properties"]
-
-    def opt(raw: dict, defs: dict, key: str):
-        return raw.get(key, defs[key].get("default"))
-
-    planner = PlannerSettings(
-        variant=opt(planner_raw, pdef, "variant"),
-        grid_resolution_m=float(opt(planner_raw, pdef, "grid_resolution_m")),
-        yaw_rate_samples=int(opt(planner_raw, pdef, "yaw_rate_samples")),
-        dt_s=float(opt(planner_raw, pdef, "dt_s")),
-        prediction_time_s=(None if opt(planner_raw, pdef, "prediction_time_s") is None
-                           else float(planner_raw["prediction_time_s"])),
-        weight_heading=float(opt(weights, wdef, "heading")),
-        weight_distance=float(opt(weights, wdef, "distance")),
-        weight_sightline=float(opt(weights, wdef, "sightline")),
-        inflation_ratio=float(opt(planner_raw, pdef, "inflation_ratio")),
-        acceptance_radius_m=float(opt(planner_raw, pdef, "acceptance_radius_m")),
-        sightline_cap_m=float(opt(planner_raw, pdef, "sightline_cap_m")),
-        replan_after_s=float(opt(planner_raw, pdef, "replan_after_s")),
-    )
-    safety_raw = data.get("safety", {})
-    safety = SafetySettings(**{k: float(opt(safety_raw, sdef, k)) for k in sdef})
-    coord_raw = data.get("coordination", {})
-    cdef = schema["coordination"]["properties"]
-    coordination = CoordinationSettings(**{k: float(opt(coord_raw, cdef, k)) for k in cdef})
-
-    area = data["area"]
-    adef = mission_schema()["properties"]["area"]["properties"]
-    x0, y0, x1, y1 = (float(area[k]) for k in ("x_min_m", "y_min_m", "x_max_m", "y_max_m"))
-    if x1 <= x0:
-        problems.append(_fail(source, root, ["area", "x_max_m"], f"must be greater than x_min_m ({x0})"))
-    if y1 <= y0:
-        problems.append(_fail(source, root, ["area", "y_max_m"], f"must be greater than y_min_m ({y0})"))
-    margin = float(opt(area, adef, "geofence_margin_m"))
-
-    obstacles: list[Obstacle] = []
-    seen_ids: set[str] = set()
-    for i, o in enumerate(data.get("obstacles", [])):
-        oid = o.get("id", f"obstacle{i}")
-        if oid in seen_ids:
-            problems.append(_fail(source, root, ["obstacles", i, "id"], f"duplicate obstacle id {oid!r}"))
-        seen_ids.add(oid)
-        kind = o["shape"]
-        if f"obstacles[{i}]" in broken:
-            continue
-        if kind == "polygon":
-            poly_vertices = [tuple(map(float, p)) for p in o["vertices"]]
-            from shapely.geometry import Polygon
-            if not Polygon(poly_vertices).is_valid or Polygon(poly_vertices).area <= 0:
-                problems.append(_fail(source, root, ["obstacles", i, "vertices"],
-                                      "polygon is self-intersecting or has no area"))
-                continue
-        obstacle = make_obstacle(
-            oid, kind,
-            center=tuple(map(float, o["center"])) if "center" in o else None,
-            radius_m=o.get("radius_m"), width_m=o.get("width_m"), height_m=o.get("height_m"),
-            circumradius_m=o.get("circumradius_m"),
-            vertices=[tuple(map(float, p)) for p in o["vertices"]] if "vertices" in o else None,
-            rotation_deg=float(o.get("rotation_deg", 0.0)),
-            inflation_ratio=planner.inflation_ratio,
-        )
-        motion = _motion(o.get("motion"), obstacle.center)
-        obstacles.append(Obstacle(id=obstacle.id, kind=obstacle.kind, center=obstacle.center,
-                                  size_m=obstacle.size_m, footprint=obstacle.footprint,
-                                  margin_m=obstacle.margin_m, motion=motion))
-    world = World(x0, y0, x1, y1, margin, tuple(obstacles))
-
-    stations = {name: (float(p[0]), float(p[1])) for name, p in data["stations"].items()}
-    for name, (x, y) in stations.items():
-        path = ["stations", name]
-        if not (x0 <= x <= x1 and y0 <= y <= y1):
-            problems.append(_fail(source, root, path, f"station ({x:g}, {y:g}) lies outside the area"))
-        for o in world.static_obstacles:
-            if o.inflated.intersects(Point(x, y)):
-                problems.append(_fail(source, root, path,
-                                      f"station ({x:g}, {y:g}) lies inside obstacle {o.id!r} "
-                                      f"(inflated by {o.margin_m:g} m)"))
-
-    vehicles: list[VehicleSpec] = []
-    names: set[str] = set()
-    sysids: set[int] = set()
-    for i, v in enumerate(data["vehicles"]):
-        base = ["vehicles", i]
-        if v["name"] in names:
-            problems.append(_fail(source, root, base + ["name"], f"duplicate vehicle name {v['name']!r}"))
-        names.add(v["name"])
-        sysid = int(v.get("system_id", i + 1))
-        if sysid in sysids:
-            problems.append(_fail(source, root, base + ["system_id"], f"duplicate system id {sysid}"))
-        sysids.add(sysid)
-        unknown = [key for key in ("start", "goal") if v[key] not in stations]
-        for key in unknown:
-            problems.append(_fail(source, root, base + [key],
-                                  f"unknown station {v[key]!r}; stations are {', '.join(stations)}"))
-        if v["start"] == v["goal"]:
-            problems.append(_fail(source, root, base + ["goal"], "goal is the same station as start"))
-        if unknown or f"vehicles[{i}]" in broken:
-            continue
-        vehicles.append(VehicleSpec(
-            name=v["name"], index=i, system_id=sysid,
-            connection=v.get("connection", f"udpin://0.0.0.0:{API_PORT_BASE + i}"),
-            start=v["start"], goal=v["goal"],
-            start_enu_m=stations[v["start"]], goal_enu_m=stations[v["goal"]],
-            speed_m_s=float(opt(v, vdef, "speed_m_s")),
-            turn_radius_m=float(opt(v, vdef, "turn_radius_m")),
-            max_accel_m_s2=float(opt(v, vdef, "max_accel_m_s2")),
-            cruise_alt_m=float(opt(v, vdef, "cruise_alt_m")),
-            initial_heading_deg=float(opt(v, vdef, "initial_heading_deg")),
-            priority=int(v.get("priority", i)),
-            battery_pct=float(opt(v, vdef, "battery_pct")),
-        ))
-
-    _check_shared_goals(vehicles, safety, source, root, problems)
+    planner = _planner(copy.deepcopy(data.get("planner", {})), schema["planner"]["properties"])
+    safety_raw, sdef = data.get("safety", {}), schema["safety"]["properties"]
+    safety = SafetySettings(**{k: float(_opt(safety_raw, sdef, k)) for k in sdef})
+    coord_raw, cdef = data.get("coordination", {}), schema["coordination"]["properties"]
+    coordination = CoordinationSettings(**{k: float(_opt(coord_raw, cdef, k)) for k in cdef})
+    report = _Problems(source, root, problems)
+    world = _world(data, planner.inflation_ratio, report, broken)
+    stations = _stations(data, world, report)
+    vehicles = _vehicles(data, stations, schema["vehicle"]["properties"], report, broken)
+    _check_shared_goals(vehicles, safety, report)
     if problems:
         return None
     return Mission(name=data.get("name", Path(source).stem), source=source,
@@ -491,6 +278,122 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
                    stations=stations, vehicles=tuple(vehicles), planner=planner, safety=safety,
                    plant=Plant(data.get("plant", mission_schema()["properties"]["plant"]["default"])),
                    coordination=coordination)
+
+
+def _planner(planner_raw: dict, pdef: dict) -> PlannerSettings:
+    weights = planner_raw.get("weights", {})
+    wdef = pdef["weights"]["properties"]
+    return PlannerSettings(
+        variant=_opt(planner_raw, pdef, "variant"),
+        grid_resolution_m=float(_opt(planner_raw, pdef, "grid_resolution_m")),
+        yaw_rate_samples=int(_opt(planner_raw, pdef, "yaw_rate_samples")),
+        dt_s=float(_opt(planner_raw, pdef, "dt_s")),
+        prediction_time_s=(None if _opt(planner_raw, pdef, "prediction_time_s") is None
+                           else float(planner_raw["prediction_time_s"])),
+        weight_heading=float(_opt(weights, wdef, "heading")),
+        weight_distance=float(_opt(weights, wdef, "distance")),
+        weight_sightline=float(_opt(weights, wdef, "sightline")),
+        inflation_ratio=float(_opt(planner_raw, pdef, "inflation_ratio")),
+        acceptance_radius_m=float(_opt(planner_raw, pdef, "acceptance_radius_m")),
+        sightline_cap_m=float(_opt(planner_raw, pdef, "sightline_cap_m")),
+        replan_after_s=float(_opt(planner_raw, pdef, "replan_after_s")),
+    )
+
+
+def _world(data: dict, inflation_ratio: float, report: _Problems, broken: set[str]) -> World:
+    area = data["area"]
+    adef = mission_schema()["properties"]["area"]["properties"]
+    x0, y0, x1, y1 = (float(area[k]) for k in ("x_min_m", "y_min_m", "x_max_m", "y_max_m"))
+    if x1 <= x0:
+        report.add(["area", "x_max_m"], f"must be greater than x_min_m ({x0})")
+    if y1 <= y0:
+        report.add(["area", "y_max_m"], f"must be greater than y_min_m ({y0})")
+    margin = float(_opt(area, adef, "geofence_margin_m"))
+    obstacles: list[Obstacle] = []
+    seen_ids: set[str] = set()
+    for i, o in enumerate(data.get("obstacles", [])):
+        oid = o.get("id", f"obstacle{i}")
+        if oid in seen_ids:
+            report.add(["obstacles", i, "id"], f"duplicate obstacle id {oid!r}")
+        seen_ids.add(oid)
+        if f"obstacles[{i}]" in broken:
+            continue
+        obstacle = _obstacle(o, oid, i, inflation_ratio, report)
+        if obstacle is not None:
+            obstacles.append(obstacle)
+    return World(x0, y0, x1, y1, margin, tuple(obstacles))
+
+
+def _obstacle(o: dict, oid: str, i: int, inflation_ratio: float, report: _Problems) -> Obstacle | None:
+    kind = o["shape"]
+    if kind == "polygon":
+        poly_vertices = [tuple(map(float, p)) for p in o["vertices"]]
+        from shapely.geometry import Polygon
+        if not Polygon(poly_vertices).is_valid or Polygon(poly_vertices).area <= 0:
+            report.add(["obstacles", i, "vertices"], "polygon is self-intersecting or has no area")
+            return None
+    obstacle = make_obstacle(
+        oid, kind,
+        center=tuple(map(float, o["center"])) if "center" in o else None,
+        radius_m=o.get("radius_m"), width_m=o.get("width_m"), height_m=o.get("height_m"),
+        circumradius_m=o.get("circumradius_m"),
+        vertices=[tuple(map(float, p)) for p in o["vertices"]] if "vertices" in o else None,
+        rotation_deg=float(o.get("rotation_deg", 0.0)),
+        inflation_ratio=inflation_ratio,
+    )
+    motion = _motion(o.get("motion"), obstacle.center)
+    return Obstacle(id=obstacle.id, kind=obstacle.kind, center=obstacle.center, size_m=obstacle.size_m,
+                    footprint=obstacle.footprint, margin_m=obstacle.margin_m, motion=motion)
+
+
+def _stations(data: dict, world: World, report: _Problems) -> dict[str, tuple[float, float]]:
+    stations = {name: (float(p[0]), float(p[1])) for name, p in data["stations"].items()}
+    for name, (x, y) in stations.items():
+        path = ["stations", name]
+        if not (world.x_min_m <= x <= world.x_max_m and world.y_min_m <= y <= world.y_max_m):
+            report.add(path, f"station ({x:g}, {y:g}) lies outside the area")
+        for o in world.static_obstacles:
+            if o.inflated.intersects(Point(x, y)):
+                report.add(path, f"station ({x:g}, {y:g}) lies inside obstacle {o.id!r} "
+                                 f"(inflated by {o.margin_m:g} m)")
+    return stations
+
+
+def _vehicles(data: dict, stations: dict[str, tuple[float, float]], vdef: dict, report: _Problems,
+              broken: set[str]) -> list[VehicleSpec]:
+    vehicles: list[VehicleSpec] = []
+    names: set[str] = set()
+    sysids: set[int] = set()
+    for i, v in enumerate(data["vehicles"]):
+        base = ["vehicles", i]
+        if v["name"] in names:
+            report.add(base + ["name"], f"duplicate vehicle name {v['name']!r}")
+        names.add(v["name"])
+        sysid = int(v.get("system_id", i + 1))
+        if sysid in sysids:
+            report.add(base + ["system_id"], f"duplicate system id {sysid}")
+        sysids.add(sysid)
+        unknown = [key for key in ("start", "goal") if v[key] not in stations]
+        for key in unknown:
+            report.add(base + [key], f"unknown station {v[key]!r}; stations are {', '.join(stations)}")
+        if v["start"] == v["goal"]:
+            report.add(base + ["goal"], "goal is the same station as start")
+        if unknown or f"vehicles[{i}]" in broken:
+            continue
+        vehicles.append(VehicleSpec(
+            name=v["name"], index=i, system_id=sysid,
+            connection=v.get("connection", f"udpin://0.0.0.0:{API_PORT_BASE + i}"),
+            start=v["start"], goal=v["goal"],
+            start_enu_m=stations[v["start"]], goal_enu_m=stations[v["goal"]],
+            speed_m_s=float(_opt(v, vdef, "speed_m_s")),
+            turn_radius_m=float(_opt(v, vdef, "turn_radius_m")),
+            max_accel_m_s2=float(_opt(v, vdef, "max_accel_m_s2")),
+            cruise_alt_m=float(_opt(v, vdef, "cruise_alt_m")),
+            initial_heading_deg=float(_opt(v, vdef, "initial_heading_deg")),
+            priority=int(v.get("priority", i)),
+            battery_pct=float(_opt(v, vdef, "battery_pct")),
+        ))
+    return vehicles
 
 
 def shared_goals(mission: Mission) -> dict[str, list[str]]:
@@ -501,8 +404,7 @@ def shared_goals(mission: Mission) -> dict[str, list[str]]:
     return {goal: names for goal, names in by_goal.items() if len(names) > 1}
 
 
-def _check_shared_goals(vehicles: list[VehicleSpec], safety: SafetySettings, source: str,
-                        root: yaml.Node | None, problems: list[MissionError]) -> None:
+def _check_shared_goals(vehicles: list[VehicleSpec], safety: SafetySettings, report: _Problems) -> None:
     """Two vehicles cannot both arrive at one station when the arrival disc is narrower than the
     separation they must keep: refuse that before anything flies (a wider disc is only warned
     about, by ``companion validate``)."""
@@ -511,9 +413,9 @@ def _check_shared_goals(vehicles: list[VehicleSpec], safety: SafetySettings, sou
     first: dict[str, VehicleSpec] = {}
     for v in vehicles:
         if v.goal in first:
-            problems.append(_fail(source, root, ["vehicles", v.index, "goal"],
-                                  f"station {v.goal!r} is already the goal of vehicle {first[v.goal].name!r}: both "
-                                  f"cannot be within the arrival radius ({safety.arrival_radius_m:g} m) and "
-                                  f"{safety.min_separation_m:g} m apart; give each vehicle its own goal"))
+            report.add(["vehicles", v.index, "goal"],
+                       f"station {v.goal!r} is already the goal of vehicle {first[v.goal].name!r}: both "
+                       f"cannot be within the arrival radius ({safety.arrival_radius_m:g} m) and "
+                       f"{safety.min_separation_m:g} m apart; give each vehicle its own goal")
         else:
             first[v.goal] = v
