@@ -27,16 +27,8 @@ stations: {A: [100, 100], B: [2900, 2900]}
 obstacles:
   - {id: fire, shape: circle, center: [1500, 1500], radius_m: 400}
   - {id: block, shape: rectangle, center: [800, 2200], width_m: 200, height_m: 300}
-  - id: m1
-    shape: circle
-    center: [500, 1500]
-    radius_m: 100
-    motion: {type: shuttle, to: [1000, 2500], speed_m_s: 4}
-  - id: m2
-    shape: circle
-    center: [2500, 500]
-    radius_m: 120
-    motion: {type: shuttle, to: [2000, 1200], speed_m_s: 3}
+  - {id: m1, shape: circle, center: [500, 1500], radius_m: 100, motion: {type: shuttle, to: [1000, 2500], speed_m_s: 4}}
+  - {id: m2, shape: circle, center: [2500, 500], radius_m: 120, motion: {type: shuttle, to: [2000, 1200], speed_m_s: 3}}
 vehicles:
   - {name: a, start: A, goal: B, cruise_alt_m: 10}
   - {name: b, start: B, goal: A, cruise_alt_m: 10, initial_heading_deg: -135}

@@ -28,10 +28,9 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from uav_model.mission import VARIANTS, Mission, MissionError, load_mission
+from companion.cli_common import EXIT_FAILED, EXIT_OK, BadInput, add_variant_option, bad_input, output_dir
+from uav_model.mission import Mission, MissionError, load_mission
 from companion.planning.errors import NoPath
-
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
 # (module, registration function) of the other subcommand groups, each f(subparsers) -> None.
 _COMMAND_MODULES = (
@@ -63,6 +62,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     handler: Callable[[argparse.Namespace], int] = getattr(args, "func", None) or args.handler
     try:
         return int(handler(args))
+    except BadInput as exc:
+        return bad_input(exc)
     except KeyboardInterrupt:
         print("companion: interrupted", file=sys.stderr)
         return 130
@@ -72,11 +73,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_OK
 
 
-def _bad(exc: Exception) -> int:
-    print(f"companion: {exc}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
 # --- simulate ------------------------------------------------------------------------------------
 
 def _add_simulate(sub) -> None:
@@ -84,7 +80,7 @@ def _add_simulate(sub) -> None:
                        description="Fly every vehicle of the mission in-process with the same planner and "
                                    "plant as the live companion; write summary.json and trajectory.png.")
     p.add_argument("mission", type=Path)
-    p.add_argument("--variant", choices=VARIANTS, default=None, help="planner variant (default: the mission's)")
+    add_variant_option(p)
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="output directory (default: simulate-<mission>-<variant>)")
     p.set_defaults(func=cmd_simulate)
@@ -98,12 +94,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         mission = load_mission(args.mission)
         run = simulate(mission, args.variant)
     except (MissionError, NoPath) as exc:
-        return _bad(exc)
-    out = args.out or Path(f"simulate-{mission.name}-{run.variant}")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        return _bad(OSError(f"cannot create output directory {out}: {exc.strerror}"))
+        return bad_input(exc)
+    out = output_dir(args.out or Path(f"simulate-{mission.name}-{run.variant}"))
     summary = run.summary.summary_dict()
     summary.update(mission=mission.name, variant=run.variant, wall_s=round(run.wall_s, 3),
                    speed_factor=round(run.speed_factor, 1))
@@ -215,7 +207,7 @@ def _add_sweep(sub) -> None:
                               description=f"Reproduce the paper's {PAPER_TABLES[table][0]}, headless.")
         t.add_argument("--mission", type=Path, default=Path("missions/paper_reference.yaml"),
                        help="the reference mission to vary (default missions/paper_reference.yaml)")
-        t.add_argument("--variant", choices=VARIANTS, default=None, help="planner variant (default: the mission's)")
+        add_variant_option(t)
         t.add_argument("--out", type=Path, default=None, metavar="DIR",
                        help="write <table>.json and a trajectory per row here")
         t.set_defaults(func=cmd_sweep, table=table)
@@ -235,12 +227,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     try:
         base = load_mission(args.mission)
     except MissionError as exc:
-        return _bad(exc)
+        return bad_input(exc)
     if len(base.vehicles) < 2 or (args.table == "table3" and len(base.world.obstacles) != 1):
-        return _bad(MissionError(str(args.mission), "vehicles" if len(base.vehicles) < 2 else "obstacles",
+        return bad_input(MissionError(str(args.mission), "vehicles" if len(base.vehicles) < 2 else "obstacles",
                                  "the sweeps vary the paper's scenario: two vehicles and (table3) one obstacle"))
     if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
+        output_dir(args.out)
     title, paper = PAPER_TABLES[args.table]
     a, b = (v.name for v in base.by_priority[:2])
     print(title)

@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import functools
 import json
 import logging
 import math
 import signal
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -26,18 +28,14 @@ from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
 from companion.app.runner import RunResult, run_mission, summary_table
 from companion.errors import CompanionError
-from uav_model.mission import VARIANTS, MissionError, load_mission, mission_schema, shared_goals
+from companion.cli_common import EXIT_FAILED, EXIT_OK, BadInput, add_variant_option, bad_input, output_dir
+from uav_model.mission import MissionError, load_mission, mission_schema, shared_goals
 
 if TYPE_CHECKING:
     from companion.sitl.inprocess import InProcessOptions
 
 log = logging.getLogger("companion")
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
-
-
-class BadInput(ValueError):
-    """A command-line value that cannot be used; exit 2 with this one-line message."""
 
 
 # -- argument helpers ---------------------------------------------------------------------
@@ -89,7 +87,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("mission", type=Path)
     p.add_argument("--connect", type=_connect, action="append", default=[], metavar="NAME=URL",
                    help="fly an external autopilot, e.g. a=udpin://0.0.0.0:14540 (one per vehicle)")
-    p.add_argument("--variant", choices=VARIANTS, default=None, help="planner variant (default: the mission's)")
+    add_variant_option(p)
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write summary.json, flight.csv, traffic.csv, trajectory.png (and the stub's .tlog) here")
     p.add_argument("--speedup", type=_positive, default=None,
@@ -118,19 +116,19 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("validate", help="check a mission file (schema, geometry, reachability)")
     p.add_argument("mission", type=Path)
-    p.add_argument("--variant", choices=VARIANTS, default=None)
+    add_variant_option(p)
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("plan", help="global routes and a plot, no vehicles")
     p.add_argument("mission", type=Path)
-    p.add_argument("--variant", choices=VARIANTS, default=None)
+    add_variant_option(p)
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="write routes.json and trajectory.png here")
     p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("upload", help="plan, upload the routes as MAVLink missions, read them back")
     p.add_argument("mission", type=Path)
     p.add_argument("--connect", type=_connect, action="append", default=[], metavar="NAME=URL", required=True)
-    p.add_argument("--variant", choices=VARIANTS, default=None)
+    add_variant_option(p)
     p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S")
     p.set_defaults(func=cmd_upload)
 
@@ -139,16 +137,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 # -- shared steps -------------------------------------------------------------------------
-def _bad(exc: Exception) -> int:
-    """One line on stderr: a MissionError already reads ``file:line: field: reason``."""
-    print(str(exc) if isinstance(exc, MissionError) else f"companion: {exc}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
-def _load_and_plan(args: argparse.Namespace) -> FlightPlan:
-    """Load, validate and plan, or raise MissionError (bad file, unreachable goal)."""
-    mission = load_mission(args.mission)
-    return prepare(mission, args.variant)
+def _planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callable[[argparse.Namespace], int]:
+    """A subcommand on the mission's plan: a bad file or an unreachable goal exits 2 before it starts."""
+    @functools.wraps(handler)
+    def with_plan(args: argparse.Namespace) -> int:
+        try:
+            plan = prepare(load_mission(args.mission), args.variant)
+        except MissionError as exc:
+            return bad_input(exc)
+        return handler(args, plan)
+    return with_plan
 
 
 def _connections(plan: FlightPlan, pairs: list[tuple[str, str]]) -> dict[str, str]:
@@ -200,11 +198,8 @@ def cmd_schema(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def cmd_validate(args: argparse.Namespace) -> int:
-    try:
-        plan = _load_and_plan(args)
-    except MissionError as exc:
-        return _bad(exc)
+@_planned
+def cmd_validate(args: argparse.Namespace, plan: FlightPlan) -> int:
     m = plan.mission
     for station, names in shared_goals(m).items():
         print(f"{m.source}: warning: vehicles {', '.join(names)} share goal station {station!r}: "
@@ -217,17 +212,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def cmd_plan(args: argparse.Namespace) -> int:
-    try:
-        plan = _load_and_plan(args)
-    except MissionError as exc:
-        return _bad(exc)
+@_planned
+def cmd_plan(args: argparse.Namespace, plan: FlightPlan) -> int:
     from companion.planning.bounds import lower_bound_s
-    out: Path = args.out
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        return _bad(BadInput(f"--out {out}: cannot create the directory ({exc.strerror})"))
+    out = output_dir(args.out)
     doc: dict = {"mission": plan.mission.name, "variant": plan.variant, "vehicles": {}}
     for v in plan.mission.by_priority:
         nodes = plan.nodes_enu_m(v)
@@ -277,12 +265,9 @@ def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
     fig.savefig(path)
 
 
-def cmd_upload(args: argparse.Namespace) -> int:
-    try:
-        plan = _load_and_plan(args)
-        conns = _connections(plan, args.connect)
-    except (MissionError, BadInput) as exc:
-        return _bad(exc)
+@_planned
+def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
+    conns = _connections(plan, args.connect)
     _quiet_mavsdk(None)
     try:
         asyncio.run(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
@@ -304,19 +289,11 @@ async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, rep
             report(f"{v.name}: uploaded {len(waypoints)} waypoints to {conns[v.name]} and read them back")
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    try:
-        plan = _load_and_plan(args)
-        conns = _connections(plan, args.connect) if args.connect else None
-        inproc = _inprocess_options(args) if args.in_process else None
-    except (MissionError, BadInput) as exc:
-        return _bad(exc)
-    out: Path | None = args.out
-    try:
-        if out is not None:
-            out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        return _bad(BadInput(f"--out {out}: cannot create the directory ({exc.strerror})"))
+@_planned
+def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
+    conns = _connections(plan, args.connect) if args.connect else None
+    inproc = _inprocess_options(args) if args.in_process else None
+    out = None if args.out is None else output_dir(args.out)
     _quiet_mavsdk(out)
     settings = RunSettings(shared_clock=conns is None or args.shared_clock, connect_timeout_s=args.connect_timeout,
                            progress_every_s=args.progress_every, land=not args.no_land)

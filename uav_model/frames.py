@@ -21,6 +21,7 @@ _A = 6_378_137.0  # WGS-84 semi-major axis, m
 _E2 = 6.694_379_990_14e-3  # WGS-84 first eccentricity squared
 _NEWTON_STEPS = 4
 
+
 @dataclass(frozen=True, slots=True)
 class GeoOrigin:
     """Geodetic origin of the local frame (WGS-84, AMSL altitude)."""
