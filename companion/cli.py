@@ -221,18 +221,18 @@ def _add_sweep(sub) -> None:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from companion.planning.runner import simulate
-    from companion.plots import save_trajectory
-
     try:
         base = load_mission(args.mission)
     except MissionError as exc:
         return bad_input(exc)
     if len(base.vehicles) < 2 or (args.table == "table3" and len(base.world.obstacles) != 1):
         return bad_input(MissionError(str(args.mission), "vehicles" if len(base.vehicles) < 2 else "obstacles",
-                                 "the sweeps vary the paper's scenario: two vehicles and (table3) one obstacle"))
+                                      "the sweeps vary the paper's scenario: two vehicles and (table3) one obstacle"))
     if args.out is not None:
         output_dir(args.out)
+    from companion.planning.runner import simulate  # after the input checks: they need neither
+    from companion.plots import save_trajectory
+
     title, paper = PAPER_TABLES[args.table]
     a, b = (v.name for v in base.by_priority[:2])
     print(title)
