@@ -4,20 +4,20 @@ Validation happens here and only here (SPEC §5). A bad file raises :class:`Miss
 message names the file, the line and the field path; everything downstream receives frozen,
 already-valid objects.
 
-See :mod:`uav_model.mission_errors` for what a MissionError reports and how its lines are found.
+The typed objects are in :mod:`uav_model.mission_types`, what a MissionError reports and how its
+lines are found in :mod:`uav_model.mission_errors`; import them all from here.
 """
 
 from __future__ import annotations
 
 import copy
 import json
-import math
 import re
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any
 
 import jsonschema
 import yaml
@@ -27,117 +27,17 @@ from uav_model.frames import GeoOrigin
 from uav_model.mission_errors import (MissionError, StrictLoader, dotted, fail, line_of, mission_error,
                                       schema_reason)
 from uav_model.mission_points import latlon_slips, localise
+from uav_model.mission_types import (VARIANTS, CoordinationSettings, Mission, PlannerSettings, SafetySettings,
+                                     Variant, VehicleSpec, shared_goals)
 from uav_model.plant import Plant
 from uav_model.world import Obstacle, Orbit, Patrol, Shuttle, Static, World, make_obstacle
 
-Variant = Literal["astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa"]
-VARIANTS: tuple[str, ...] = get_args(Variant)
-
-__all__ = ["API_PORT_BASE", "DEFAULT_ORIGIN", "VARIANTS", "Mission", "MissionError", "PlannerSettings",
-           "SafetySettings", "Variant", "VehicleSpec", "load_mission", "mission_error", "mission_from_data",
-           "mission_schema", "parse_mission", "shared_goals"]
+__all__ = ["API_PORT_BASE", "CoordinationSettings", "DEFAULT_ORIGIN", "VARIANTS", "Mission", "MissionError",
+           "PlannerSettings", "SafetySettings", "Variant", "VehicleSpec", "load_mission", "mission_error",
+           "mission_from_data", "mission_schema", "parse_mission", "shared_goals"]
 
 DEFAULT_ORIGIN = GeoOrigin(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)  # PX4 SITL home
 API_PORT_BASE = 14540  # PX4 SITL: vehicle i talks to the companion on 14540 + i
-
-
-@dataclass(frozen=True, slots=True)
-class VehicleSpec:
-    name: str
-    index: int  # position in the file; sets the default system id and port
-    system_id: int
-    connection: str
-    start: str
-    goal: str
-    start_enu_m: tuple[float, float]
-    goal_enu_m: tuple[float, float]
-    speed_m_s: float
-    turn_radius_m: float
-    max_accel_m_s2: float
-    cruise_alt_m: float
-    initial_heading_deg: float
-    priority: int
-    battery_pct: float
-
-    @property
-    def max_yaw_rate_rad_s(self) -> float:
-        """The turn-radius limit as a yaw rate: |omega| <= v / r."""
-        return self.speed_m_s / self.turn_radius_m
-
-    @property
-    def initial_heading_rad(self) -> float:
-        return math.radians(self.initial_heading_deg)
-
-
-@dataclass(frozen=True, slots=True)
-class PlannerSettings:
-    variant: str
-    grid_resolution_m: float
-    yaw_rate_samples: int
-    dt_s: float
-    prediction_time_s: float | None
-    weight_heading: float
-    weight_distance: float
-    weight_sightline: float
-    inflation_ratio: float
-    acceptance_radius_m: float
-    sightline_cap_m: float
-    replan_after_s: float  # 0: never re-plan (see VehiclePlanner)
-
-    def prediction_time_for(self, vehicle: VehicleSpec) -> float:
-        """The paper's p = ceil(2*pi / ((v/r) * 2)) + 1 seconds, unless the mission fixes it."""
-        if self.prediction_time_s is not None:
-            return self.prediction_time_s
-        return math.ceil(2.0 * math.pi / (vehicle.max_yaw_rate_rad_s * 2.0)) + 1.0
-
-
-@dataclass(frozen=True, slots=True)
-class SafetySettings:
-    min_separation_m: float
-    arrival_radius_m: float
-    time_limit_s: float
-    telemetry_timeout_s: float
-
-
-@dataclass(frozen=True, slots=True)
-class CoordinationSettings:
-    """Coordinated timing (docs/design.md): who may wait, and the space-time plan's step."""
-
-    hold_s_max: float = 0.0  # the first vehicle in priority may hold at its station this long (paper: 0)
-    step_s: float = 5.0      # nominal time step of the space-time plan
-
-
-@dataclass(frozen=True)
-class Mission:
-    name: str
-    source: str
-    description: str
-    origin: GeoOrigin
-    world: World
-    stations: dict[str, tuple[float, float]]
-    vehicles: tuple[VehicleSpec, ...]  # in file order
-    planner: PlannerSettings
-    safety: SafetySettings
-    plant: Plant = Plant.MULTICOPTER  # the dynamics the stub and the headless runner fly
-    coordination: CoordinationSettings = CoordinationSettings()
-
-    @property
-    def by_priority(self) -> tuple[VehicleSpec, ...]:
-        """Vehicles in planning order: lowest priority value first, ties in file order."""
-        return tuple(sorted(self.vehicles, key=lambda v: (v.priority, v.index)))
-
-    def vehicle(self, name: str) -> VehicleSpec:
-        for v in self.vehicles:
-            if v.name == name:
-                return v
-        raise KeyError(name)
-
-    def with_variant(self, variant: str) -> "Mission":
-        """The same mission flown with another planner variant."""
-        if variant not in VARIANTS:
-            raise MissionError(self.source, "planner.variant", f"unknown variant {variant!r}; one of {', '.join(VARIANTS)}")
-        from dataclasses import replace
-        return replace(self, planner=replace(self.planner, variant=variant))
 
 
 @lru_cache(maxsize=1)
@@ -394,14 +294,6 @@ def _vehicles(data: dict, stations: dict[str, tuple[float, float]], vdef: dict, 
             battery_pct=float(_opt(v, vdef, "battery_pct")),
         ))
     return vehicles
-
-
-def shared_goals(mission: Mission) -> dict[str, list[str]]:
-    """Goal stations that more than one vehicle flies to, with those vehicles' names."""
-    by_goal: dict[str, list[str]] = {}
-    for v in mission.vehicles:
-        by_goal.setdefault(v.goal, []).append(v.name)
-    return {goal: names for goal, names in by_goal.items() if len(names) > 1}
 
 
 def _check_shared_goals(vehicles: list[VehicleSpec], safety: SafetySettings, report: _Problems) -> None:

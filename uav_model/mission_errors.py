@@ -17,7 +17,7 @@ import jsonschema
 import yaml
 
 if TYPE_CHECKING:
-    from uav_model.mission import Mission
+    from uav_model.mission_types import Mission
 
 
 class MissionError(ValueError):

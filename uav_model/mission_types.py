@@ -1,0 +1,121 @@
+"""The typed mission: the frozen objects a mission file becomes (built only by :mod:`uav_model.mission`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Literal, get_args
+
+from uav_model.frames import GeoOrigin
+from uav_model.mission_errors import MissionError
+from uav_model.plant import Plant
+from uav_model.world import World
+
+Variant = Literal["astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa"]
+VARIANTS: tuple[str, ...] = get_args(Variant)
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleSpec:
+    name: str
+    index: int  # position in the file; sets the default system id and port
+    system_id: int
+    connection: str
+    start: str
+    goal: str
+    start_enu_m: tuple[float, float]
+    goal_enu_m: tuple[float, float]
+    speed_m_s: float
+    turn_radius_m: float
+    max_accel_m_s2: float
+    cruise_alt_m: float
+    initial_heading_deg: float
+    priority: int
+    battery_pct: float
+
+    @property
+    def max_yaw_rate_rad_s(self) -> float:
+        """The turn-radius limit as a yaw rate: |omega| <= v / r."""
+        return self.speed_m_s / self.turn_radius_m
+
+    @property
+    def initial_heading_rad(self) -> float:
+        return math.radians(self.initial_heading_deg)
+
+
+@dataclass(frozen=True, slots=True)
+class PlannerSettings:
+    variant: str
+    grid_resolution_m: float
+    yaw_rate_samples: int
+    dt_s: float
+    prediction_time_s: float | None
+    weight_heading: float
+    weight_distance: float
+    weight_sightline: float
+    inflation_ratio: float
+    acceptance_radius_m: float
+    sightline_cap_m: float
+    replan_after_s: float  # 0: never re-plan (see VehiclePlanner)
+
+    def prediction_time_for(self, vehicle: VehicleSpec) -> float:
+        """The paper's p = ceil(2*pi / ((v/r) * 2)) + 1 seconds, unless the mission fixes it."""
+        if self.prediction_time_s is not None:
+            return self.prediction_time_s
+        return math.ceil(2.0 * math.pi / (vehicle.max_yaw_rate_rad_s * 2.0)) + 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class SafetySettings:
+    min_separation_m: float
+    arrival_radius_m: float
+    time_limit_s: float
+    telemetry_timeout_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class CoordinationSettings:
+    """Coordinated timing (docs/design.md): who may wait, and the space-time plan's step."""
+
+    hold_s_max: float = 0.0  # the first vehicle in priority may hold at its station this long (paper: 0)
+    step_s: float = 5.0      # nominal time step of the space-time plan
+
+
+@dataclass(frozen=True)
+class Mission:
+    name: str
+    source: str
+    description: str
+    origin: GeoOrigin
+    world: World
+    stations: dict[str, tuple[float, float]]
+    vehicles: tuple[VehicleSpec, ...]  # in file order
+    planner: PlannerSettings
+    safety: SafetySettings
+    plant: Plant = Plant.MULTICOPTER  # the dynamics the stub and the headless runner fly
+    coordination: CoordinationSettings = CoordinationSettings()
+
+    @property
+    def by_priority(self) -> tuple[VehicleSpec, ...]:
+        """Vehicles in planning order: lowest priority value first, ties in file order."""
+        return tuple(sorted(self.vehicles, key=lambda v: (v.priority, v.index)))
+
+    def vehicle(self, name: str) -> VehicleSpec:
+        for v in self.vehicles:
+            if v.name == name:
+                return v
+        raise KeyError(name)
+
+    def with_variant(self, variant: str) -> "Mission":
+        """The same mission flown with another planner variant."""
+        if variant not in VARIANTS:
+            raise MissionError(self.source, "planner.variant", f"unknown variant {variant!r}; one of {', '.join(VARIANTS)}")
+        return replace(self, planner=replace(self.planner, variant=variant))
+
+
+def shared_goals(mission: Mission) -> dict[str, list[str]]:
+    """Goal stations that more than one vehicle flies to, with those vehicles' names."""
+    by_goal: dict[str, list[str]] = {}
+    for v in mission.vehicles:
+        by_goal.setdefault(v.goal, []).append(v.name)
+    return {goal: names for goal, names in by_goal.items() if len(names) > 1}
