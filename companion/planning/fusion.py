@@ -25,7 +25,8 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from companion.planning.dwa import (Command, DwaConfig, LocalGoals, NoLegalRollout, ObstacleSnapshot,
-                                    OtherUav, Pose, _assemble, plan_step)
+                                    OtherUav, Pose, plan_step)
+from companion.planning.dwa.snapshot import assemble
 from companion.planning.errors import BudgetExceeded, NoPath
 from companion.planning.grid import rasterise
 from companion.planning.routes import detour_route
@@ -169,7 +170,7 @@ class ObstacleField:
                     poly_vel[row] = (vx, vy)
             if k_p:
                 values["polygons_move"] = bool(np.any(poly_vel))
-            yield _assemble(values)
+            yield assemble(values)
 
 
 def _shape_rows(o: Obstacle, centre: tuple[float, float], vel: tuple[float, float],
@@ -192,7 +193,7 @@ def snapshot_at(world: World, t_s: float) -> ObstacleSnapshot:
     return ObstacleField.from_world(world).at_time(t_s)
 
 
-# Every ObstacleSnapshot field, derived ones included (what _assemble needs).
+# Every ObstacleSnapshot field, derived ones included (what assemble needs).
 _SNAPSHOT_FIELDS = tuple(f.name for f in dataclasses.fields(ObstacleSnapshot))
 
 

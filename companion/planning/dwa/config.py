@@ -1,0 +1,130 @@
+"""DwaConfig: the window, weights and rules of one vehicle's BDWA, with the fixed rollout shapes
+precomputed once (see :mod:`.shapes`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from companion.planning.dwa.shapes import homogeneous, recovery_shapes
+
+if TYPE_CHECKING:  # only for the builder's signature; the core takes plain values
+    from uav_model.mission import PlannerSettings, SafetySettings, VehicleSpec
+
+
+@dataclass(frozen=True, eq=False)
+class DwaConfig:
+    """Everything one BDWA step needs, with the fixed rollout shapes precomputed.
+
+    ``distance_saturation_m``: D stops growing beyond this clearance from the inflated edge.
+    With Fox's sum normalisation a critic's pull is its spread over the candidates divided by
+    its mean, so an unsaturated D (weighted 0.6 against 0.37 for heading) dominates whenever an
+    obstacle is in reach, yet says nothing useful: A* puts every node where the route turns right
+    on the inflated edge, and the inflation margin already is the keep-out distance. Saturated,
+    D only says "do not skim the edge" and is indifferent beyond. Default 10 m (one grid cell,
+    two steps of travel). On the reference mission UAV a needs 477.1 / 477.8 / 479.1 / 480.7 s
+    with 0 / 10 / 30 / 60 m: the larger it is, the further the vehicle keeps off its route.
+    ``min_separation_m``: the planning separation from the other UAV (see from_settings).
+    ``turnaround_deg``: see :func:`companion.planning.dwa.legality.commit_turn`; 180 disables the rule.
+    ``fence_m``: the geofence box; rollout points must stay inside it (legality, like obstacles).
+    """
+
+    speed_m_s: float
+    max_yaw_rate_rad_s: float
+    samples: int
+    dt_s: float
+    prediction_time_s: float
+    w_h: float
+    w_d: float
+    w_s: float
+    sightline_cap_m: float
+    distance_saturation_m: float = 10.0
+    min_separation_m: float = 0.0
+    turnaround_deg: float = 90.0
+    fence_m: tuple[float, float, float, float] | None = None  # keep-in box (x0, y0, x1, y1)
+    recovery_samples: int = 11  # yaw-rate samples per heading in the spin recovery; 0 disables it
+
+    yaw_rates_rad_s: np.ndarray = field(init=False, repr=False)  # (S,)
+    times_s: np.ndarray = field(init=False, repr=False)  # (K + 1,) 0, dt, ..., p
+    body_xy_m: np.ndarray = field(init=False, repr=False)  # (S, K + 1, 2) from the origin, heading +x
+    final_dheading_rad: np.ndarray = field(init=False, repr=False)  # (S,) heading change at p
+    point_times_s: np.ndarray = field(init=False, repr=False)  # (S * (K + 1),) times of body_xy_m's points
+    # body_xy_m as homogeneous columns (3, S * (K + 1)): [x; y; 1]. One (2, 3) @ (3, N) product
+    # places every rollout point (see placement), x and y each coming out contiguous.
+    body_hom_m: np.ndarray = field(init=False, repr=False)
+    end_hom_m: np.ndarray = field(init=False, repr=False)  # (3, S): the prediction points only
+    # Plain numbers and constant rows the tick reads, derived once (a property would recompute).
+    steps: int = field(init=False, repr=False)  # K
+    horizon_s: float = field(init=False, repr=False)  # K dt
+    reach_m: float = field(init=False, repr=False)  # how far a rollout goes: v K dt
+    all_legal: np.ndarray = field(init=False, repr=False)  # (S,) all True
+    saturated_m: np.ndarray = field(init=False, repr=False)  # (S,) all distance_saturation_m
+    saturated_sums: tuple[float, ...] = field(init=False, repr=False)  # [n]: numpy's sum of n of them
+    end_reach_m: float = field(init=False, repr=False)  # the farthest prediction point from the pose
+    # Spin recovery: rollouts (R = J headings x recovery samples) that start after yawing in place
+    # by rec_turn_rad (J headings one tick of full-rate yaw apart, all round), rec_delay_s later.
+    rec_body_xy_m: np.ndarray = field(init=False, repr=False)  # (R, K + 1, 2)
+    rec_turn_rad: np.ndarray = field(init=False, repr=False)  # (R,)
+    rec_delay_s: np.ndarray = field(init=False, repr=False)  # (R,)
+    rec_final_dheading_rad: np.ndarray = field(init=False, repr=False)  # (R,)
+    rec_point_times_s: np.ndarray = field(init=False, repr=False)  # (R * (K + 1),)
+
+    def __post_init__(self) -> None:
+        if self.samples < 1 or self.dt_s <= 0 or self.prediction_time_s < self.dt_s or self.speed_m_s <= 0:
+            raise ValueError("DwaConfig needs samples >= 1, speed > 0 and prediction_time_s >= dt_s > 0")
+        steps = max(1, round(self.prediction_time_s / self.dt_s))
+        w = (np.zeros(1) if self.samples == 1
+             else np.linspace(-self.max_yaw_rate_rad_s, self.max_yaw_rate_rad_s, self.samples))
+        t = self.dt_s * np.arange(0, steps + 1)
+        # The plant advances yaw first, then moves along the new heading (uav_model.plant).
+        dheading = np.outer(w, t[1:])
+        step_m = self.speed_m_s * self.dt_s
+        body = np.zeros((len(w), steps + 1, 2))
+        body[:, 1:, 0] = np.cumsum(np.cos(dheading), axis=1) * step_m
+        body[:, 1:, 1] = np.cumsum(np.sin(dheading), axis=1) * step_m
+        rec = recovery_shapes(body, dheading[:, -1], t, self.max_yaw_rate_rad_s, self.dt_s, self.recovery_samples)
+        for name, value in (("yaw_rates_rad_s", w), ("times_s", t), ("body_xy_m", body),
+                            ("final_dheading_rad", dheading[:, -1].copy()), ("point_times_s", np.tile(t, len(w))),
+                            ("body_hom_m", homogeneous(body.reshape(-1, 2))),
+                            ("end_hom_m", homogeneous(body[:, -1])), *rec.items()):
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+        for name, value in (("all_legal", np.ones(len(w), dtype=bool)),
+                            ("saturated_m", np.full(len(w), self.distance_saturation_m))):
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "saturated_sums", tuple(float(self.saturated_m[:n].sum()) for n in range(len(w) + 1)))
+        object.__setattr__(self, "end_reach_m", float(np.hypot(body[:, -1, 0], body[:, -1, 1]).max()))
+        object.__setattr__(self, "steps", steps)
+        object.__setattr__(self, "horizon_s", float(t[-1]))
+        object.__setattr__(self, "reach_m", self.speed_m_s * float(t[-1]))
+
+    @classmethod
+    def from_settings(cls, planner: "PlannerSettings", vehicle: "VehicleSpec",
+                      safety: "SafetySettings | None" = None, *, sightline: bool = True,
+                      **overrides) -> "DwaConfig":
+        """The config a mission gives one vehicle. ``sightline=False`` is plain DWA (w_s = 0)."""
+        values = dict(
+            speed_m_s=vehicle.speed_m_s,
+            max_yaw_rate_rad_s=vehicle.max_yaw_rate_rad_s,
+            samples=planner.yaw_rate_samples,
+            dt_s=planner.dt_s,
+            prediction_time_s=planner.prediction_time_for(vehicle),
+            w_h=planner.weight_heading,
+            w_d=planner.weight_distance,
+            w_s=planner.weight_sightline if sightline else 0.0,
+            sightline_cap_m=planner.sightline_cap_m,
+            # One step of own travel on top of the success criterion: the other UAV's
+            # constant-velocity prediction drifts from its real (turning) path within a tick.
+            min_separation_m=(0.0 if safety is None
+                              else safety.min_separation_m + vehicle.speed_m_s * planner.dt_s),
+        )
+        values.update(overrides)
+        return cls(**values)
+
+    @property
+    def spin_time_s(self) -> float:
+        """The longest yaw in place the recovery may ask for (half a turn)."""
+        return float(self.rec_delay_s.max()) if self.rec_delay_s.size else 0.0

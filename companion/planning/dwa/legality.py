@@ -1,0 +1,100 @@
+"""Legality: the rules that discard a rollout instead of scoring it (nav2 DWB reports illegal
+trajectories with a reason; here each rule keeps its own mask so that the reason can be named).
+
+- obstacle: no rollout point inside an inflated obstacle. A vehicle already inside one (a moving
+  obstacle came to it) may only fly rollouts that never get deeper than it is now;
+- separation: no rollout point closer than ``min_separation_m`` to the other UAV predicted at
+  constant velocity (same relaxation when already closer);
+- geofence: no rollout point outside the keep-in box (same relaxation when already outside).
+
+The turn-around preference (:func:`commit_turn`) narrows the legal set but is never a rule.
+"""
+
+from __future__ import annotations
+
+import math
+from enum import Enum
+
+import numpy as np
+
+from companion.planning.dwa.config import DwaConfig
+from companion.planning.dwa.types import LocalGoals, OtherUav, Pose
+
+
+class Rule(str, Enum):
+    """A legality rule; the value is how a reason names it."""
+
+    OBSTACLE = "obstacle"
+    SEPARATION = "separation"
+    GEOFENCE = "geofence"
+
+
+def separation_can_bind(pose: Pose, other: OtherUav | None, config: DwaConfig) -> bool:
+    """Whether the other UAV's predicted path comes within reach of any rollout."""
+    return other is not None and config.min_separation_m > 0 and (
+        math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m) <= config.reach_m + config.min_separation_m
+        + math.hypot(other.vx_m_s, other.vy_m_s) * config.horizon_s + 1.0)
+
+
+def fence_distance(pose: Pose, config: DwaConfig) -> float | None:
+    """The pose's distance inside the fence (negative outside), or None when no fence or no
+    rollout can reach it."""
+    fence = config.fence_m
+    if fence is None:
+        return None
+    here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
+    return here if here < config.reach_m else None
+
+
+def obstacle_ok(clear: np.ndarray, lowest: np.ndarray) -> np.ndarray:
+    """(N,) per rollout point, from the clearances (O, N) and their minimum over obstacles."""
+    if clear[:, 0].min() >= 0.0:  # outside every inflated obstacle: no rollout point may enter one
+        return lowest >= -1e-9
+    return (clear >= np.minimum(clear[:, 0:1], 0.0) - 1e-9).all(axis=0)  # already inside: never deeper
+
+
+def separation_ok(px: np.ndarray, py: np.ndarray, times: np.ndarray, pose: Pose, other: OtherUav,
+                  config: DwaConfig) -> np.ndarray:
+    """(S, K + 1): rollout points far enough from the other UAV predicted at constant velocity."""
+    ox = other.x_m + other.vx_m_s * times
+    oy = other.y_m + other.vy_m_s * times
+    limit = min(config.min_separation_m, math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m))
+    return (px - ox) ** 2 + (py - oy) ** 2 >= (limit - 1e-6) ** 2
+
+
+def inside_fence_by(px: np.ndarray, py: np.ndarray, fence: tuple[float, float, float, float]) -> np.ndarray:
+    """How far each point is inside the box (negative outside)."""
+    return np.minimum(np.minimum(px - fence[0], fence[2] - px), np.minimum(py - fence[1], fence[3] - py))
+
+
+def fence_ok(px: np.ndarray, py: np.ndarray, fence: tuple[float, float, float, float], here: float) -> np.ndarray:
+    """(S, K + 1): rollout points inside the fence, or no further out than the pose is now."""
+    return inside_fence_by(px, py, fence) >= min(here, 0.0) - 1e-9
+
+
+def legal_rollouts(ok_by_rule: dict[Rule, np.ndarray], config: DwaConfig) -> np.ndarray:
+    """(S,): rollouts whose every point after the first obeys every rule."""
+    ok_pts = None
+    for ok in ok_by_rule.values():
+        ok_pts = ok if ok_pts is None else ok_pts & ok
+    return config.all_legal if ok_pts is None else ok_pts[:, 1:].all(axis=1)
+
+
+def commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaConfig) -> np.ndarray:
+    """Turn-around rule: with the goal more than ``turnaround_deg`` off the nose, only turns
+    toward the goal's side (or straight on) stay candidates.
+
+    With p long enough for a U-turn (the paper's formula), a goal behind the vehicle is matched
+    at the prediction point equally well by turning left or right. Which side wins then flips
+    with sample quantisation from one tick to the next, and the vehicle chatters between the
+    two U-turns while flying away from its goal (nav2 DWB's OscillationCritic exists for the
+    same reason). The side of the goal as seen from the current pose is a stable choice: turning
+    toward it only shrinks the angle. It is a preference, not a safety rule: if it would leave
+    no legal rollout, it is dropped.
+    """
+    gx, gy = goals.nodes_xy[0]
+    error = (math.atan2(gy - pose.y_m, gx - pose.x_m) - pose.heading_rad + math.pi) % (2.0 * math.pi) - math.pi
+    if abs(error) <= math.radians(config.turnaround_deg):
+        return legal
+    toward = legal & (config.yaw_rates_rad_s * error >= 0.0)
+    return toward if toward.any() else legal

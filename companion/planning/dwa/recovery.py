@@ -1,0 +1,169 @@
+"""What a vehicle does when every rollout at cruise speed breaks a rule: recover, hold or escape.
+
+In this order (:func:`no_legal_rollout`):
+
+1. Spin recovery (nav2's spin behaviour; a multicopter can yaw in place): the rollouts that
+   start here after a yaw in place to another heading, under the same rules and critics,
+   with moving obstacles and the other UAV predicted over the yaw time too and the hover
+   point safe while yawing. The best one's heading is the target: yaw toward it, speed 0.
+   Without this a vehicle in a pocket hovers with a fixed heading for ever.
+2. Hold, if the hover point stays clear of the inflated obstacles (moving ones predicted at
+   constant velocity) and of the other UAV for a full spin plus a horizon.
+3. The hover point is going to be hit: the recovery judged on the TRUE footprints (the
+   inflation margin is the reserve an emergency may use); else
+4. the rollout from the current heading that stays clear of the true footprints longest,
+   if it lasts longer than hovering (the escape); else hold.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.planning.dwa.config import DwaConfig
+from companion.planning.dwa.evaluate import command_for, evaluate
+from companion.planning.dwa.geometry import inflated_clearance
+from companion.planning.dwa.heading import heading_scores
+from companion.planning.dwa.legality import Rule, inside_fence_by
+from companion.planning.dwa.shapes import rotation
+from companion.planning.dwa.sightline import sightline_term
+from companion.planning.dwa.snapshot import ObstacleSnapshot
+from companion.planning.dwa.types import Command, LocalGoals, NoLegalRollout, OtherUav, Pose
+
+
+@dataclass(frozen=True, eq=False)
+class HoverCheck:
+    """Whether hovering here stays clear, step by step over a spin plus a horizon."""
+
+    steps: int
+    inflated: np.ndarray  # (steps + 1,) clear of the inflated obstacles and the other UAV up to step k
+    true: np.ndarray  # (steps + 1,) the same on the true footprints
+    field: ObstacleSnapshot  # the obstacles within reach over that time
+    margins: np.ndarray | None  # (O, 1) inflation margins of ``field``
+    floor_inflated: np.ndarray | None  # (O, 1) how deep the pose is in each inflated obstacle now (<= 0)
+    floor_true: np.ndarray | None
+    sep_limit: float | None  # the separation kept from the other UAV, when it binds
+
+
+def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
+                     near: ObstacleSnapshot, config: DwaConfig, ok_by_rule: dict[Rule, np.ndarray],
+                     heading: np.ndarray, clear: np.ndarray | None) -> NoLegalRollout:
+    """The four strategies of the module docstring, in order."""
+    blocking = [rule for rule, ok in ok_by_rule.items() if not ok[:, 1:].all(axis=1).any()]
+    what = ", ".join(blocking) if blocking else "no rollout satisfies all rules at once"
+    reason = f"all {config.samples} rollouts break a rule within {config.prediction_time_s:g} s ({what})"
+    hover = hover_check(pose, other, snapshot, config)
+    if config.rec_delay_s.size:
+        pts, ok_inf, ok_true, distance = spin_candidates(pose, other, config, hover)
+        for legal, how in ((ok_inf, "recovering"), (None, None), (ok_true, "recovering on the margin")):
+            if legal is None:  # between the two recoveries: a hover that stays clear is the better wait
+                if hover.inflated[-1]:
+                    return NoLegalRollout(f"{reason}; holding: no heading has a legal rollout")
+                continue
+            if legal.any():
+                return spin_recovery(pose, goals, other, snapshot, config, pts, legal, distance, f"{reason}; {how}")
+    elif hover.inflated[-1]:
+        return NoLegalRollout(reason)
+    return escape(config, near, ok_by_rule, heading, clear, hover, reason)
+
+
+def hover_check(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig) -> HoverCheck:
+    """The hover point over a spin plus a horizon, inflated and true; separation is never relaxed."""
+    dt = config.dt_s
+    hover_steps = config.steps + round(config.spin_time_s / dt)
+    t_hover = dt * np.arange(hover_steps + 1)
+    field_h = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, float(t_hover[-1]))
+    margins = np.concatenate([field_h.circle_margin_m, field_h.poly_margin_m])[:, None]
+    hover_inf = np.ones(hover_steps + 1, dtype=bool)
+    hover_true = hover_inf.copy()
+    floor_inf = floor_true = None
+    if field_h.count:
+        hc = inflated_clearance(np.full(hover_steps + 1, pose.x_m), np.full(hover_steps + 1, pose.y_m), t_hover, field_h)
+        floor_inf = np.minimum(hc[:, 0:1], 0.0)
+        floor_true = np.minimum(hc[:, 0:1] + margins, 0.0)
+        hover_inf &= (hc >= floor_inf - 1e-9).all(axis=0)
+        hover_true &= (hc + margins >= floor_true - 1e-9).all(axis=0)
+    sep_limit = None
+    if other is not None and config.min_separation_m > 0:
+        sep_limit = min(config.min_separation_m, math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m)) - 1e-6
+        d2 = (other.x_m + other.vx_m_s * t_hover - pose.x_m) ** 2 + (other.y_m + other.vy_m_s * t_hover - pose.y_m) ** 2
+        hover_inf &= d2 >= sep_limit ** 2
+        hover_true &= d2 >= sep_limit ** 2
+    return HoverCheck(hover_steps, np.logical_and.accumulate(hover_inf), np.logical_and.accumulate(hover_true),
+                      field_h, margins, floor_inf, floor_true, sep_limit)
+
+
+def spin_candidates(pose: Pose, other: OtherUav | None, config: DwaConfig,
+                    hover: HoverCheck) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The recovery rollouts placed at the pose (R, K + 1, 2), which of them are legal on the
+    inflated and on the true footprints (R,) each, and their distance critic (R,)."""
+    dt = config.dt_s
+    body = config.rec_body_xy_m
+    pts = (body.reshape(-1, 2) @ rotation(pose.heading_rad)).reshape(body.shape)
+    pts += (pose.x_m, pose.y_m)
+    px, py = pts[..., 0], pts[..., 1]
+    n_r = len(pts)
+    delay_k = np.rint(config.rec_delay_s / dt).astype(int)
+    ok_inf = hover.inflated[delay_k]
+    ok_true = hover.true[delay_k]
+    if hover.field.count:
+        rc = inflated_clearance(px.ravel(), py.ravel(), config.rec_point_times_s, hover.field)
+        ok_inf = ok_inf & (rc >= hover.floor_inflated - 1e-9).all(axis=0).reshape(n_r, -1)[:, 1:].all(axis=1)
+        ok_true = ok_true & (rc + hover.margins >= hover.floor_true - 1e-9).all(axis=0).reshape(n_r, -1)[:, 1:].all(axis=1)
+        distance = np.clip(rc.min(axis=0).reshape(n_r, -1)[:, 1:].min(axis=1), 0.0, config.distance_saturation_m)
+    else:
+        distance = np.full(n_r, config.distance_saturation_m)
+    rules = np.ones(px.shape, dtype=bool)
+    if hover.sep_limit is not None:
+        t = config.rec_point_times_s.reshape(n_r, -1)
+        rules &= ((px - other.x_m - other.vx_m_s * t) ** 2 + (py - other.y_m - other.vy_m_s * t) ** 2
+                  >= hover.sep_limit ** 2)
+    fence = config.fence_m
+    if fence is not None:
+        here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
+        rules &= inside_fence_by(px, py, fence) >= min(here, 0.0) - 1e-9
+    rules = rules[:, 1:].all(axis=1)
+    return pts, ok_inf & rules, ok_true & rules, distance
+
+
+def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
+                  config: DwaConfig, pts: np.ndarray, legal: np.ndarray, distance: np.ndarray,
+                  reason: str) -> NoLegalRollout:
+    """Yaw in place (speed 0) toward the best legal recovery rollout's heading."""
+    scores = heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals)
+    sight = sightline_term(pose, other, snapshot, config, pts[:, -1, 0], pts[:, -1, 1])
+    total = evaluate(config, legal, scores, distance, sight)
+    i = int(total.argmax())
+    turn = float(config.rec_turn_rad[i])
+    yaw_rate = max(-config.max_yaw_rate_rad_s, min(config.max_yaw_rate_rad_s, turn / config.dt_s))
+    command = Command(yaw_rate_rad_s=yaw_rate, speed_m_s=0.0, heading_score=float(scores[i]),
+                      distance_score=float(distance[i]),
+                      sightline_score=0.0 if sight is None else float(sight[i]),
+                      eval_score=float(total[i]), legal_count=int(np.count_nonzero(legal)))
+    return NoLegalRollout(f"{reason}: yaw {math.degrees(turn):+.0f} deg in place", recovery=command)
+
+
+def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.ndarray], heading: np.ndarray,
+           clear: np.ndarray | None, hover: HoverCheck, reason: str) -> NoLegalRollout:
+    """Hovering will be hit and no heading helps: fly what stays clear of the true footprints
+    longest, if that outlasts hovering; else hold."""
+    dt, steps, hover_steps = config.dt_s, config.steps, hover.steps
+    ok_pts = np.ones((config.samples, steps + 1), dtype=bool)
+    for rule, ok in ok_by_rule.items():
+        if rule is not Rule.OBSTACLE:
+            ok_pts &= ok
+    if clear is not None:
+        true_clear = clear + np.concatenate([near.circle_margin_m, near.poly_margin_m])[:, None]
+        ok_pts &= (true_clear >= np.minimum(true_clear[:, 0:1], 0.0) - 1e-9).all(axis=0).reshape(ok_pts.shape)
+    # legal steps flown; a rollout clear for the whole horizon outlasts any hover
+    lasts = np.where(ok_pts[:, 1:].all(axis=1), hover_steps + 1, np.argmin(ok_pts[:, 1:], axis=1))
+    hold_lasts = hover_steps if hover.true[-1] else int(np.argmin(hover.true[1:]))
+    best_last = int(lasts.max())
+    if best_last <= hold_lasts:
+        return NoLegalRollout(f"{reason}; holding: nothing lasts longer than hovering ({hold_lasts * dt:g} s)")
+    i = int(np.argmax(np.where(lasts == best_last, heading, -np.inf)))
+    command = command_for(config, i, heading, np.zeros(config.samples), None, 0.0, 0)
+    clear_for = "the horizon" if best_last > hover_steps else f"{min(best_last, steps) * dt:g} s"
+    return NoLegalRollout(f"{reason}; escaping: clear for {clear_for}, hovering for {hold_lasts * dt:g} s", command)

@@ -1,0 +1,74 @@
+"""plan_step: one BDWA decision, wiring rollouts, legality, critics and evaluation together."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from companion.planning.dwa.config import DwaConfig
+from companion.planning.dwa.distance import distance_scores, no_obstacle_in_reach
+from companion.planning.dwa.evaluate import command_for, evaluate
+from companion.planning.dwa.geometry import inflated_clearance
+from companion.planning.dwa.heading import heading_from_ends, single_target
+from companion.planning.dwa.legality import (Rule, commit_turn, fence_distance, fence_ok, legal_rollouts,
+                                             obstacle_ok, separation_can_bind, separation_ok)
+from companion.planning.dwa.recovery import no_legal_rollout
+from companion.planning.dwa.shapes import placement
+from companion.planning.dwa.sightline import sightline_term
+from companion.planning.dwa.snapshot import ObstacleSnapshot
+from companion.planning.dwa.types import Command, LocalGoals, NoLegalRollout, OtherUav, Pose
+
+
+def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherUav | None,
+              snapshot: ObstacleSnapshot, config: DwaConfig) -> Command | NoLegalRollout:
+    """One BDWA decision: the best legal yaw rate toward the local goal, or NoLegalRollout.
+
+    ``goals`` is a :class:`LocalGoals` window (what the vehicle planner passes) or a bare (x, y).
+    Every array here is small (31 x 23 points), so the cost is the number of numpy calls, not
+    arithmetic: the whole rollouts are placed only when a rule or the goal window reads them
+    (in open air only the 31 prediction points are), and each rule is skipped when it cannot bind.
+    """
+    if not isinstance(goals, LocalGoals):
+        goals = LocalGoals.single(goals)
+    shape = (config.samples, config.steps + 1)
+    near = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, config.horizon_s)
+    separation = separation_can_bind(pose, other, config)
+    fence_here = fence_distance(pose, config)
+
+    place = placement(pose)
+    origin = (pose.x_m, pose.y_m)
+    single = single_target(goals, config.end_reach_m, origin)
+    px = py = None  # (S, K + 1) each, when needed; column 0 is the pose itself
+    if near.count or separation or fence_here is not None or not single:
+        xy = place @ config.body_hom_m
+        px, py = xy[0].reshape(shape), xy[1].reshape(shape)
+        ex, ey = px[:, -1], py[:, -1]
+    else:
+        ex, ey = place @ config.end_hom_m  # the prediction points (S,) only
+    final_heading = pose.heading_rad + config.final_dheading_rad
+
+    ok_by_rule: dict[Rule, np.ndarray] = {}  # (S, K + 1) per rule
+    clear = None
+    if near.count:
+        clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)  # (O, S * (K + 1))
+        lowest = clear.min(axis=0)
+        ok_by_rule[Rule.OBSTACLE] = obstacle_ok(clear, lowest).reshape(shape)
+        distance = distance_scores(lowest, shape, config)
+    else:
+        distance = no_obstacle_in_reach(config)
+    if separation:
+        ok_by_rule[Rule.SEPARATION] = separation_ok(px, py, config.times_s, pose, other, config)
+    if fence_here is not None:
+        ok_by_rule[Rule.GEOFENCE] = fence_ok(px, py, config.fence_m, fence_here)
+
+    legal = legal_rollouts(ok_by_rule, config)
+    heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single)
+    if not np.count_nonzero(legal):
+        return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear)
+    legal = commit_turn(pose, goals, legal, config)
+
+    sightline = sightline_term(pose, other, snapshot, config, ex, ey)
+    n_legal = int(np.count_nonzero(legal))
+    total = evaluate(config, legal, heading, distance, sightline, n_legal == config.samples)
+    best = int(total.argmax())
+    return command_for(config, best, heading, distance, sightline, float(total[best]), n_legal)
+

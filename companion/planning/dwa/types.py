@@ -1,0 +1,95 @@
+"""The values a BDWA step takes and returns: own pose, the other UAV, the chosen command or
+why there is none, and the local-goal window the heading critic scores toward."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """Own state in the ENU mission frame; heading is a math angle (from +x, CCW)."""
+
+    x_m: float
+    y_m: float
+    heading_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class OtherUav:
+    """The other UAV as the link reports it; predicted at constant velocity."""
+
+    x_m: float
+    y_m: float
+    vx_m_s: float
+    vy_m_s: float
+    arrived: bool = False  # parked at its station: still kept clear of, no longer hidden from
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """The chosen first step: ENU yaw rate (CCW positive) at the constant forward speed."""
+
+    yaw_rate_rad_s: float
+    speed_m_s: float
+    heading_score: float  # raw critic values of the chosen rollout, for logs
+    distance_score: float
+    sightline_score: float
+    eval_score: float  # normalised, weighted total
+    legal_count: int  # how many of the samples were legal
+
+
+@dataclass(frozen=True, slots=True)
+class NoLegalRollout:
+    """Every sampled rollout breaks a rule within the horizon. The vehicle holds (hovers) this
+    tick, unless ``recovery`` is given (yaw in place toward a heading from which a rollout is
+    legal: a Command with speed 0) or ``escape`` (a rollout that stays clear longer than
+    hovering would, when the hover point is not safe). At most one of the two is set."""
+
+    reason: str
+    escape: Command | None = None
+    recovery: Command | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class LocalGoals:
+    """The current local goal and the nodes after it, for the heading critic.
+
+    The paper scores the heading at the prediction point toward "the local goal". A rollout whose
+    prediction point lies beyond the current node would then be rewarded for turning back to a
+    node the vehicle is about to pass anyway: with p = 11 s (110 m ahead) and nodes that sit on
+    the inflated edge, that is the "turning around in place" of the paper's Fig. 7. So each
+    rollout is scored toward the goal the tracker would hold at its prediction point: a node
+    counts as reached along the rollout when a rollout point comes within ``acceptance_radius_m``
+    of it or the prediction point has passed it (the tracker's own two rules); the station,
+    last, counts only within ``station_radius_m`` and then scores the full 180 deg.
+    """
+
+    nodes_xy: np.ndarray  # (G, 2): the current local goal first, then the ones after it
+    prev_xy: tuple[float, float]  # the node before the current goal
+    acceptance_radius_m: float
+    station_radius_m: float
+    ends_at_station: bool  # whether nodes_xy[-1] is the station
+
+    # Derived once (a tracker reuses its windows across ticks): each node's predecessor and
+    # squared reach radius, for heading_scores.
+    prev_nodes_xy: np.ndarray = field(init=False, repr=False)  # (G, 2)
+    radius2_m2: np.ndarray = field(init=False, repr=False)  # (G,)
+    first_xy: tuple[float, float] = field(init=False, repr=False)  # nodes_xy[0] as floats
+
+    def __post_init__(self) -> None:
+        nodes = np.asarray(self.nodes_xy, dtype=float)
+        radius = np.full(len(nodes), self.acceptance_radius_m)
+        if self.ends_at_station:
+            radius[-1] = self.station_radius_m
+        object.__setattr__(self, "prev_nodes_xy", np.vstack([self.prev_xy, nodes[:-1]]))
+        object.__setattr__(self, "radius2_m2", radius * radius)
+        object.__setattr__(self, "first_xy", (float(nodes[0, 0]), float(nodes[0, 1])))
+
+    @classmethod
+    def single(cls, goal_xy: tuple[float, float]) -> "LocalGoals":
+        """One goal and nothing after it: the paper's heading critic exactly."""
+        return cls(np.asarray([goal_xy], dtype=float), (float(goal_xy[0]), float(goal_xy[1])),
+                   0.0, 0.0, ends_at_station=False)
