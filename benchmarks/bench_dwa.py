@@ -19,7 +19,8 @@ import numpy as np
 
 from uav_model.mission import parse_mission
 from companion.planning.dwa import Command, OtherUav, Pose, plan_step
-from companion.planning.fusion import ObstacleField, VehiclePlanner
+from companion.planning.obstacle_field import ObstacleField
+from companion.planning.vehicle_planner import VehiclePlanner
 
 HEAD = """
 area: {x_min_m: 0, y_min_m: 0, x_max_m: 3181.98, y_max_m: 3181.98}

@@ -18,7 +18,7 @@ from companion.errors import MissionUploadError
 from uav_model.mission import Mission, VehicleSpec, mission_error
 from companion.planning.certificate import OcclusionCertificate, mission_certificate
 from companion.planning.errors import NoPath
-from companion.planning.fusion import VARIANT_GOALS, variant_needs_route
+from companion.planning.vehicle_planner import variant_needs_route, variant_nodes
 from companion.vehicle.port import GeoWaypoint
 
 from companion.planning.routes import Route, plan_routes
@@ -42,11 +42,7 @@ class FlightPlan:
 
     def nodes_enu_m(self, vehicle: VehicleSpec) -> np.ndarray:
         """The local goals the vehicle's planner follows, start first (what gets uploaded)."""
-        goals_from, _ = VARIANT_GOALS[self.variant]
-        if goals_from == "station":
-            return np.array([vehicle.start_enu_m, vehicle.goal_enu_m], dtype=float)
-        route = self.routes[vehicle.name]
-        return np.asarray(route.sparse_enu_m if goals_from == "sparse" else route.raw_enu_m, dtype=float)
+        return variant_nodes(self.variant, vehicle, self.routes.get(vehicle.name))
 
     def waypoints(self, vehicle: VehicleSpec) -> tuple[GeoWaypoint, ...]:
         """The route as MAVLink NAV_WAYPOINTs at the vehicle's cruise altitude above home."""

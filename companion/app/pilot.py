@@ -34,8 +34,9 @@ from companion.errors import (CommandRefused, CompanionError, MissionAborted, Mi
                               primary_error)
 from uav_model.mission import VehicleSpec
 from companion.planning.dwa import OtherUav, Pose, inflated_clearance
-from companion.planning.fusion import ObstacleField, ObstacleTrack, TickResult, VehiclePlanner
+from companion.planning.obstacle_field import ObstacleField, ObstacleTrack
 from companion.planning.routes import higher_routes
+from companion.planning.vehicle_planner import TickResult, VehiclePlanner
 from companion.vehicle.port import (HOVER, FlightMode, LandedState, PoseSample, TrafficReport, Vehicle,
                                     VelocityYawRateSetpoint)
 

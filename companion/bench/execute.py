@@ -31,7 +31,7 @@ from companion.bench.table import run_row
 from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
 from companion.bench.weights import Weights
 from companion.planning.errors import NoPath
-from companion.planning.fusion import variant_needs_route
+from companion.planning.vehicle_planner import variant_needs_route
 from companion.planning.metrics import vehicle_lower_bound_s
 from companion.planning.runner import simulate
 from companion.scenarios import (ScenarioConfig, ScenarioError, generate_scenario, mission_yaml_text,

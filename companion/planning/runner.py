@@ -27,7 +27,8 @@ import numpy as np
 from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to_ned, ned_to_enu, ned_yaw_to_enu_heading
 from uav_model.mission import Mission
 from companion.planning.dwa import OtherUav, Pose
-from companion.planning.fusion import ObstacleField, TickResult, VehiclePlanner, variant_needs_route
+from companion.planning.obstacle_field import ObstacleField
+from companion.planning.vehicle_planner import TickResult, VehiclePlanner, variant_needs_route
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
 from companion.planning.routes import Route, higher_routes, plan_routes

@@ -17,7 +17,7 @@ from uav_model.frames import enu_heading_to_ned_yaw, ned_yaw_to_enu_heading
 from companion.planning.dwa import (Command, DwaConfig, LocalGoals, NoLegalRollout, ObstacleSnapshot, OtherUav,
                                     Pose, heading_scores, inflated_clearance, plan_step, rollouts,
                                     sightline_scores)
-from companion.planning.fusion import ObstacleField, ObstacleTrack
+from companion.planning.obstacle_field import ObstacleField, ObstacleTrack
 from companion.planning.runner import body_command
 from uav_model.world import World, make_obstacle
 from uav_model.plant import KinematicState, VehicleLimits, step

@@ -1,4 +1,4 @@
-"""A*-BDWA fusion: local-goal switching, variant wiring, obstacle snapshots from world or tracks."""
+"""The vehicle planner and A*-BDWA fusion: local-goal switching, variant wiring, obstacle snapshots from world or tracks."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import pytest
 
 from uav_model.mission import load_mission, parse_mission
 from companion.planning.dwa import Command, OtherUav, Pose, inflated_clearance
-from companion.planning.fusion import (LocalGoalTracker, ObstacleField, ObstacleTrack, VehiclePlanner,
-                                       snapshot_at, snapshot_from_tracks)
+from companion.planning.local_goals import LocalGoalTracker
+from companion.planning.obstacle_field import ObstacleField, ObstacleTrack, snapshot_at, snapshot_from_tracks
+from companion.planning.vehicle_planner import VehiclePlanner
 
 NODES = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 100.0], [300.0, 100.0]])
 

@@ -1,0 +1,213 @@
+"""One vehicle's planner, the per-tick code the headless runner and the live companion both call:
+
+    planner = VehiclePlanner.build(mission, vehicle, route, variant)
+    result = planner.tick(own_pose, other_uav, snapshot, t_s)   # snapshot: see obstacle_field
+
+It holds the local-goal tracking along the route (:mod:`.local_goals`, paper section V), one BDWA
+step a tick (:mod:`.dwa`), and the re-plan after a stall.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+from enum import Enum
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from companion.planning.dwa import Command, DwaConfig, NoLegalRollout, ObstacleSnapshot, OtherUav, Pose, plan_step
+from companion.planning.errors import BudgetExceeded, NoPath
+from companion.planning.grid import rasterise
+from companion.planning.local_goals import LocalGoalTracker
+from companion.planning.routes import detour_route
+from uav_model.world import World
+
+if TYPE_CHECKING:
+    from uav_model.mission import Mission, VehicleSpec
+    from companion.planning.routes import Route
+
+
+class GoalSource(Enum):
+    """Where a variant's local goals come from."""
+
+    SPARSE = "sparse"  # the sparse A* nodes
+    RAW = "raw"  # every A* cell
+    STATION = "station"  # no route: start, then the station
+
+
+# Variant -> (local goals come from, sightline term on). SPEC §1's ablation table.
+VARIANT_GOALS: dict[str, tuple[GoalSource, bool]] = {
+    "astar-bdwa": (GoalSource.SPARSE, True),
+    "astar-bdwa-nosparse": (GoalSource.RAW, True),
+    "bdwa": (GoalSource.STATION, True),
+    "dwa": (GoalSource.STATION, False),
+}
+
+
+def variant_needs_route(variant: str) -> bool:
+    return VARIANT_GOALS[variant][0] is not GoalSource.STATION
+
+
+def variant_nodes(variant: str, vehicle: "VehicleSpec", route: "Route | None") -> np.ndarray:
+    """The local goals ``vehicle`` follows under ``variant``, start first (N, 2)."""
+    goals_from = VARIANT_GOALS[variant][0]
+    if goals_from is GoalSource.STATION:
+        return np.array([vehicle.start_enu_m, vehicle.goal_enu_m], dtype=float)
+    if route is None:
+        raise ValueError(f"variant {variant!r} needs an A* route for vehicle {vehicle.name!r}")
+    return np.asarray(route.sparse_enu_m if goals_from is GoalSource.SPARSE else route.raw_enu_m, dtype=float)
+
+
+@dataclass(frozen=True, slots=True)
+class TickResult:
+    """What one vehicle does this tick. ``command`` is None when it must hold (zero speed); a
+    recovery command has speed 0 and a yaw rate (yaw in place: BODY velocity 0 + yawspeed)."""
+
+    t_s: float
+    command: Command | None
+    local_goal_xy: tuple[float, float]
+    goal_index: int
+    arrived: bool
+    planner_ms: float
+    hold_reason: str | None = None  # why command is None
+    escape_reason: str | None = None  # no rollout was legal for the whole horizon: flying the longest-lasting
+    recovery_reason: str | None = None  # no rollout legal from this heading: yawing in place (speed 0) to one
+
+    @property
+    def yaw_rate_rad_s(self) -> float:
+        return 0.0 if self.command is None else self.command.yaw_rate_rad_s
+
+    @property
+    def speed_m_s(self) -> float:
+        return 0.0 if self.command is None else self.command.speed_m_s
+
+
+_PROGRESS_M = 20.0  # the remaining route must shorten by more than this to count as progress
+
+
+@dataclass(frozen=True)
+class Replanning:
+    """How an A*-guided vehicle gets out of a pocket (nav2 re-plans its global path for the same
+    reason): when its remaining route has not shortened by more than 20 m for ``after_s`` sim
+    seconds, a new route is planned from where it is (:func:`routes.detour_route`)."""
+
+    after_s: float
+    world: World
+    resolution_m: float
+    sparse: bool  # sparse nodes (astar-bdwa) or every A* cell (astar-bdwa-nosparse)
+    earlier: tuple["Route", ...] = ()  # higher-priority routes: the detour keeps the priority rule first
+    separation_m: float = 0.0
+
+
+class VehiclePlanner:
+    """One vehicle's A*-BDWA (or ablation variant): local-goal tracking + one BDWA step a tick.
+
+    Re-planning is split so that a live caller never blocks its event loop on A*: ``tick`` sets
+    ``replan_due``; the caller runs :meth:`plan_detour` (pure, a few tens of ms; in a worker
+    thread if it likes) and hands the result to :meth:`adopt_detour`. The headless runner does
+    both at once, right after the tick that set the flag.
+    """
+
+    def __init__(self, name: str, config: DwaConfig, tracker: LocalGoalTracker, arrival_radius_m: float,
+                 replanning: Replanning | None = None):
+        self.name = name
+        self.config = config
+        self.tracker = tracker
+        self.arrival_radius_m = arrival_radius_m
+        self.arrived = False
+        self.replanning = replanning if replanning is not None and replanning.after_s > 0 else None
+        self.replan_due = False
+        self.replans = 0  # how many detours were planned (adopted or not)
+        self._progress: tuple[float, float] | None = None  # (best remaining route m, sim time it was reached)
+        self._grid = None  # the static grid, rasterised at the first detour
+        self._station_xy = (float(tracker.nodes[-1][0]), float(tracker.nodes[-1][1]))
+
+    @classmethod
+    def build(cls, mission: "Mission", vehicle: "VehicleSpec", route: "Route | None",
+              variant: str | None = None, *, earlier: "Iterable[Route]" = ()) -> "VehiclePlanner":
+        """The planner for ``vehicle``; ``route`` is required for the A* variants. ``earlier``:
+        the routes of the vehicles above it (:func:`routes.higher_routes`), which a detour after a
+        stall keeps to the priority rule first.
+
+        Priority (paper §II.B: the UAV leaving A "is prioritized to arrive"): the first vehicle in
+        priority order has right of way and flies without the sightline term; every other
+        vehicle carries the sightline objective and bends its path to keep the sight line
+        occluded. Separation is enforced by all of them.
+        """
+        variant = variant or mission.planner.variant
+        goals_from, sightline = VARIANT_GOALS[variant]
+        sightline = sightline and mission.by_priority[0].name != vehicle.name
+        nodes = variant_nodes(variant, vehicle, route)
+        fence = tuple(float(v) for v in mission.world.geofence.bounds)
+        config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline, fence_m=fence)
+        tracker = LocalGoalTracker(nodes, mission.planner.acceptance_radius_m)
+        replanning = None if goals_from is GoalSource.STATION else Replanning(
+            mission.planner.replan_after_s, mission.world, mission.planner.grid_resolution_m,
+            goals_from is GoalSource.SPARSE, tuple(earlier), mission.safety.min_separation_m)
+        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, replanning)
+
+    def plan_detour(self, x_m: float, y_m: float) -> np.ndarray | None:
+        """A new route from (x, y) to the station, or None when there is none. Reads only what
+        does not change while flying (and caches the grid), so it may run in a worker thread."""
+        if self.replanning is None:
+            return None
+        r = self.replanning
+        if self._grid is None:
+            self._grid = rasterise(r.world, r.resolution_m)
+        try:
+            return detour_route(self._grid, r.world, (x_m, y_m), self._station_xy, sparse=r.sparse,
+                                earlier=r.earlier, separation_m=r.separation_m)
+        except (NoPath, BudgetExceeded):
+            return None
+
+    def adopt_detour(self, nodes: np.ndarray | None, x_m: float, y_m: float, t_s: float) -> bool:
+        """Fly ``nodes`` (from :meth:`plan_detour`) from now on; with None keep the route and
+        wait another ``after_s`` before trying again. Returns whether the route changed."""
+        self.replan_due = False
+        self.replans += 1
+        adopted = nodes is not None and len(nodes) >= 2
+        if adopted:
+            self.tracker = LocalGoalTracker(nodes, self.tracker.acceptance_radius_m)
+        self._progress = (self.tracker.remaining_m(x_m, y_m), t_s)
+        return adopted
+
+    def _watch_progress(self, x_m: float, y_m: float, t_s: float) -> None:
+        remaining = self.tracker.remaining_m(x_m, y_m)
+        if self._progress is None or remaining < self._progress[0] - _PROGRESS_M:
+            self._progress = (remaining, t_s)
+        elif t_s - self._progress[1] >= self.replanning.after_s:
+            self.replan_due = True
+
+    @property
+    def station_xy(self) -> tuple[float, float]:
+        return self._station_xy
+
+    def tick(self, own: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, t_s: float) -> TickResult:
+        """Decide this tick's command from the current own pose, other UAV and obstacles.
+
+        Once inside the arrival radius the vehicle has arrived for good and holds.
+        """
+        started = time.perf_counter()
+        sx, sy = self.station_xy
+        if self.arrived or math.hypot(own.x_m - sx, own.y_m - sy) <= self.arrival_radius_m:
+            self.arrived = True
+            return TickResult(t_s, None, (sx, sy), self.tracker.index, True,
+                              (time.perf_counter() - started) * 1e3, "arrived")
+        goal = self.tracker.update(own.x_m, own.y_m)
+        if self.replanning is not None and not self.replan_due:
+            self._watch_progress(own.x_m, own.y_m, t_s)
+        reach = self.config.reach_m + self.tracker.acceptance_radius_m
+        goals = self.tracker.window(own.x_m, own.y_m, reach, self.arrival_radius_m)
+        decision = plan_step(own, goals, other, snapshot, self.config)
+        ms = (time.perf_counter() - started) * 1e3
+        if isinstance(decision, NoLegalRollout):
+            if decision.recovery is not None:
+                return TickResult(t_s, decision.recovery, goal, self.tracker.index, False, ms,
+                                  recovery_reason=decision.reason)
+            if decision.escape is not None:
+                return TickResult(t_s, decision.escape, goal, self.tracker.index, False, ms, None, decision.reason)
+            return TickResult(t_s, None, goal, self.tracker.index, False, ms, decision.reason)
+        return TickResult(t_s, decision, goal, self.tracker.index, False, ms)
