@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from companion.planning.dwa.shapes import homogeneous, recovery_shapes
+from uav_model.unicycle import body_rollouts
 
 if TYPE_CHECKING:  # only for the builder's signature; the core takes plain values
     from uav_model.mission import PlannerSettings, SafetySettings, VehicleSpec
@@ -78,12 +79,7 @@ class DwaConfig:
         w = (np.zeros(1) if self.samples == 1
              else np.linspace(-self.max_yaw_rate_rad_s, self.max_yaw_rate_rad_s, self.samples))
         t = self.dt_s * np.arange(0, steps + 1)
-        # The plant advances yaw first, then moves along the new heading (uav_model.plant).
-        dheading = np.outer(w, t[1:])
-        step_m = self.speed_m_s * self.dt_s
-        body = np.zeros((len(w), steps + 1, 2))
-        body[:, 1:, 0] = np.cumsum(np.cos(dheading), axis=1) * step_m
-        body[:, 1:, 1] = np.cumsum(np.sin(dheading), axis=1) * step_m
+        body, dheading = body_rollouts(self.speed_m_s, w, self.dt_s, steps)  # the plant's own unicycle
         rec = recovery_shapes(body, dheading[:, -1], t, self.max_yaw_rate_rad_s, self.dt_s, self.recovery_samples)
         for name, value in (("yaw_rates_rad_s", w), ("times_s", t), ("body_xy_m", body),
                             ("final_dheading_rad", dheading[:, -1].copy()), ("point_times_s", np.tile(t, len(w))),
