@@ -27,13 +27,14 @@ from uav_model.frames import GeoOrigin
 from uav_model.mission_errors import (MissionError, StrictLoader, dotted, fail, line_of, mission_error,
                                       schema_reason)
 from uav_model.mission_points import latlon_slips, localise
-from uav_model.mission_types import (VARIANTS, CoordinationSettings, Mission, PlannerSettings, SafetySettings,
-                                     Variant, VehicleSpec, shared_goals)
+from uav_model.mission_types import (VARIANTS, CoordinationSettings, Mission, Normalisation, PlannerSettings,
+                                     SafetySettings, SightlineCritic, Variant, VehicleSpec, shared_goals)
 from uav_model.plant import Plant
 from uav_model.world import Obstacle, Orbit, Patrol, Shuttle, Static, World, make_obstacle
 
 __all__ = ["API_PORT_BASE", "CoordinationSettings", "DEFAULT_ORIGIN", "VARIANTS", "Mission", "MissionError",
-           "PlannerSettings", "SafetySettings", "Variant", "VehicleSpec", "load_mission", "mission_error",
+           "Normalisation", "PlannerSettings", "SafetySettings", "SightlineCritic", "Variant", "VehicleSpec",
+           "load_mission", "mission_error",
            "mission_from_data", "mission_schema", "parse_mission", "shared_goals"]
 
 DEFAULT_ORIGIN = GeoOrigin(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)  # PX4 SITL home
@@ -197,6 +198,13 @@ def _planner(planner_raw: dict, pdef: dict) -> PlannerSettings:
         acceptance_radius_m=float(_opt(planner_raw, pdef, "acceptance_radius_m")),
         sightline_cap_m=float(_opt(planner_raw, pdef, "sightline_cap_m")),
         replan_after_s=float(_opt(planner_raw, pdef, "replan_after_s")),
+        speed_samples=(None if _opt(planner_raw, pdef, "speed_samples") is None else int(planner_raw["speed_samples"])),
+        min_speed_m_s=float(_opt(planner_raw, pdef, "min_speed_m_s")),
+        weight_speed=float(_opt(weights, wdef, "speed")),
+        sightline_critic=(None if _opt(planner_raw, pdef, "sightline_critic") is None
+                          else SightlineCritic(planner_raw["sightline_critic"])),
+        normalisation=(None if _opt(planner_raw, pdef, "normalisation") is None
+                       else Normalisation(planner_raw["normalisation"])),
     )
 
 

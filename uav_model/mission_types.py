@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from enum import Enum
 from typing import Literal, get_args
 
 from uav_model.frames import GeoOrigin
@@ -11,8 +12,20 @@ from uav_model.mission_errors import MissionError
 from uav_model.plant import Plant
 from uav_model.world import World
 
-Variant = Literal["astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa"]
+# The paper's four (SPEC §1's ablation), then ours: the speed window, the sloped sightline critic and
+# fixed-scale normalisation, tracking a timed route (docs/design.md).
+Variant = Literal["astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa", "astar-bdwa-timed"]
 VARIANTS: tuple[str, ...] = get_args(Variant)
+
+
+class SightlineCritic(Enum):
+    PAPER = "paper"  # the depth of the obstacles crossing the sight segment, 0 when none does
+    SLOPED = "sloped"  # the depth when blocked, minus the segment's clearance when open
+
+
+class Normalisation(Enum):
+    SUM = "sum"  # each critic over its sum on the candidates (the paper, Fox et al. 1997)
+    FIXED = "fixed"  # each critic over a fixed scale
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,6 +70,13 @@ class PlannerSettings:
     acceptance_radius_m: float
     sightline_cap_m: float
     replan_after_s: float  # 0: never re-plan (see VehiclePlanner)
+    # The speed window and critics; None: the variant's choice (the paper's four: constant speed,
+    # the paper's sightline critic, sum normalisation).
+    speed_samples: int | None = None
+    min_speed_m_s: float = 0.0
+    weight_speed: float = 0.5
+    sightline_critic: SightlineCritic | None = None
+    normalisation: Normalisation | None = None
 
     def prediction_time_for(self, vehicle: VehicleSpec) -> float:
         """The paper's p = ceil(2*pi / ((v/r) * 2)) + 1 seconds, unless the mission fixes it."""

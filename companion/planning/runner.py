@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +34,9 @@ from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside
                                         pair_min_distance, summarize)
 from companion.planning.routes import Route, higher_routes, plan_routes
 from uav_model.plant import HOVER, KinematicState, VelocityCommand, VelocityFrame, initial_state, limits_for, step_for
+
+if TYPE_CHECKING:
+    from companion.planning.timed import TimedRoute
 
 
 @dataclass(frozen=True)
@@ -84,8 +88,10 @@ def _other(s: KinematicState, parked: bool = False) -> OtherUav:
 
 def simulate(mission: Mission, variant: str | None = None, *,
              routes: dict[str, Route] | None = None,
-             lower_bounds_s: dict[str, float | None] | None = None) -> RunResult:
+             lower_bounds_s: dict[str, float | None] | None = None,
+             timed_routes: "dict[str, TimedRoute] | None" = None) -> RunResult:
     """Fly ``mission`` headless with ``variant`` (default: the mission's) and score it.
+    ``timed_routes``: routes with arrival times per vehicle, tracked by the timed variant.
 
     ``routes`` and ``lower_bounds_s`` (see :func:`metrics.vehicle_lower_bound_s`) do not depend
     on the variant: a caller flying several variants of one mission may pass them in once.
@@ -99,8 +105,10 @@ def simulate(mission: Mission, variant: str | None = None, *,
     if routes is None:
         routes = plan_routes(mission) if variant_needs_route(variant) else {}
     vehicles = mission.by_priority
+    timed_routes = timed_routes or {}
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
-                                             earlier=higher_routes(mission, routes, v.name)) for v in vehicles}
+                                             earlier=higher_routes(mission, routes, v.name),
+                                             timed_route=timed_routes.get(v.name)) for v in vehicles}
     step = step_for(mission.plant)
     limits = {v.name: limits_for(mission.plant, speed_m_s=v.speed_m_s, max_yaw_rate_rad_s=v.max_yaw_rate_rad_s,
                                  max_accel_m_s2=v.max_accel_m_s2) for v in vehicles}

@@ -23,11 +23,13 @@ from companion.planning.errors import BudgetExceeded, NoPath
 from companion.planning.grid import rasterise
 from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.routes import detour_route
+from uav_model.mission import Normalisation, SightlineCritic
 from uav_model.world import World
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission, VehicleSpec
     from companion.planning.routes import Route
+    from companion.planning.timed import TimedRoute
 
 
 class GoalSource(Enum):
@@ -38,22 +40,48 @@ class GoalSource(Enum):
     STATION = "station"  # no route: start, then the station
 
 
-# Variant -> (local goals come from, sightline term on). SPEC §1's ablation table.
-VARIANT_GOALS: dict[str, tuple[GoalSource, bool]] = {
-    "astar-bdwa": (GoalSource.SPARSE, True),
-    "astar-bdwa-nosparse": (GoalSource.RAW, True),
-    "bdwa": (GoalSource.STATION, True),
-    "dwa": (GoalSource.STATION, False),
+@dataclass(frozen=True)
+class VariantSpec:
+    """What a planner variant is made of. The mission's planner settings override the window,
+    sightline and normalisation defaults (``speed_samples``, ``sightline_critic``, ``normalisation``)."""
+
+    goals: GoalSource
+    sightline: bool  # the sightline term (for every vehicle but the first in priority)
+    speed_samples: int = 1  # 1: the paper's constant speed
+    sloped_sightline: bool = False
+    fixed_scale: bool = False
+    timed: bool = False  # tracks a timed route (arrival times) when one is given
+
+
+# SPEC §1's ablation table, and the timed variant (docs/design.md, "Speed and time").
+VARIANTS: dict[str, VariantSpec] = {
+    "astar-bdwa": VariantSpec(GoalSource.SPARSE, True),
+    "astar-bdwa-nosparse": VariantSpec(GoalSource.RAW, True),
+    "bdwa": VariantSpec(GoalSource.STATION, True),
+    "dwa": VariantSpec(GoalSource.STATION, False),
+    "astar-bdwa-timed": VariantSpec(GoalSource.SPARSE, True, speed_samples=4, sloped_sightline=True,
+                                    fixed_scale=True, timed=True),
 }
 
 
 def variant_needs_route(variant: str) -> bool:
-    return VARIANT_GOALS[variant][0] is not GoalSource.STATION
+    return VARIANTS[variant].goals is not GoalSource.STATION
+
+
+def window_settings(mission: "Mission", variant: str) -> dict:
+    """DwaConfig overrides for the speed window, sightline critic and normalisation: the
+    mission's settings where it gives them, else the variant's."""
+    spec, p = VARIANTS[variant], mission.planner
+    samples = spec.speed_samples if p.speed_samples is None else p.speed_samples
+    sloped = spec.sloped_sightline if p.sightline_critic is None else p.sightline_critic is SightlineCritic.SLOPED
+    fixed = spec.fixed_scale if p.normalisation is None else p.normalisation is Normalisation.FIXED
+    return dict(speed_samples=samples, min_speed_m_s=p.min_speed_m_s, w_v=p.weight_speed,
+                sightline_slope=sloped, fixed_scale=fixed)
 
 
 def variant_nodes(variant: str, vehicle: "VehicleSpec", route: "Route | None") -> np.ndarray:
     """The local goals ``vehicle`` follows under ``variant``, start first (N, 2)."""
-    goals_from = VARIANT_GOALS[variant][0]
+    goals_from = VARIANTS[variant].goals
     if goals_from is GoalSource.STATION:
         return np.array([vehicle.start_enu_m, vehicle.goal_enu_m], dtype=float)
     if route is None:
@@ -112,8 +140,9 @@ class VehiclePlanner:
     """
 
     def __init__(self, name: str, config: DwaConfig, tracker: LocalGoalTracker, arrival_radius_m: float,
-                 replanning: Replanning | None = None):
+                 replanning: Replanning | None = None, timed_route: "TimedRoute | None" = None):
         self.name = name
+        self.timed_route = timed_route  # when given, flown on schedule (a speed window is needed)
         self.config = config
         self.tracker = tracker
         self.arrival_radius_m = arrival_radius_m
@@ -127,10 +156,12 @@ class VehiclePlanner:
 
     @classmethod
     def build(cls, mission: "Mission", vehicle: "VehicleSpec", route: "Route | None",
-              variant: str | None = None, *, earlier: "Iterable[Route]" = ()) -> "VehiclePlanner":
+              variant: str | None = None, *, earlier: "Iterable[Route]" = (),
+              timed_route: "TimedRoute | None" = None) -> "VehiclePlanner":
         """The planner for ``vehicle``; ``route`` is required for the A* variants. ``earlier``:
         the routes of the vehicles above it (:func:`routes.higher_routes`), which a detour after a
-        stall keeps to the priority rule first.
+        stall keeps to the priority rule first. ``timed_route`` (arrival times along the route) is
+        tracked by the timed variant and ignored by the others.
 
         Priority (paper §II.B: the UAV leaving A "is prioritized to arrive"): the first vehicle in
         priority order has right of way and flies without the sightline term; every other
@@ -138,16 +169,19 @@ class VehiclePlanner:
         occluded. Separation is enforced by all of them.
         """
         variant = variant or mission.planner.variant
-        goals_from, sightline = VARIANT_GOALS[variant]
-        sightline = sightline and mission.by_priority[0].name != vehicle.name
+        spec = VARIANTS[variant]
+        goals_from = spec.goals
+        sightline = spec.sightline and mission.by_priority[0].name != vehicle.name
         nodes = variant_nodes(variant, vehicle, route)
         fence = tuple(float(v) for v in mission.world.geofence.bounds)
-        config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline, fence_m=fence)
+        config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline, fence_m=fence,
+                                         **window_settings(mission, variant))
         tracker = LocalGoalTracker(nodes, mission.planner.acceptance_radius_m)
         replanning = None if goals_from is GoalSource.STATION else Replanning(
             mission.planner.replan_after_s, mission.world, mission.planner.grid_resolution_m,
             goals_from is GoalSource.SPARSE, tuple(earlier), mission.safety.min_separation_m)
-        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, replanning)
+        timed = timed_route if spec.timed and config.count > config.samples else None
+        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, replanning, timed)
 
     def plan_detour(self, x_m: float, y_m: float) -> np.ndarray | None:
         """A new route from (x, y) to the station, or None when there is none. Reads only what
@@ -174,12 +208,24 @@ class VehiclePlanner:
         self._progress = (self.tracker.remaining_m(x_m, y_m), t_s)
         return adopted
 
-    def _watch_progress(self, x_m: float, y_m: float, t_s: float) -> None:
+    def _watch_progress(self, x_m: float, y_m: float, t_s: float, on_schedule: bool) -> None:
+        """Flag a re-plan after ``after_s`` without progress. Time the schedule holds the vehicle
+        back (a scheduled wait, or the plan ahead of it) is not a stall: the clock restarts."""
         remaining = self.tracker.remaining_m(x_m, y_m)
-        if self._progress is None or remaining < self._progress[0] - _PROGRESS_M:
+        if self._progress is None or on_schedule or remaining < self._progress[0] - _PROGRESS_M:
             self._progress = (remaining, t_s)
         elif t_s - self._progress[1] >= self.replanning.after_s:
             self.replan_due = True
+
+    def _schedule(self, own: Pose, t_s: float) -> tuple[float | None, bool]:
+        """The speed the timed route asks for now (None: no route, cruise) and whether the
+        schedule is holding the vehicle back (a wait, or slower than half cruise)."""
+        route = self.timed_route
+        if route is None:
+            return None, False
+        speed = float(route.target_speed_at(np.array([own.x_m, own.y_m]), t_s, self.config.speed_m_s))
+        held = bool(route.is_waiting_at(t_s)) or speed < 0.5 * self.config.speed_m_s
+        return speed, held
 
     @property
     def station_xy(self) -> tuple[float, float]:
@@ -197,11 +243,12 @@ class VehiclePlanner:
             return TickResult(t_s, None, (sx, sy), self.tracker.index, True,
                               (time.perf_counter() - started) * 1e3, "arrived")
         goal = self.tracker.update(own.x_m, own.y_m)
+        scheduled, held = self._schedule(own, t_s)
         if self.replanning is not None and not self.replan_due:
-            self._watch_progress(own.x_m, own.y_m, t_s)
+            self._watch_progress(own.x_m, own.y_m, t_s, held)
         reach = self.config.reach_m + self.tracker.acceptance_radius_m
         goals = self.tracker.window(own.x_m, own.y_m, reach, self.arrival_radius_m)
-        decision = plan_step(own, goals, other, snapshot, self.config)
+        decision = plan_step(own, goals, other, snapshot, self.config, scheduled)
         ms = (time.perf_counter() - started) * 1e3
         if isinstance(decision, NoLegalRollout):
             if decision.recovery is not None:

@@ -6,8 +6,10 @@ import math
 from pathlib import Path
 
 import pytest
+import yaml
 
-from uav_model.mission import VARIANTS, MissionError, load_mission, mission_schema, parse_mission
+from uav_model.mission import (VARIANTS, MissionError, Normalisation, SightlineCritic, load_mission, mission_schema,
+                               parse_mission)
 
 ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "missions" / "paper_reference.yaml"
@@ -123,3 +125,21 @@ def test_plant_defaults_to_the_multicopter_and_the_reference_keeps_the_paper_uni
     line = text.splitlines().index(next(s for s in text.splitlines() if s.startswith("plant:"))) + 1
     with pytest.raises(MissionError, match=rf"^m.yaml:{line}: plant: 'bicycle' is not one of multicopter, unicycle$"):
         parse_mission(text.replace("plant: unicycle", "plant: bicycle"), "m.yaml")
+
+
+def test_speed_window_and_critic_settings_are_read_and_default_to_the_variant():
+    m = load_mission(REFERENCE)
+    assert m.planner.speed_samples is None and m.planner.sightline_critic is None and m.planner.normalisation is None
+    data = yaml.safe_load(Path(REFERENCE).read_text())
+    data.setdefault("planner", {}).update(speed_samples=5, min_speed_m_s=2.0, sightline_critic="sloped",
+                                          normalisation="fixed", weights={"speed": 0.25})
+    p = parse_mission(yaml.safe_dump(data), "x.yaml").planner
+    assert (p.speed_samples, p.min_speed_m_s, p.weight_speed) == (5, 2.0, 0.25)
+    assert p.sightline_critic is SightlineCritic.SLOPED and p.normalisation is Normalisation.FIXED
+
+
+def test_a_minimum_speed_above_a_vehicles_speed_is_refused():
+    data = yaml.safe_load(Path(REFERENCE).read_text())
+    data.setdefault("planner", {})["min_speed_m_s"] = 12.0
+    with pytest.raises(MissionError, match="min_speed_m_s"):
+        parse_mission(yaml.safe_dump(data), "x.yaml")

@@ -232,3 +232,13 @@ def test_a_vehicle_in_a_pocket_yaws_in_place_and_leaves():
     assert recovering and all(r.speed_m_s == 0.0 and r.yaw_rate_rad_s != 0.0 for r in recovering)
     assert s.extra["planner_recoveries"]["a"] == len(recovering)
     assert s.vehicles["a"].min_obstacle_clearance_m > 0.0
+
+
+def test_the_timed_variant_flies_head_on_vehicles_apart_and_paper_variants_keep_constant_speed():
+    mission = parse_mission(TWO_WAY, "head_on")
+    run = simulate(mission, "astar-bdwa-timed")
+    assert run.variant == "astar-bdwa-timed"
+    assert run.summary.success, run.summary.reason
+    assert run.summary.min_separation_m >= 50.0
+    paper = simulate(mission, "astar-bdwa")
+    assert {r.speed_m_s for ticks in paper.ticks.values() for r in ticks if r.command is not None} == {10.0}

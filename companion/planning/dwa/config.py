@@ -30,6 +30,14 @@ class DwaConfig:
     ``min_separation_m``: the planning separation from the other UAV (see from_settings).
     ``turnaround_deg``: see :func:`companion.planning.dwa.legality.commit_turn`; 180 disables the rule.
     ``fence_m``: the geofence box; rollout points must stay inside it (legality, like obstacles).
+    ``speed_samples``: speeds sampled from ``min_speed_m_s`` (hover: 0) to cruise ``speed_m_s``,
+    each with every yaw rate (|yaw rate| <= v_cruise / r at every speed): a (speeds x rates)
+    grid of rollouts, speeds outer. 1 is the paper's window: cruise only, the yaw rates alone.
+    ``w_v``: weight of the speed critic (:mod:`.speed`), read only with more than one speed.
+    ``sightline_slope``: S is the paper's depth when the sight line is blocked and minus the
+    sight segment's clearance to the nearest obstacle when it is open (:mod:`.sightline`).
+    ``fixed_scale``: each critic divided by a fixed scale (H / 180, D / saturation, S / cap,
+    V / 1) instead of the paper's sum over the candidates (:mod:`.evaluate`).
     """
 
     speed_m_s: float
@@ -46,8 +54,16 @@ class DwaConfig:
     turnaround_deg: float = 90.0
     fence_m: tuple[float, float, float, float] | None = None  # keep-in box (x0, y0, x1, y1)
     recovery_samples: int = 11  # yaw-rate samples per heading in the spin recovery; 0 disables it
+    speed_samples: int = 1
+    min_speed_m_s: float = 0.0
+    w_v: float = 0.0
+    sightline_slope: bool = False
+    fixed_scale: bool = False
 
+    # S below is the number of rollouts: yaw_rate samples x speed_samples (speeds outer).
+    count: int = field(init=False, repr=False)  # S
     yaw_rates_rad_s: np.ndarray = field(init=False, repr=False)  # (S,)
+    speeds_m_s: np.ndarray = field(init=False, repr=False)  # (S,)
     times_s: np.ndarray = field(init=False, repr=False)  # (K + 1,) 0, dt, ..., p
     body_xy_m: np.ndarray = field(init=False, repr=False)  # (S, K + 1, 2) from the origin, heading +x
     final_dheading_rad: np.ndarray = field(init=False, repr=False)  # (S,) heading change at p
@@ -56,6 +72,12 @@ class DwaConfig:
     # places every rollout point (see placement), x and y each coming out contiguous.
     body_hom_m: np.ndarray = field(init=False, repr=False)
     end_hom_m: np.ndarray = field(init=False, repr=False)  # (3, S): the prediction points only
+    # The rollouts whose points differ: with a hover speed every yaw rate hovers on the same
+    # spot, so obstacle clearance is computed once for them. row_of (S,) maps each rollout to its
+    # row among the G distinct ones (geo_hom_m (3, G * (K + 1)), geo_point_times_s); None: all differ.
+    row_of: np.ndarray | None = field(init=False, repr=False)
+    geo_hom_m: np.ndarray = field(init=False, repr=False)
+    geo_point_times_s: np.ndarray = field(init=False, repr=False)
     # Plain numbers and constant rows the tick reads, derived once (a property would recompute).
     steps: int = field(init=False, repr=False)  # K
     horizon_s: float = field(init=False, repr=False)  # K dt
@@ -75,13 +97,31 @@ class DwaConfig:
     def __post_init__(self) -> None:
         if self.samples < 1 or self.dt_s <= 0 or self.prediction_time_s < self.dt_s or self.speed_m_s <= 0:
             raise ValueError("DwaConfig needs samples >= 1, speed > 0 and prediction_time_s >= dt_s > 0")
+        if self.speed_samples < 1 or not 0.0 <= self.min_speed_m_s <= self.speed_m_s:
+            raise ValueError("DwaConfig needs speed_samples >= 1 and 0 <= min_speed_m_s <= speed_m_s")
         steps = max(1, round(self.prediction_time_s / self.dt_s))
-        w = (np.zeros(1) if self.samples == 1
-             else np.linspace(-self.max_yaw_rate_rad_s, self.max_yaw_rate_rad_s, self.samples))
+        rates = (np.zeros(1) if self.samples == 1
+                 else np.linspace(-self.max_yaw_rate_rad_s, self.max_yaw_rate_rad_s, self.samples))
         t = self.dt_s * np.arange(0, steps + 1)
-        body, dheading = body_rollouts(self.speed_m_s, w, self.dt_s, steps)  # the plant's own unicycle
-        rec = recovery_shapes(body, dheading[:, -1], t, self.max_yaw_rate_rad_s, self.dt_s, self.recovery_samples)
-        for name, value in (("yaw_rates_rad_s", w), ("times_s", t), ("body_xy_m", body),
+        if self.speed_samples == 1:  # the paper's window: the plant's own unicycle at cruise speed
+            w, v = rates, np.full(len(rates), self.speed_m_s)
+            body, dheading = body_rollouts(self.speed_m_s, w, self.dt_s, steps)
+        else:
+            levels = np.linspace(self.min_speed_m_s, self.speed_m_s, self.speed_samples)
+            w, v = np.tile(rates, len(levels)), np.repeat(levels, len(rates))
+            body, dheading = body_rollouts(v, w, self.dt_s, steps)
+        cruise = slice(len(w) - len(rates), len(w))  # the recovery spins, then flies at cruise speed
+        rec = recovery_shapes(body[cruise], dheading[cruise, -1], t, self.max_yaw_rate_rad_s, self.dt_s,
+                              self.recovery_samples)
+        object.__setattr__(self, "count", len(w))
+        distinct = np.arange(len(w))
+        if self.speed_samples > 1 and self.min_speed_m_s == 0.0:  # one hover row stands for all
+            distinct = distinct[len(rates) - 1:]
+        row_of = None if len(distinct) == len(w) else np.maximum(np.arange(len(w)) - (len(rates) - 1), 0)
+        object.__setattr__(self, "row_of", row_of)
+        object.__setattr__(self, "geo_hom_m", homogeneous(body[distinct].reshape(-1, 2)))
+        object.__setattr__(self, "geo_point_times_s", np.tile(t, len(distinct)))
+        for name, value in (("yaw_rates_rad_s", w), ("speeds_m_s", v), ("times_s", t), ("body_xy_m", body),
                             ("final_dheading_rad", dheading[:, -1].copy()), ("point_times_s", np.tile(t, len(w))),
                             ("body_hom_m", homogeneous(body.reshape(-1, 2))),
                             ("end_hom_m", homogeneous(body[:, -1])), *rec.items()):

@@ -1,4 +1,4 @@
-"""The weighted sum of the critics, each normalised over the legal candidates (Fox et al. 1997)."""
+"""The weighted sum of the critics: the paper's sum normalisation (Fox et al. 1997) or fixed scales."""
 
 from __future__ import annotations
 
@@ -9,15 +9,35 @@ from companion.planning.dwa.types import Command
 
 
 def evaluate(config: DwaConfig, legal: np.ndarray, heading: np.ndarray, distance: np.ndarray,
-              sightline: np.ndarray | None, everyone: bool | None = None) -> np.ndarray:
-    """Eval = w_h H + w_d D + w_s S, each critic normalised by its sum over the legal candidates
-    (Fox et al. 1997; a critic that is zero for all of them contributes nothing); -inf where
-    illegal. ``everyone``: whether every candidate is legal, if the caller knows. Term by term
-    on (S,) rows: this runs every tick."""
+             sightline: np.ndarray | None, everyone: bool | None = None,
+             speed: np.ndarray | None = None) -> np.ndarray:
+    """Eval = w_h H + w_d D + w_s S (+ w_v V), -inf where illegal. ``everyone``: whether every
+    candidate is legal, if the caller knows.
+
+    Normalisation: the paper's (Fox et al. 1997) divides each critic by its sum over the legal
+    candidates, so a critic that is non-zero for one candidate only gives it its whole weight;
+    ``config.fixed_scale`` divides by a fixed scale instead (see :func:`fixed_scale_total`)."""
     if everyone is None:
         everyone = bool(legal.all())
+    if config.fixed_scale:
+        total = fixed_scale_total(config, heading, distance, sightline, speed)
+    else:
+        if sightline is not None and config.sightline_slope:  # sums need non-negative terms
+            sightline = sightline + config.sightline_cap_m
+        total = sum_normalised_total(config, legal, everyone, heading, distance, sightline, speed)
+    if not everyone:
+        total[~legal] = -np.inf
+    return total
+
+
+def sum_normalised_total(config: DwaConfig, legal: np.ndarray, everyone: bool, heading: np.ndarray,
+                         distance: np.ndarray, sightline: np.ndarray | None,
+                         speed: np.ndarray | None) -> np.ndarray:
+    """Each critic normalised by its sum over the legal candidates (a critic that is zero for all
+    of them contributes nothing). Term by term on (S,) rows: this runs every tick."""
     total = None
-    for weight, critic in ((config.w_h, heading), (config.w_d, distance), (config.w_s, sightline)):
+    for weight, critic in ((config.w_h, heading), (config.w_d, distance), (config.w_s, sightline),
+                           (config.w_v, speed)):
         if critic is None or weight == 0.0:
             continue
         if critic is config.saturated_m:  # nothing within reach: the same for every candidate
@@ -33,17 +53,28 @@ def evaluate(config: DwaConfig, legal: np.ndarray, heading: np.ndarray, distance
                 total = term
             else:
                 total += term
-    if total is None:
-        total = np.zeros(len(heading))
-    if not everyone:
-        total[~legal] = -np.inf
+    return np.zeros(len(heading)) if total is None else total
+
+
+def fixed_scale_total(config: DwaConfig, heading: np.ndarray, distance: np.ndarray,
+                      sightline: np.ndarray | None, speed: np.ndarray | None) -> np.ndarray:
+    """Each critic on its own fixed scale: H / 180 deg, D / distance_saturation_m, S /
+    sightline_cap_m, V as it is (in [0, 1]). A critic's pull is then its real spread, not its
+    spread relative to the candidates' mean."""
+    total = heading * (config.w_h / 180.0)
+    if config.w_d and config.distance_saturation_m > 0.0:
+        total = total + distance * (config.w_d / config.distance_saturation_m)
+    if sightline is not None and config.w_s:
+        total = total + sightline * (config.w_s / config.sightline_cap_m)
+    if speed is not None and config.w_v:
+        total = total + speed * config.w_v
     return total
 
 
 def command_for(config: DwaConfig, i: int, heading: np.ndarray, distance: np.ndarray,
                 sightline: np.ndarray | None, total: float, legal_count: int) -> Command:
     """Rollout ``i`` as the command to fly, with its raw critic values for the logs."""
-    return Command(yaw_rate_rad_s=float(config.yaw_rates_rad_s[i]), speed_m_s=config.speed_m_s,
+    return Command(yaw_rate_rad_s=float(config.yaw_rates_rad_s[i]), speed_m_s=float(config.speeds_m_s[i]),
                    heading_score=float(heading[i]), distance_score=float(distance[i]),
                    sightline_score=0.0 if sightline is None else float(sightline[i]),
                    eval_score=total, legal_count=legal_count)

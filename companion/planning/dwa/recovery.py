@@ -53,7 +53,7 @@ def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snap
     """The four strategies of the module docstring, in order."""
     blocking = [rule for rule, ok in ok_by_rule.items() if not ok[:, 1:].all(axis=1).any()]
     what = ", ".join(blocking) if blocking else "no rollout satisfies all rules at once"
-    reason = f"all {config.samples} rollouts break a rule within {config.prediction_time_s:g} s ({what})"
+    reason = f"all {config.count} rollouts break a rule within {config.prediction_time_s:g} s ({what})"
     hover = hover_check(pose, other, snapshot, config)
     if config.rec_delay_s.size:
         pts, ok_inf, ok_true, distance = spin_candidates(pose, other, config, hover)
@@ -150,7 +150,7 @@ def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.
     """Hovering will be hit and no heading helps: fly what stays clear of the true footprints
     longest, if that outlasts hovering; else hold."""
     dt, steps, hover_steps = config.dt_s, config.steps, hover.steps
-    ok_pts = np.ones((config.samples, steps + 1), dtype=bool)
+    ok_pts = np.ones((config.count, steps + 1), dtype=bool)
     for rule, ok in ok_by_rule.items():
         if rule is not Rule.OBSTACLE:
             ok_pts &= ok
@@ -164,6 +164,6 @@ def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.
     if best_last <= hold_lasts:
         return NoLegalRollout(f"{reason}; holding: nothing lasts longer than hovering ({hold_lasts * dt:g} s)")
     i = int(np.argmax(np.where(lasts == best_last, heading, -np.inf)))
-    command = command_for(config, i, heading, np.zeros(config.samples), None, 0.0, 0)
+    command = command_for(config, i, heading, np.zeros(config.count), None, 0.0, 0)
     clear_for = "the horizon" if best_last > hover_steps else f"{min(best_last, steps) * dt:g} s"
     return NoLegalRollout(f"{reason}; escaping: clear for {clear_for}, hovering for {hold_lasts * dt:g} s", command)

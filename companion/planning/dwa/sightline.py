@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from companion.planning.dwa.config import DwaConfig
+from companion.planning.dwa.sightline_slope import open_clearance
 from companion.planning.dwa.snapshot import ObstacleSnapshot
 from companion.planning.dwa.types import OtherUav, Pose
 
@@ -88,16 +89,25 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
 
 def sightline_term(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig,
                ex: np.ndarray, ey: np.ndarray) -> np.ndarray | None:
-    """S (capped) for prediction points (ex, ey), or None when the term is off: no other UAV,
+    """S (capped; sloped when the config says so, see :mod:`.sightline_slope`) for prediction
+    points (ex, ey), or None when the term is off: no other UAV,
     w_s = 0, or the other UAV has arrived (a parked UAV is no one to hide from, and a term that
     is non-zero for few candidates would outbid the heading critic under sum normalisation)."""
     if other is None or other.arrived or config.w_s <= 0 or not snapshot.count:
         return None
     t_p = config.horizon_s
     q = (other.x_m + other.vx_m_s * t_p, other.y_m + other.vy_m_s * t_p)
-    # Sight lines run from somewhere within reach of the pose to q: skip obstacles far from both.
-    keep, kept = snapshot.near_mask(pose.x_m, pose.y_m, config.reach_m, t_p, to_xy=q)
+    # Sight lines run from somewhere within reach of the pose to q: skip obstacles far from both
+    # (the slope reads obstacles up to the cap beyond: nearer than that, an open line is scored).
+    slope = config.sightline_slope
+    reach = config.reach_m + (config.sightline_cap_m if slope else 0.0)
+    keep, kept = snapshot.near_mask(pose.x_m, pose.y_m, reach, t_p, to_xy=q)
     if not kept:
         return None
-    return np.minimum(config.sightline_cap_m,
-                      _sightline_scores(ex, ey, q, t_p, snapshot, None if kept == len(keep) else keep))
+    depth = np.minimum(config.sightline_cap_m,
+                       _sightline_scores(ex, ey, q, t_p, snapshot, None if kept == len(keep) else keep))
+    if not slope:
+        return depth
+    near = snapshot.near(pose.x_m, pose.y_m, reach, t_p, to_xy=q)
+    gap = np.minimum(open_clearance(ex, ey, q, t_p, near), config.sightline_cap_m)
+    return np.where(depth > 0.0, depth, -np.maximum(gap, 0.0))

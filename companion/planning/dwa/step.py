@@ -15,12 +15,16 @@ from companion.planning.dwa.recovery import no_legal_rollout
 from companion.planning.dwa.shapes import placement
 from companion.planning.dwa.sightline import sightline_term
 from companion.planning.dwa.snapshot import ObstacleSnapshot
+from companion.planning.dwa.speed import reference_speed_m_s, speed_scores
 from companion.planning.dwa.types import Command, LocalGoals, NoLegalRollout, OtherUav, Pose
 
 
 def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherUav | None,
-              snapshot: ObstacleSnapshot, config: DwaConfig) -> Command | NoLegalRollout:
-    """One BDWA decision: the best legal yaw rate toward the local goal, or NoLegalRollout.
+              snapshot: ObstacleSnapshot, config: DwaConfig,
+              scheduled_speed_m_s: float | None = None) -> Command | NoLegalRollout:
+    """One BDWA decision: the best legal yaw rate (and speed, with a speed window) toward the
+    local goal, or NoLegalRollout. ``scheduled_speed_m_s``: what a timed route asks for now
+    (the speed critic's reference; None: cruise).
 
     ``goals`` is a :class:`LocalGoals` window (what the vehicle planner passes) or a bare (x, y).
     Every array here is small (31 x 23 points), so the cost is the number of numpy calls, not
@@ -29,7 +33,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     """
     if not isinstance(goals, LocalGoals):
         goals = LocalGoals.single(goals)
-    shape = (config.samples, config.steps + 1)
+    shape = (config.count, config.steps + 1)
     near = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, config.horizon_s)
     separation = separation_can_bind(pose, other, config)
     fence_here = fence_distance(pose, config)
@@ -39,8 +43,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     single = single_target(goals, config.end_reach_m, origin)
     px = py = None  # (S, K + 1) each, when needed; column 0 is the pose itself
     if near.count or separation or fence_here is not None or not single:
-        xy = place @ config.body_hom_m
-        px, py = xy[0].reshape(shape), xy[1].reshape(shape)
+        px, py, gx, gy = _placed(place, config, shape)
         ex, ey = px[:, -1], py[:, -1]
     else:
         ex, ey = place @ config.end_hom_m  # the prediction points (S,) only
@@ -49,10 +52,13 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     ok_by_rule: dict[Rule, np.ndarray] = {}  # (S, K + 1) per rule
     clear = None
     if near.count:
-        clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)  # (O, S * (K + 1))
-        lowest = clear.min(axis=0)
-        ok_by_rule[Rule.OBSTACLE] = obstacle_ok(clear, lowest).reshape(shape)
-        distance = distance_scores(lowest, shape, config)
+        if config.row_of is None:
+            clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)  # (O, S * (K + 1))
+            lowest = clear.min(axis=0)
+            ok_by_rule[Rule.OBSTACLE] = obstacle_ok(clear, lowest).reshape(shape)
+            distance = distance_scores(lowest, shape, config)
+        else:  # computed on the distinct rollouts only, then spread to all
+            ok_by_rule[Rule.OBSTACLE], distance, clear = _obstacle_terms(gx, gy, near, config)
     else:
         distance = no_obstacle_in_reach(config)
     if separation:
@@ -66,9 +72,43 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear)
     legal = commit_turn(pose, goals, legal, config)
 
-    sightline = sightline_term(pose, other, snapshot, config, ex, ey)
+    if config.row_of is None or px is None:
+        sightline = sightline_term(pose, other, snapshot, config, ex, ey)
+    else:  # the sight lines of the distinct prediction points only
+        sightline = sightline_term(pose, other, snapshot, config, gx[:, -1], gy[:, -1])
+        sightline = None if sightline is None else sightline[config.row_of]
     n_legal = int(np.count_nonzero(legal))
-    total = evaluate(config, legal, heading, distance, sightline, n_legal == config.samples)
+    speed = None
+    if config.count > config.samples:
+        speed = speed_scores(config, reference_speed_m_s(pose, goals, config, scheduled_speed_m_s))
+    total = evaluate(config, legal, heading, distance, sightline, n_legal == config.count, speed)
     best = int(total.argmax())
     return command_for(config, best, heading, distance, sightline, float(total[best]), n_legal)
 
+
+
+def _placed(place: np.ndarray, config: DwaConfig,
+            shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every rollout placed at the pose (px, py (S, K + 1)) and the distinct ones (gx, gy (G, K + 1);
+    the same arrays when all differ)."""
+    if config.row_of is None:
+        xy = place @ config.body_hom_m
+        px, py = xy[0].reshape(shape), xy[1].reshape(shape)
+        return px, py, px, py
+    xy = place @ config.geo_hom_m
+    gx, gy = xy[0].reshape(-1, shape[1]), xy[1].reshape(-1, shape[1])
+    return gx[config.row_of], gy[config.row_of], gx, gy
+
+
+def _obstacle_terms(gx: np.ndarray, gy: np.ndarray, near: ObstacleSnapshot,
+                    config: DwaConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The obstacle rule (S, K + 1), the distance critic (S,) and the clearances (O, S * (K + 1))
+    computed on the distinct rollouts (gx, gy) and spread to every rollout."""
+    g_shape = gx.shape
+    clear = inflated_clearance(gx.ravel(), gy.ravel(), config.geo_point_times_s, near)
+    lowest = clear.min(axis=0)
+    row_of = config.row_of
+    ok = obstacle_ok(clear, lowest).reshape(g_shape)[row_of]
+    distance = distance_scores(lowest, g_shape, config)[row_of]
+    spread = clear.reshape(len(clear), *g_shape)[:, row_of].reshape(len(clear), -1)
+    return ok, distance, spread
