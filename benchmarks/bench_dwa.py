@@ -7,11 +7,14 @@ Two worlds: "spread" (obstacles over the whole area, as in the random scenarios;
 because no rollout can reach them) and "clutter" (all 7 within one rollout length of the UAV, so
 every obstacle is evaluated against every rollout point: the worst case).
 Target (docs/results-reference.md): <= 1 ms per UAV per tick; the bench needs ~0.3 ms all-in.
+The same step with the astar-bdwa-timed window (4 speeds x 31 rates, sloped sightline, fixed
+scales) is timed in alternating rounds with the paper's window.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import time
 
@@ -20,7 +23,7 @@ import numpy as np
 from uav_model.mission import parse_mission
 from companion.planning.dwa import Command, OtherUav, Pose, plan_step
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.vehicle_planner import VehiclePlanner
+from companion.planning.vehicle_planner import VehiclePlanner, window_settings
 
 HEAD = """
 area: {x_min_m: 0, y_min_m: 0, x_max_m: 3181.98, y_max_m: 3181.98}
@@ -66,6 +69,19 @@ def timed(fn, n: int) -> tuple[float, float]:
     return statistics.median(samples), statistics.quantiles(samples, n=100)[98]
 
 
+def interleaved(fns: dict, n: int, rounds: int = 10) -> dict[str, tuple[float, float]]:
+    """Median and p99 per function, run in alternating rounds so that a shared machine's load
+    falls on all of them alike."""
+    samples: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(rounds):
+        for k, fn in fns.items():
+            for _ in range(max(1, n // rounds)):
+                t0 = time.perf_counter()
+                fn()
+                samples[k].append((time.perf_counter() - t0) * 1e3)
+    return {k: (statistics.median(v), statistics.quantiles(v, n=100)[98]) for k, v in samples.items()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3000)
@@ -78,14 +94,20 @@ def main() -> None:
         snapshot = field.at_time(0.0)
         goal = (3181.98, 3181.98)
         cfg = planner.config
+        timed_cfg = dataclasses.replace(cfg, **window_settings(mission, "astar-bdwa-timed"))
         result = plan_step(pose, goal, other, snapshot, cfg)
         near = snapshot.near(pose.x_m, pose.y_m, cfg.reach_m + cfg.distance_saturation_m, cfg.prediction_time_s)
         print(f"[{name}] {cfg.samples} samples x {cfg.steps} steps (p = {cfg.prediction_time_s:g} s, "
               f"dt = {cfg.dt_s:g} s); {snapshot.count} obstacles ({len(snapshot.poly_ids)} polygons, "
               f"{len(mission.world.moving_obstacles)} moving), {near.count} within reach; "
               f"{result.legal_count if isinstance(result, Command) else 0} legal rollouts")
-        med, p99 = timed(lambda: plan_step(pose, goal, other, snapshot, cfg), args.repeat)
+        times = interleaved({"paper": lambda: plan_step(pose, goal, other, snapshot, cfg),
+                             "timed": lambda: plan_step(pose, goal, other, snapshot, timed_cfg)}, args.repeat)
+        med, p99 = times["paper"]
         print(f"  plan_step (BDWA core)              median {med:.3f} ms   p99 {p99:.3f} ms")
+        med, p99 = times["timed"]
+        print(f"  plan_step, astar-bdwa-timed window median {med:.3f} ms   p99 {p99:.3f} ms   "
+              f"({timed_cfg.count} rollouts: {timed_cfg.speed_samples} speeds x {timed_cfg.samples} rates)")
         med, p99 = timed(lambda: field.at_time(60.0), args.repeat)
         print(f"  ObstacleField.at_time (snapshot)   median {med:.3f} ms   p99 {p99:.3f} ms")
         snapshots = field.at_times(0.5 * np.arange(args.repeat * 2 + 1))
