@@ -171,6 +171,10 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
     world = _world(data, planner.inflation_ratio, report, broken)
     stations = _stations(data, world, report)
     vehicles = _vehicles(data, stations, schema["vehicle"]["properties"], report, broken)
+    for v in vehicles:
+        if planner.min_speed_m_s > v.speed_m_s:
+            report.add(["planner", "min_speed_m_s"],
+                       f"{planner.min_speed_m_s:g} is above vehicle {v.name!r}'s speed_m_s ({v.speed_m_s:g})")
     _check_shared_goals(vehicles, safety, report)
     if problems:
         return None
