@@ -72,11 +72,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear)
     legal = commit_turn(pose, goals, legal, config)
 
-    if config.row_of is None or px is None:
-        sightline = sightline_term(pose, other, snapshot, config, ex, ey)
-    else:  # the sight lines of the distinct prediction points only
-        sightline = sightline_term(pose, other, snapshot, config, gx[:, -1], gy[:, -1])
-        sightline = None if sightline is None else sightline[config.row_of]
+    sightline = _sightline(pose, other, snapshot, config, ex, ey, None if px is None else (gx, gy))
     n_legal = int(np.count_nonzero(legal))
     speed = None
     if config.count > config.samples:
@@ -112,3 +108,13 @@ def _obstacle_terms(gx: np.ndarray, gy: np.ndarray, near: ObstacleSnapshot,
     distance = distance_scores(lowest, g_shape, config)[row_of]
     spread = clear.reshape(len(clear), *g_shape)[:, row_of].reshape(len(clear), -1)
     return ok, distance, spread
+
+
+def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig, ex: np.ndarray,
+               ey: np.ndarray, distinct: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
+    """S for every rollout, computed on the distinct prediction points when some coincide."""
+    if config.row_of is None or distinct is None:
+        return sightline_term(pose, other, snapshot, config, ex, ey)
+    gx, gy = distinct
+    sightline = sightline_term(pose, other, snapshot, config, gx[:, -1], gy[:, -1])
+    return None if sightline is None else sightline[config.row_of]
