@@ -4,6 +4,7 @@ slowing down to arrive at a station instead of circling it; and waits that a tim
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,11 +16,13 @@ from shapely.geometry import Point
 from companion.planning.dwa import NO_OBSTACLES, Command, DwaConfig, NoLegalRollout, OtherUav, Pose, plan_step
 from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.obstacle_field import ObstacleField
+from companion.planning.routes import plan_routes
 from companion.planning.runner import body_command
 from companion.planning.timed import forecast
 from companion.planning.vehicle_planner import Replanning, VehiclePlanner
 from tests.planning.world_strategies import worlds
 from uav_model.frames import enu_heading_to_ned_yaw, ned_yaw_to_enu_heading
+from uav_model.mission import load_mission
 from uav_model.plant import HOVER, KinematicState, VehicleLimits, step
 from uav_model.world import World
 
@@ -117,3 +120,14 @@ def test_a_scheduled_wait_is_flown_and_the_watchdog_does_not_fight_it():
     assert max(speeds[10:70]) < 0.5 * V  # waiting (after braking), 5-35 s
     assert arrived is not None and arrived > 40.0
     assert planner.replans == 0 and not planner.replan_due
+
+
+def test_the_timed_variant_wires_its_window_and_the_paper_variants_do_not():
+    mission = load_mission(Path(__file__).resolve().parents[2] / "missions" / "paper_reference.yaml")
+    routes = plan_routes(mission)
+    a, b = (VehiclePlanner.build(mission, v, routes[v.name], "astar-bdwa-timed").config for v in mission.by_priority)
+    assert a.w_s == 0.0 and b.w_s == pytest.approx(2.0 * mission.planner.weight_sightline)
+    assert b.speed_samples == 4 and b.sightline_slope and b.fixed_scale
+    paper = VehiclePlanner.build(mission, mission.by_priority[1], routes["b"], "astar-bdwa").config
+    assert (paper.count, paper.speed_samples, paper.sightline_slope, paper.fixed_scale) == (31, 1, False, False)
+    assert paper.w_s == mission.planner.weight_sightline
