@@ -1,4 +1,4 @@
-"""The one unicycle integration (uav_model.unicycle) is what the plant flies."""
+"""The one unicycle integration (uav_model.plant.unicycle.body_rollouts) is what the plant flies."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from uav_model.frames import enu_heading_to_ned_yaw, enu_yaw_rate_to_ned
 from uav_model.plant import KinematicState, VehicleLimits, VelocityCommand, VelocityFrame, step
-from uav_model.unicycle import body_rollouts
+from uav_model.plant.unicycle import body_rollouts
 
 
 @settings(max_examples=40, deadline=None)

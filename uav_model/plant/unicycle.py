@@ -4,13 +4,16 @@ Yaw follows the commanded yawspeed within the yaw-rate limit; horizontal velocit
 the setpoint within the acceleration limit and is capped at the speed limit; altitude follows a
 climb-rate setpoint within its own limits. The yaw is advanced first and a body-frame setpoint is
 rotated by the *new* yaw, so a constant (forward speed, yaw rate) command traces exactly the
-unicycle the planner's rollouts assume.
+unicycle the planner's rollouts assume: :func:`body_rollouts`, the same integration vectorised
+over a batch of (speed, yaw rate) pairs, is what the planner's rollout shapes are built from.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+import numpy as np
 
 from uav_model.plant.state import HOVER, KinematicState, VelocityCommand, VelocityFrame
 
@@ -86,3 +89,24 @@ def step(state: KinematicState, command: VelocityCommand, limits: VehicleLimits,
     # Every field is new: the constructor, not dataclasses.replace (several times slower; this
     # runs once per vehicle per tick in the headless runner).
     return KinematicState(state.north_m + vn * dt_s, state.east_m + ve * dt_s, down, vn, ve, vd, yaw, yawspeed)
+
+
+def body_rollouts(speeds_m_s: np.ndarray | float, yaw_rates_rad_s: np.ndarray, dt_s: float,
+                  steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """The unicycle from rest at the origin, heading +x (math angles, metres), yaw first as in
+    :func:`step`: points (S, K + 1, 2) at t = 0, dt, ..., K dt (the first is the origin) and the
+    heading change (S, K) after each step, for S (speed, yaw rate) pairs held constant.
+
+    ``speeds_m_s`` is one speed for all or one per yaw rate (S,). Vectorised: the heading is a
+    cumulative product of rate and time, then cos/sin, then positions are accumulated (MPPI's
+    batch shape)."""
+    w = np.asarray(yaw_rates_rad_s, dtype=float)
+    t = dt_s * np.arange(1, steps + 1)
+    dheading = np.outer(w, t)
+    step_m = np.asarray(speeds_m_s, dtype=float) * dt_s
+    if step_m.ndim:
+        step_m = step_m[:, None]
+    body = np.zeros((len(w), steps + 1, 2))
+    body[:, 1:, 0] = np.cumsum(np.cos(dheading), axis=1) * step_m
+    body[:, 1:, 1] = np.cumsum(np.sin(dheading), axis=1) * step_m
+    return body, dheading

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from companion.planning.dwa.shapes import homogeneous, recovery_shapes
-from uav_model.unicycle import body_rollouts
+from uav_model.plant.unicycle import body_rollouts
 
 if TYPE_CHECKING:  # only for the builder's signature; the core takes plain values
     from uav_model.mission import PlannerSettings, SafetySettings, VehicleSpec
