@@ -29,6 +29,8 @@ from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to
 from uav_model.mission import Mission
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.obstacle_field import ObstacleField
+from companion.planning.coordination import plan_coordinated
+from companion.planning.vehicle_planner import VARIANTS as PLANNER_VARIANTS
 from companion.planning.vehicle_planner import TickResult, VehiclePlanner, variant_needs_route
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
@@ -91,7 +93,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
              lower_bounds_s: dict[str, float | None] | None = None,
              timed_routes: "dict[str, TimedRoute] | None" = None) -> RunResult:
     """Fly ``mission`` headless with ``variant`` (default: the mission's) and score it.
-    ``timed_routes``: routes with arrival times per vehicle, tracked by the timed variant.
+    ``timed_routes``: routes with arrival times per vehicle, tracked by the timed variant; by
+    default it flies the coordinated space-time plan (:func:`coordination.plan_coordinated`).
 
     ``routes`` and ``lower_bounds_s`` (see :func:`metrics.vehicle_lower_bound_s`) do not depend
     on the variant: a caller flying several variants of one mission may pass them in once.
@@ -105,6 +108,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
     if routes is None:
         routes = plan_routes(mission) if variant_needs_route(variant) else {}
     vehicles = mission.by_priority
+    if timed_routes is None and PLANNER_VARIANTS[variant].timed and routes:
+        timed_routes = plan_coordinated(mission, routes).timed  # the space-time plan (docs/design.md)
     timed_routes = timed_routes or {}
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
                                              earlier=higher_routes(mission, routes, v.name),
