@@ -226,12 +226,13 @@ class VehiclePlanner:
 
     def _schedule(self, own: Pose, t_s: float) -> tuple[float | None, bool]:
         """The speed the timed route asks for now (None: no route, cruise) and whether the
-        schedule is holding the vehicle back (a wait, or slower than half cruise)."""
+        schedule holds the vehicle (a scheduled wait: only then is standing still no stall; a vehicle
+        that strayed from its plan, or is ahead of it, still re-plans after a stall)."""
         route = self.timed_route
         if route is None:
             return None, False
         speed = float(route.target_speed_at(np.array([own.x_m, own.y_m]), t_s, self.config.speed_m_s))
-        held = bool(route.is_waiting_at(t_s)) or speed < 0.5 * self.config.speed_m_s
+        held = bool(route.is_waiting_at(t_s))
         return speed, held
 
     @property
