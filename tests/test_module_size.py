@@ -18,8 +18,6 @@ MAX_LINES = 400
 STILL_SPLITTING: dict[str, str] = {
     "sim_bridge/vehicle.py": "simcore: along its banners behind a small facade",
     "sim_bridge/bridge.py": "simcore",
-    "companion/planning/dwa.py": "planning: a package, one critic per module",
-    "companion/planning/fusion.py": "planning: renamed for what it holds",
     "companion/app/pilot.py": "safety",
 }
 
