@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# CI draws the same Hypothesis examples on every run, so a landing never hangs on a lucky draw;
+# local runs keep exploring new worlds (and print the blob that reproduces a failure).
+settings.register_profile("ci", derandomize=True, print_blob=True)
+settings.register_profile("dev", print_blob=True)
+settings.load_profile("ci" if os.environ.get("CI") else "dev")
 
 from uav_model.mission import Mission, load_mission
 
