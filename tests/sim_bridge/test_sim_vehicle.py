@@ -451,7 +451,7 @@ def test_battery_drains_in_flight_only_and_reports_it(vehicle, gcs):
     takeoff(vehicle, gcs)
     p0, t0 = vehicle.battery_pct, vehicle.sim_time_s
     run(vehicle, 100.0)
-    hover = vehicle._energy.hover_pct_s  # noqa: SLF001 - the model's own rate is the expectation
+    hover = vehicle.energy.hover_pct_s  # the model's own rate is the expectation
     assert p0 - vehicle.battery_pct == pytest.approx(hover * (vehicle.sim_time_s - t0), rel=0.05)
     (bat,) = vehicle.build(mavlink.MAVLINK_MSG_ID_BATTERY_STATUS)
     assert bat.battery_remaining == round(vehicle.battery_pct)

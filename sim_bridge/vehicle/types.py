@@ -1,0 +1,101 @@
+"""Value types and constants shared by the vehicle's parts (no behaviour here)."""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from enum import Enum, IntEnum
+from typing import Any, Hashable, NamedTuple
+
+from pymavlink.dialects.v20 import common as mavlink
+
+AUTOPILOT_COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1
+FORCE_ARM_MAGIC = 21196  # COMPONENT_ARM_DISARM param2 that overrides the checks (MAVLink spec)
+
+KP_POSITION_1_S = 1.0  # position-hold / goto gain: 1 m error -> 1 m/s
+KP_ALTITUDE_1_S = 1.0
+IN_AIR_ALT_M = 0.3  # land detector: above this the vehicle flies
+TOUCHDOWN_ALT_M = 0.02
+MISSION_ALT_ACCEPT_M = 1.0  # PX4 NAV_MC_ALT_RAD is 0.8 m
+LAND_POSITION_ACCEPT_M = 1.0
+GRAVITY_M_S2 = 9.80665
+
+
+class LandedState(IntEnum):
+    UNDEFINED = mavlink.MAV_LANDED_STATE_UNDEFINED
+    ON_GROUND = mavlink.MAV_LANDED_STATE_ON_GROUND
+    IN_AIR = mavlink.MAV_LANDED_STATE_IN_AIR
+    TAKEOFF = mavlink.MAV_LANDED_STATE_TAKEOFF
+    LANDING = mavlink.MAV_LANDED_STATE_LANDING
+
+
+class MissionPhase(Enum):
+    """Where the navigator is within the current mission item."""
+
+    TAKEOFF = "takeoff"
+    GOTO = "goto"
+    HOLD = "hold"
+    LAND = "land"
+
+
+class RtlPhase(Enum):
+    CLIMB = "climb"
+    RETURN = "return"
+    LAND = "land"
+
+
+class Emit(NamedTuple):
+    """A message leaving the vehicle. ``link`` None: every link; ``peer`` None: every peer."""
+
+    msg: Any
+    link: str | None = None
+    peer: Hashable | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Setpoint:
+    """The last valid offboard setpoint (NED; body frames rotate by yaw only)."""
+
+    body: bool
+    use_position: bool
+    x_m: float
+    y_m: float
+    z_m: float
+    vx_m_s: float
+    vy_m_s: float
+    vz_m_s: float
+    yaw_rad: float | None
+    yaw_rate_rad_s: float | None
+    received_t_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class OffboardLoss:
+    """Offboard setpoints stopped at ``last_setpoint_t_s``; the failsafe hit at ``failsafe_t_s``."""
+
+    last_setpoint_t_s: float
+    failsafe_t_s: float
+
+
+class Command(NamedTuple):
+    """A COMMAND_LONG or COMMAND_INT, normalised."""
+
+    command: int
+    params: tuple[float, float, float, float, float, float, float]  # 5, 6 in degrees for global frames
+    frame: int | None  # None: COMMAND_LONG
+    src: tuple[int, int]
+
+
+Result = tuple[int, list[Emit]]  # a command handler's MAV_RESULT and the messages it emits
+
+
+def float_bits_to_int32(value: float) -> int:
+    return struct.unpack("<i", struct.pack("<f", value))[0]
+
+
+def int32_to_float_bits(value: int) -> float:
+    return struct.unpack("<f", struct.pack("<i", int(value)))[0]
+
+
+def clip(v: float, lo: float, hi: float) -> float:
+    return lo if v < lo else hi if v > hi else v
