@@ -141,3 +141,29 @@ def random_message(rng, *, target_system: int | None = None, message_ids=None):
 
         values.append([one() for _ in range(length)] if length else one())
     return cls(*values)
+
+
+# ---------------------------------------------------------------- driving a SimVehicle -------
+SIM_DT_S = 0.02  # the bridge's default physics step
+
+
+def step_for(v, seconds: float, until=None, dt_s: float = SIM_DT_S) -> list:
+    """Step ``v`` for ``seconds`` of sim time (or until ``until(v)``); every message emitted."""
+    out = []
+    for _ in range(int(round(seconds / dt_s))):
+        out += [e.msg for e in v.step(dt_s)]
+        if until is not None and until(v):
+            break
+    return out
+
+
+def ack_of(emits, command: int):
+    """The one COMMAND_ACK for ``command`` among ``emits``."""
+    acks = [e.msg for e in emits if e.msg.get_type() == "COMMAND_ACK" and e.msg.command == command]
+    assert len(acks) == 1, emits
+    return acks[0]
+
+
+def send_command(v, gcs: GcsCodec, command: int, *params: float, target: int = 1):
+    """Send a COMMAND_LONG to ``v`` over the "api" link; its COMMAND_ACK."""
+    return ack_of(v.handle(gcs.command(command, *params, target=target), "api"), command)

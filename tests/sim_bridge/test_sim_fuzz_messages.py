@@ -12,9 +12,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import parse_mission
 from sim_bridge.px4 import FlightMode
-from sim_bridge.streams import API_PROFILE
 from sim_bridge.testing import GcsCodec, random_message
-from sim_bridge.vehicle import SimVehicle
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -81,11 +79,10 @@ def mission():
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**32 - 1))
-def test_random_messages_never_crash_a_handler_or_corrupt_the_state(mission, seed):
+def test_random_messages_never_crash_a_handler_or_corrupt_the_state(mission, make_vehicle, seed):
     rng = random.Random(seed)
     gcs = GcsCodec()
-    v = SimVehicle(mission.vehicles[0], mission)
-    v.add_link("api", API_PROFILE)
+    v = make_vehicle(mission)
     ids = sorted(mavlink.mavlink_map)
     for k in range(150):
         msg = steer(random_message(rng, target_system=rng.choice((0, 1, 1, 1, 7)),

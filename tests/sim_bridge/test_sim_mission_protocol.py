@@ -11,10 +11,8 @@ from uav_model.frames import local_to_geodetic
 from uav_model.mission import parse_mission
 from sim_bridge.mission_protocol import MAX_ITEMS, MissionProtocol
 from sim_bridge.px4 import FlightMode
-from sim_bridge.streams import API_PROFILE
-from sim_bridge.vehicle import SimVehicle
 
-from sim_bridge.testing import GcsCodec as Gcs
+from sim_bridge.testing import GcsCodec as Gcs, send_command, step_for
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -32,19 +30,8 @@ vehicles:
 DT = 0.02
 
 
-def run(v, seconds, until=None):
-    out = []
-    for _ in range(int(round(seconds / DT))):
-        out += [e.msg for e in v.step(DT)]
-        if until is not None and until(v):
-            break
-    return out
-
-
-def send(v, gcs, command, *params):
-    (ack,) = [e.msg for e in v.handle(gcs.command(command, *params), "api")
-              if e.msg.get_type() == "COMMAND_ACK" and e.msg.command == command]
-    return ack
+run = step_for
+send = send_command
 
 MISSION, FENCE, RALLY = (mavlink.MAV_MISSION_TYPE_MISSION, mavlink.MAV_MISSION_TYPE_FENCE,
                          mavlink.MAV_MISSION_TYPE_RALLY)
@@ -54,11 +41,6 @@ REL_INT = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
 @pytest.fixture(scope="module")
 def mission():
     return parse_mission(MISSION_YAML, "unit.yaml")
-
-
-@pytest.fixture
-def gcs():
-    return Gcs()
 
 
 @pytest.fixture
@@ -210,18 +192,21 @@ def test_count_zero_clears(mission, proto, gcs):
 
 
 # ---------------------------------------------------------------- AUTO.MISSION ------------
-def vehicle_with_plan(mission, gcs, wps):
-    v = SimVehicle(mission.vehicles[0], mission)
-    v.add_link("api", API_PROFILE)
-    items = [waypoint(gcs, mission, i, *wp) for i, wp in enumerate(wps)]
-    v.handle(count(gcs, len(items)), "api")
-    for item in items:
-        v.handle(item, "api")
-    assert len(v.missions.plan()) == len(items)
-    return v
+@pytest.fixture
+def vehicle_with_plan(make_vehicle):
+    def make(mission, gcs, wps):
+        v = make_vehicle(mission)
+        items = [waypoint(gcs, mission, i, *wp) for i, wp in enumerate(wps)]
+        v.handle(count(gcs, len(items)), "api")
+        for item in items:
+            v.handle(item, "api")
+        assert len(v.missions.plan()) == len(items)
+        return v
+
+    return make
 
 
-def test_mission_flies_waypoints_reports_progress_and_ends_in_hold(mission, gcs):
+def test_mission_flies_waypoints_reports_progress_and_ends_in_hold(mission, gcs, vehicle_with_plan):
     wps = [(100.0, 200.0, 15.0), (200.0, 200.0, 15.0), (200.0, 150.0, 20.0)]
     v = vehicle_with_plan(mission, gcs, wps)
     assert send(v, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == mavlink.MAV_RESULT_ACCEPTED
@@ -240,7 +225,7 @@ def test_mission_flies_waypoints_reports_progress_and_ends_in_hold(mission, gcs)
     assert cur.mission_state == mavlink.MISSION_STATE_COMPLETE and cur.total == 3
 
 
-def test_mission_ending_with_land_lands_and_disarms(mission, gcs):
+def test_mission_ending_with_land_lands_and_disarms(mission, gcs, vehicle_with_plan):
     v = vehicle_with_plan(mission, gcs, [(100.0, 150.0, 10.0)])
     items = [waypoint(gcs, mission, 0, 100.0, 150.0, 10.0),
              waypoint(gcs, mission, 1, 150.0, 150.0, 0.0, command=mavlink.MAV_CMD_NAV_LAND)]
@@ -255,9 +240,8 @@ def test_mission_ending_with_land_lands_and_disarms(mission, gcs):
     assert v.position_enu_m == pytest.approx((150.0, 150.0, 0.0), abs=1.5)
 
 
-def test_set_current_jumps_and_mission_without_plan_is_denied(mission, gcs):
-    v = SimVehicle(mission.vehicles[0], mission)
-    v.add_link("api", API_PROFILE)
+def test_set_current_jumps_and_mission_without_plan_is_denied(mission, gcs, make_vehicle, vehicle_with_plan):
+    v = make_vehicle(mission)
     assert send(v, gcs, mavlink.MAV_CMD_DO_SET_MODE, 1, 4, 4).result == mavlink.MAV_RESULT_DENIED
     v = vehicle_with_plan(mission, gcs, [(100.0, 150.0, 10.0), (150.0, 150.0, 10.0), (150.0, 100.0, 10.0)])
     emits = v.handle(gcs.wire(gcs.enc.mission_set_current_encode(1, 1, 2)), "api")

@@ -16,8 +16,8 @@ from uav_model.frames import enu_heading_to_ned_yaw, geodetic_to_local, local_to
 from uav_model.mission import parse_mission
 from sim_bridge.px4 import FlightMode, Px4AutoSubMode, Px4MainMode, decode_custom_mode, encode_custom_mode
 from sim_bridge.streams import API_PROFILE
-from sim_bridge.testing import GcsCodec
-from sim_bridge.vehicle import ADSB_ICAO_BASE, LandedState, SimVehicle
+from sim_bridge.testing import GcsCodec, ack_of, send_command, step_for
+from sim_bridge.vehicle import ADSB_ICAO_BASE, LandedState
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -53,38 +53,13 @@ def mission():
 
 
 Gcs = GcsCodec
+run = step_for
+send = send_command
 
 
 @pytest.fixture
-def gcs():
-    return Gcs()
-
-
-@pytest.fixture
-def vehicle(mission):
-    v = SimVehicle(mission.vehicles[0], mission)
-    v.add_link("api", API_PROFILE)
-    return v
-
-
-def run(v: SimVehicle, seconds: float, until=None):
-    """Step ``seconds`` of sim time (or until ``until(v)``); returns every message emitted."""
-    out = []
-    for _ in range(int(round(seconds / DT))):
-        out += [e.msg for e in v.step(DT)]
-        if until is not None and until(v):
-            break
-    return out
-
-
-def ack_of(emits, command):
-    acks = [e.msg for e in emits if e.msg.get_type() == "COMMAND_ACK" and e.msg.command == command]
-    assert len(acks) == 1, emits
-    return acks[0]
-
-
-def send(v, gcs, command, *params, target=1):
-    return ack_of(v.handle(gcs.command(command, *params, target=target), "api"), command)
+def vehicle(mission, make_vehicle):
+    return make_vehicle(mission)
 
 
 def takeoff(v, gcs):
@@ -266,8 +241,8 @@ def test_arming_rules(vehicle, gcs):
     assert vehicle.mode is FlightMode.HOLD
 
 
-def test_weak_battery_refuses_to_arm(mission, gcs):
-    v = SimVehicle(mission.vehicles[1], mission)
+def test_weak_battery_refuses_to_arm(mission, gcs, make_vehicle):
+    v = make_vehicle(mission, 1)
     assert v.battery_pct == 35.0
     param = gcs.wire(gcs.enc.param_set_encode(2, 1, b"BAT_CRIT_THR", 0.40, mavlink.MAV_PARAM_TYPE_REAL32))
     v.handle(param, "api")

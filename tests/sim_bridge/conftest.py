@@ -1,0 +1,26 @@
+"""Shared setup for the stub's own tests: a GCS codec and SimVehicles driven without sockets."""
+
+from __future__ import annotations
+
+import pytest
+
+from sim_bridge.streams import API_PROFILE
+from sim_bridge.testing import GcsCodec
+from sim_bridge.vehicle import SimVehicle
+
+
+@pytest.fixture
+def gcs() -> GcsCodec:
+    return GcsCodec()
+
+
+@pytest.fixture
+def make_vehicle():
+    """``make_vehicle(mission, index=0)``: a SimVehicle of ``mission.vehicles[index]`` with an "api" link."""
+
+    def make(mission, index: int = 0, **kwargs) -> SimVehicle:
+        v = SimVehicle(mission.vehicles[index], mission, **kwargs)
+        v.add_link("api", API_PROFILE)
+        return v
+
+    return make
