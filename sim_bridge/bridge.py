@@ -71,6 +71,7 @@ class SimOptions:
     # Behind by more than this (the process was not scheduled), sim time slips instead of
     # jumping: a jump would run the offboard-loss clock over setpoints still queued in the socket.
     max_catchup_sim_s: float = 0.4
+    params: tuple[tuple[str, float], ...] = ()  # parameter values at boot (NAME, VALUE), as a SITL startup script
 
     def api_port(self, index: int) -> int:
         """The port vehicle ``index`` sends its API link to."""
@@ -145,8 +146,12 @@ class SimBridge:
         if o.api_ports is not None and len(o.api_ports) < len(mission.vehicles):
             raise SimBridgeError(f"api_ports has {len(o.api_ports)} port(s) for {len(mission.vehicles)} vehicles")
         SimClock(o.speedup, o.physics_dt_s, 0.0)  # fail early on a bad speed factor or step
-        self.vehicles: tuple[SimVehicle, ...] = tuple(
-            SimVehicle(spec, mission, speed_headroom=o.speed_headroom, energy=o.energy) for spec in mission.vehicles)
+        try:
+            self.vehicles: tuple[SimVehicle, ...] = tuple(
+                SimVehicle(spec, mission, speed_headroom=o.speed_headroom, energy=o.energy, speed_factor=o.speedup,
+                           params=dict(o.params)) for spec in mission.vehicles)
+        except ValueError as exc:
+            raise SimBridgeError(str(exc)) from None
         self._by_sysid = {v.system_id: i for i, v in enumerate(self.vehicles)}
         self._links: list[dict[str, _Link]] = []
         for v in self.vehicles:
@@ -469,6 +474,8 @@ async def run_stub(mission: Mission, options: SimOptions | None = None, *, stop:
     """Run the stub until ``stop`` is set (or the task is cancelled); returns the stopped bridge."""
     sim = SimBridge(mission, options)
     async with sim:
+        # Ready = booted: PX4 refuses to arm until its estimator settles (a few sim seconds).
+        await sim.wait_for(lambda: all(v.modes.healthy() for v in sim.vehicles), timeout_s=3600.0)
         if on_ready is not None:
             on_ready(sim)
         if stop is None:

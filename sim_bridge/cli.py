@@ -13,8 +13,10 @@ from uav_model.mission import MissionError, load_mission
 from sim_bridge.bridge import SimBridge, SimBridgeError, SimOptions, run_stub
 from sim_bridge.clock import ClockError, SimClock
 from sim_bridge.faults import Blackout, FaultConfig, FaultSpecError
+from sim_bridge.px4 import default_params
 
 log = logging.getLogger("sim_bridge")
+_MISSION_DEPENDENT = frozenset({"MAV_SYS_ID"})  # bounds depend on the vehicle: checked when it is built
 
 
 def _port(text: str) -> int:
@@ -29,6 +31,16 @@ def _blackout(text: str) -> Blackout:
         return Blackout.parse(text)
     except FaultSpecError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _param(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    try:
+        if not sep or not name:
+            raise ValueError
+        return name.strip().upper(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected NAME=VALUE, e.g. COM_OBL_RC_ACT=5") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--physics-dt", type=float, default=0.02, metavar="S", help="physics step in sim s (default 0.02)")
     p.add_argument("--speed-headroom", type=float, default=1.0,
                    help="vehicle speed limit as a multiple of the mission speed (default 1.0)")
+    p.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
+                   help="a parameter value at boot (repeatable), e.g. COM_OBL_RC_ACT=5")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return p
 
@@ -65,9 +79,16 @@ def options_from_args(args: argparse.Namespace) -> SimOptions:
     SimClock(args.speedup, args.physics_dt, 0.0)  # validates speedup and step
     if not 0.1 <= args.speed_headroom <= 10.0:
         raise ValueError(f"speed headroom {args.speed_headroom}: must be in [0.1, 10]")
+    defs = {d.name: d for d in default_params(1, 1.0, 1.0, 1.0, 1.0)}
+    for name, value in args.param:
+        if name not in defs:
+            raise ValueError(f"--param {name}: unknown parameter")
+        if name not in _MISSION_DEPENDENT and not defs[name].accepts(value):
+            raise ValueError(f"--param {name}={value:g}: outside [{defs[name].min_value:g}, {defs[name].max_value:g}]")
     return SimOptions(speedup=args.speedup, host=args.host, bind_host=args.bind, api_port_base=args.api_port_base,
                       gcs_port=None if args.no_gcs else args.gcs_port, physics_dt_s=args.physics_dt, seed=args.seed,
-                      faults=faults, tlog_dir=args.tlog, tlog_per_vehicle=args.tlog_per_vehicle, speed_headroom=args.speed_headroom)
+                      faults=faults, tlog_dir=args.tlog, tlog_per_vehicle=args.tlog_per_vehicle,
+                      speed_headroom=args.speed_headroom, params=tuple(args.param))
 
 
 async def _serve(mission, options: SimOptions) -> None:

@@ -69,12 +69,15 @@ def sim_connection_url(sim: SimBridge, index: int) -> str:
 
 @contextlib.asynccontextmanager
 async def stub_on_free_ports(mission: Mission, options: SimOptions | None = None, *, gcs: bool = True,
-                             **overrides: object) -> AsyncIterator[SimBridge]:
-    """A running stub whose API (and GCS) links point at freshly chosen free ports."""
+                             booted: bool = True, **overrides: object) -> AsyncIterator[SimBridge]:
+    """A running stub whose API (and GCS) links point at freshly chosen free ports; with ``booted``,
+    yielded once every vehicle passes its preflight checks (as a PX4 SITL started beforehand)."""
     ports = free_udp_ports(len(mission.vehicles) + 1)
     base = options or SimOptions()
     opts = replace(base, api_ports=ports[:-1], gcs_port=ports[-1] if gcs else None, **overrides)
     async with SimBridge(mission, opts) as sim:
+        if booted:
+            await sim.wait_for(lambda: all(v.modes.healthy() for v in sim.vehicles), timeout_s=60.0)
         yield sim
 
 
@@ -167,3 +170,25 @@ def ack_of(emits, command: int):
 def send_command(v, gcs: GcsCodec, command: int, *params: float, target: int = 1):
     """Send a COMMAND_LONG to ``v`` over the "api" link; its COMMAND_ACK."""
     return ack_of(v.handle(gcs.command(command, *params, target=target), "api"), command)
+
+
+def boot(v) -> list:
+    """Step ``v`` until its preflight checks pass (PX4 refuses to arm for the first seconds)."""
+    return step_for(v, 30.0, until=lambda v: v.modes.healthy())
+
+
+def upload_waypoints(v, gcs: GcsCodec, mission: Mission, waypoints_enu_m) -> None:
+    """Upload NAV_WAYPOINTs (mission ENU x, y, alt above home) to ``v`` through its mission protocol."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from uav_model.frames import local_to_geodetic
+
+    n = len(waypoints_enu_m)
+    v.handle(gcs.wire(gcs.enc.mission_count_encode(v.system_id, 1, n, mavlink.MAV_MISSION_TYPE_MISSION)), "api")
+    for seq, (x, y, alt) in enumerate(waypoints_enu_m):
+        lat, lon, _ = local_to_geodetic(mission.origin, x, y)
+        v.handle(gcs.wire(gcs.enc.mission_item_int_encode(
+            v.system_id, 1, seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mavlink.MAV_CMD_NAV_WAYPOINT,
+            1 if seq == 0 else 0, 1, 0.0, 0.0, 0.0, float("nan"), int(round(lat * 1e7)), int(round(lon * 1e7)),
+            alt, mavlink.MAV_MISSION_TYPE_MISSION)), "api")
+    assert len(v.missions.plan()) == n

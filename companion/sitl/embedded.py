@@ -37,6 +37,9 @@ class StubOptions:
     blackouts: tuple[str, ...] = ()  # START:DURATION in sim seconds, as sim-bridge --blackout takes them
     tlog_dir: Path | None = None
     log_path: Path | None = None  # the child's output; None: discarded
+    # Autopilot parameters at boot (NAME=VALUE). Offboard loss -> Hold (PX4's default is Return)
+    # until the companion treats PX4's RTL failsafe as an offboard loss it can resume from.
+    params: tuple[str, ...] = ("COM_OBL_RC_ACT=5",)
 
     def argv(self, mission_path: Path) -> list[str]:
         out = [sys.executable, "-m", "companion.sitl.stub_child", str(mission_path), "--speedup", f"{self.speedup:g}",
@@ -50,6 +53,8 @@ class StubOptions:
             out += ["--blackout", b]
         if self.tlog_dir is not None:
             out += ["--tlog", str(self.tlog_dir)]
+        for p in self.params:
+            out += ["--param", p]
         return out
 
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from typing import Any, Callable, Hashable
+from typing import Any, Callable, Hashable, Mapping
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -61,7 +61,8 @@ class SimVehicle:
     """A PX4-like multicopter: modes, arming, offboard, missions, params, telemetry, truth."""
 
     def __init__(self, spec: VehicleSpec, mission: Mission, *, speed_headroom: float = 1.0,
-                 energy: EnergyModel | None = None, component_id: int = AUTOPILOT_COMPONENT_ID):
+                 energy: EnergyModel | None = None, component_id: int = AUTOPILOT_COMPONENT_ID,
+                 speed_factor: float = 1.0, params: Mapping[str, float] | None = None):
         self.spec = spec
         self.name = spec.name
         self.system_id = spec.system_id
@@ -79,6 +80,9 @@ class SimVehicle:
         self.plant = mission.plant
         self.plant_step = step_for(mission.plant)  # the one pure step the vehicle flies (uav_model.plant)
         self.params = ParamStore(self, defs, max_alt_m=max(500.0, 2.0 * spec.cruise_alt_m), plant=mission.plant)
+        for name, value in (params or {}).items():
+            self.params.override(name, value)
+        self.speed_factor = speed_factor  # sim s per wall s, as PX4_SIM_SPEED_FACTOR: scales loss timeouts
 
         home_x, home_y = spec.start_enu_m
         self.home_ned = (home_y, home_x, 0.0)
@@ -116,7 +120,7 @@ class SimVehicle:
 
     @property
     def landed_state(self) -> LandedState:
-        if not self.in_air:
+        if not (self.in_air or self.physics.takeoff_detected):
             return LandedState.ON_GROUND
         if self.armed and self.mode is FlightMode.TAKEOFF:
             return LandedState.TAKEOFF

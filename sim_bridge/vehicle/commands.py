@@ -82,10 +82,10 @@ class Commands:
         v = self._v
         main, sub = decode_custom_mode(int(msg.custom_mode))
         mode = FlightMode.from_px4(main, sub) if msg.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else None
-        result = mavlink.MAV_RESULT_DENIED if mode is None else v.modes.enter(mode)
+        result, extra = (mavlink.MAV_RESULT_DENIED, []) if mode is None else v.modes.request(mode)
         ack = v.mav.command_ack_encode(mavlink.MAV_CMD_DO_SET_MODE, result, 0, 0,
                                        msg.get_srcSystem(), msg.get_srcComponent())
-        return [Emit(ack, link, peer)] + v.modes.mode_emits()
+        return [Emit(ack, link, peer)] + extra
 
     def on_mission_set_current(self, msg: Any, link: str, peer: Hashable) -> list[Emit]:
         v = self._v
@@ -162,6 +162,13 @@ class Commands:
         """COMMAND_LONG altitude is AMSL (MAV_FRAME_GLOBAL); COMMAND_INT says its frame."""
         return alt if cmd.frame in RELATIVE_ALT_FRAMES else alt - self._v.origin.alt_m
 
+    def _commanded(self, mode: FlightMode, **targets) -> int:
+        """A mode a command implies (take-off, land, return): the client takes over from a failsafe."""
+        result = self._v.modes.enter(mode, **targets)
+        if result == mavlink.MAV_RESULT_ACCEPTED:
+            self._v.modes.failsafe_t = None
+        return result
+
     def _takeoff(self, cmd: Command, link: str, peer: Hashable) -> Result:
         v = self._v
         yaw_deg, alt = cmd.params[3], cmd.params[6]
@@ -169,7 +176,10 @@ class Commands:
         if not (0.5 <= rel <= v.params.max_alt_m) or math.isinf(yaw_deg):  # NaN yaw: keep the heading
             return mavlink.MAV_RESULT_DENIED, []
         s = v.state
-        return v.modes.enter(FlightMode.TAKEOFF, takeoff_ned=(s.north_m, s.east_m, -rel)), v.modes.mode_emits()
+        result = self._commanded(FlightMode.TAKEOFF, takeoff_ned=(s.north_m, s.east_m, -rel))
+        extra = [] if math.isfinite(alt) else [Emit(v.tele.statustext(
+            mavlink.MAV_SEVERITY_INFO, f"Using default takeoff altitude: {rel:.1f} m"))]
+        return result, extra
 
     def _land(self, cmd: Command, link: str, peer: Hashable) -> Result:
         v = self._v
@@ -180,10 +190,13 @@ class Commands:
                 return mavlink.MAV_RESULT_DENIED, []
             x, y, _ = geodetic_to_local(v.origin, lat, lon)
             land_ne = (y, x)
-        return v.modes.enter(FlightMode.LAND, land_ne=land_ne), v.modes.mode_emits()
+        text = "Landing at current position" if land_ne is None else "Landing at the commanded position"
+        return self._commanded(FlightMode.LAND, land_ne=land_ne), [
+            Emit(v.tele.statustext(mavlink.MAV_SEVERITY_INFO, text))]
 
     def _rtl(self, cmd: Command, link: str, peer: Hashable) -> Result:
-        return self._v.modes.enter(FlightMode.RTL), self._v.modes.mode_emits()
+        result = self._commanded(FlightMode.RTL)
+        return result, [Emit(self._v.nav.rtl_start_text())] if result == mavlink.MAV_RESULT_ACCEPTED else []
 
     def _set_mode(self, cmd: Command, link: str, peer: Hashable) -> Result:
         base, main, sub = cmd.params[0], cmd.params[1], cmd.params[2]
@@ -195,7 +208,7 @@ class Commands:
         mode = FlightMode.from_px4(int(main), sub_i)
         if mode is None:
             return mavlink.MAV_RESULT_DENIED, []
-        return self._v.modes.enter(mode), self._v.modes.mode_emits()
+        return self._v.modes.request(mode)
 
     # ---------------------------------------------------------------- mission ------------
     def _mission_start(self, cmd: Command, link: str, peer: Hashable) -> Result:
@@ -206,7 +219,10 @@ class Commands:
             if first != int(first) or first >= len(plan):
                 return mavlink.MAV_RESULT_DENIED, []
             v.nav.set_mission_index(int(first))
-        return v.modes.enter(FlightMode.MISSION), v.modes.mode_emits()
+        result = self._commanded(FlightMode.MISSION)
+        if result != mavlink.MAV_RESULT_ACCEPTED or v.armed:
+            return result, []
+        return v.modes.arm(False, "mission start")  # PX4 arms a disarmed vehicle on MISSION_START
 
     def _set_mission_current(self, cmd: Command, link: str, peer: Hashable) -> Result:
         v = self._v
@@ -237,6 +253,6 @@ class Commands:
         rel = self._relative_alt(cmd, alt) if math.isfinite(alt) else -v.state.down_m
         if not 0.0 <= rel <= v.params.max_alt_m:
             return mavlink.MAV_RESULT_DENIED, []
-        result = v.modes.enter(FlightMode.HOLD)
+        result = self._commanded(FlightMode.HOLD)
         v.nav.hold_ned = (y, x, -rel)
-        return result, v.modes.mode_emits()
+        return result, []

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from uav_model.frames import wrap_pi
 from uav_model.plant import HOVER, VelocityCommand, VelocityFrame
 from sim_bridge.px4 import FlightMode
-from sim_bridge.vehicle.types import KP_ALTITUDE_1_S, KP_POSITION_1_S, TOUCHDOWN_ALT_M, clip
+from sim_bridge.vehicle.types import KP_ALTITUDE_1_S, KP_POSITION_1_S, TAKEOFF_APPROACH_KP_1_S, TOUCHDOWN_ALT_M, clip
 
 if TYPE_CHECKING:
     from sim_bridge.vehicle import SimVehicle
@@ -49,13 +49,28 @@ class Controller:
         yawspeed = 0.0 if yaw_rad is None else self.yawspeed_toward(yaw_rad, dt_s)
         return VelocityCommand(VelocityFrame.LOCAL_NED, vn, ve, vd, yawspeed)
 
+    def takeoff_command(self, target: NED, speed_m_s: float, dt_s: float) -> VelocityCommand | None:
+        """PX4's take-off, as measured on SIH: on the ground through the spool-up, MPC_TKO_SPEED for the
+        lower half of the climb, then the position controller's slower approach (up to MPC_Z_VEL_MAX_UP)."""
+        v = self._v
+        if not v.in_air and v.modes.spooling_up():
+            return None
+        p = v.params
+        if -v.state.down_m < -0.5 * target[2]:
+            return self.goto(target, speed_m_s, dt_s, climb_m_s=p["MPC_TKO_SPEED"])
+        cmd = self.goto(target, speed_m_s, dt_s)
+        vd = clip(TAKEOFF_APPROACH_KP_1_S * (target[2] - v.state.down_m), -p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"])
+        return replace(cmd, z_m_s=vd)
+
     def land_command(self, north_m: float, east_m: float, dt_s: float) -> VelocityCommand:
         v = self._v
         p = v.params
         alt = -v.state.down_m
         fast, slow = p["MPC_Z_VEL_MAX_DN"], p["MPC_LAND_SPEED"]
         hi, lo = p["MPC_LAND_ALT1"], p["MPC_LAND_ALT2"]
-        if alt >= hi:
+        if alt <= p["MPC_LAND_ALT3"]:
+            vd = min(slow, p["MPC_LAND_CRWL"])  # the last metre at crawl speed, as PX4 SIH touches down
+        elif alt >= hi:
             vd = fast
         elif alt > lo and hi > lo:
             vd = slow + (fast - slow) * (alt - lo) / (hi - lo)
@@ -89,8 +104,8 @@ class Controller:
         if mode in (FlightMode.HOLD, FlightMode.POSCTL):
             return self.goto(nav.hold_ned, v.limits.max_speed_m_s, dt_s) if v.in_air else None
         if mode is FlightMode.TAKEOFF:
-            return self.goto(nav.takeoff_target_ned, 0.0 if not v.in_air else v.limits.max_speed_m_s, dt_s,
-                             climb_m_s=v.params["MPC_TKO_SPEED"])
+            return self.takeoff_command(nav.takeoff_target_ned, 0.0 if not v.in_air else v.limits.max_speed_m_s,
+                                        dt_s)
         if mode is FlightMode.LAND:
             return self.land_command(*nav.land_ne, dt_s) if v.in_air else None
         if mode is FlightMode.MISSION:

@@ -53,15 +53,14 @@ class Navigator:
             if -s.down_m >= -self.takeoff_target_ned[2] - 0.2:
                 v.modes.enter(FlightMode.HOLD)
                 self.hold_ned = self.takeoff_target_ned
-                return [Emit(v.tele.statustext(mavlink.MAV_SEVERITY_INFO, "Takeoff complete")),
-                        Emit(v.tele.heartbeat())]
+                return [Emit(v.tele.statustext(mavlink.MAV_SEVERITY_INFO, "Takeoff complete"))]
         elif v.mode is FlightMode.MISSION and v.armed:
             return self._mission_update(t)
         elif v.mode is FlightMode.RTL and v.armed and v.in_air:
-            self._rtl_update()
+            return self._rtl_update()
         return []
 
-    def _rtl_update(self) -> None:
+    def _rtl_update(self) -> list[Emit]:
         v = self._v
         s = v.state
         rtl_alt = max(v.params["RTL_RETURN_ALT"], 0.5)
@@ -71,6 +70,15 @@ class Navigator:
         elif self.rtl_phase is RtlPhase.RETURN:
             if math.hypot(v.home_ned[0] - s.north_m, v.home_ned[1] - s.east_m) <= LAND_POSITION_ACCEPT_M:
                 self.rtl_phase = RtlPhase.LAND
+                return [Emit(v.tele.statustext(mavlink.MAV_SEVERITY_INFO, "RTL: land at destination"))]
+        return []
+
+    def rtl_start_text(self) -> object:
+        v = self._v
+        rtl_alt = max(v.params["RTL_RETURN_ALT"], 0.5, -v.state.down_m)
+        amsl = v.origin.alt_m - v.home_ned[2] + rtl_alt
+        return v.tele.statustext(mavlink.MAV_SEVERITY_INFO,
+                                 f"RTL: start return at {amsl:.0f} m ({rtl_alt:.0f} m above destination)")
 
     def rtl_command(self, dt_s: float) -> VelocityCommand | None:
         v = self._v
@@ -99,7 +107,8 @@ class Navigator:
         out = [Emit(v.tele.mission_current())]
         if v.mode is FlightMode.MISSION:
             if ev.kind == "cleared":
-                out += v.modes.failsafe_hold("Mission cleared: switching to Hold")
+                v.modes.enter(FlightMode.HOLD)
+                out.append(Emit(v.tele.statustext(mavlink.MAV_SEVERITY_WARNING, "Mission cleared: switching to Hold")))
             else:
                 self.mission_enter()
         return out
@@ -140,7 +149,7 @@ class Navigator:
             return ctl.goto(self.hold_ned, v.limits.max_speed_m_s, dt_s) if v.in_air else None
         target = self.mission_target
         if phase is MissionPhase.TAKEOFF:
-            return ctl.goto(target, 0.0, dt_s, climb_m_s=v.params["MPC_TKO_SPEED"])
+            return ctl.takeoff_command(target, 0.0, dt_s)
         if phase is MissionPhase.LAND:
             return ctl.land_command(target[0], target[1], dt_s)
         stop = phase is MissionPhase.HOLD or self._mission_stop_at_target()
@@ -179,7 +188,7 @@ class Navigator:
         if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             self.mission_done = True
             v.modes.enter(FlightMode.RTL)
-            return [self._reached(item), Emit(v.tele.heartbeat())], False
+            return [self._reached(item), Emit(self.rtl_start_text())], False
         if cmd in NOOP_COMMANDS:
             if cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED and item.param2 > 0:
                 self.mission_speed_m_s = min(item.param2, v.limits.max_speed_m_s)
@@ -202,6 +211,8 @@ class Navigator:
         self.mission_hold_until = None
         if not v.in_air and item.command != mavlink.MAV_CMD_NAV_LAND:
             self.mission_phase = MissionPhase.TAKEOFF
+            if v.modes.takeoff_start_t is None:
+                v.modes.takeoff_start_t = v.sim_time_s
             if item.command != mavlink.MAV_CMD_NAV_TAKEOFF:  # implicit takeoff to the first waypoint's altitude
                 self.mission_target = (s.north_m, s.east_m, self.mission_target[2])
         else:
@@ -244,10 +255,9 @@ class Navigator:
         v = self._v
         if v.in_air:
             return [], False
-        self.mission_done = True
-        v.mode = FlightMode.LAND
+        self.mission_done = True  # PX4 stays in MISSION, landed and (soon) disarmed
         self.land_ne = (v.state.north_m, v.state.east_m)
-        return [self._reached(item), Emit(v.tele.mission_current()), Emit(v.tele.heartbeat())], False
+        return [self._reached(item), Emit(v.tele.mission_current())], False
 
     def _mission_advance(self) -> list[Emit]:
         v = self._v
@@ -265,4 +275,4 @@ class Navigator:
         v.modes.enter(FlightMode.HOLD)
         if v.in_air and any(it.has_position for it in v.missions.plan(MISSION)):
             self.hold_ned = self.mission_target  # PX4 loiters at the last waypoint
-        return out + [Emit(v.tele.heartbeat())]
+        return out

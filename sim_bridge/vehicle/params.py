@@ -30,6 +30,16 @@ class ParamStore:
     def __getitem__(self, name: str) -> float:
         return self.values[name]
 
+    def override(self, name: str, value: float) -> None:
+        """Set a parameter before flight (as a SITL startup script does); ValueError if it cannot be."""
+        d = self.defs.get(name)
+        if d is None:
+            raise ValueError(f"unknown parameter {name!r}")
+        if not d.accepts(float(value)):
+            raise ValueError(f"parameter {name}: {value!r} is outside [{d.min_value:g}, {d.max_value:g}]")
+        self.values[name] = float(value)
+        self.limits = self._limits()
+
     def _limits(self) -> PlantLimits:
         p = self.values
         return limits_for(self._plant, speed_m_s=p["MPC_XY_VEL_MAX"], max_yaw_rate_rad_s=math.radians(p["MPC_YAWRAUTO_MAX"]),

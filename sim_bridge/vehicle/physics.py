@@ -10,7 +10,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.plant import KinematicState
 from sim_bridge.truth import CollisionChecker, CollisionEvent
-from sim_bridge.vehicle.types import IN_AIR_ALT_M, TOUCHDOWN_ALT_M, Emit
+from sim_bridge.vehicle.types import IN_AIR_ALT_M, LAND_DETECT_S, TAKEOFF_DETECT_S, TOUCHDOWN_ALT_M, Emit
 
 if TYPE_CHECKING:
     from sim_bridge.vehicle import SimVehicle
@@ -33,6 +33,11 @@ class Physics:
         self.accel_ned = (0.0, 0.0)
         self.drain_pct_s = 0.0
         self._battery_warned = 0  # 0 none, 1 low, 2 critical, 3 emergency
+        self.takeoff_detected = False  # PX4's land detector: "in air" may come before lift-off
+        self._touchdown_t: float | None = None
+
+    def reset_land_detector(self) -> None:
+        self.takeoff_detected = False
 
     def step(self, dt_s: float) -> list[Emit]:
         v = self._v
@@ -57,18 +62,32 @@ class Physics:
         return out
 
     def _land_detector(self, t: float) -> list[Emit]:
+        """Physical lift-off and touchdown, and PX4's land detector on top with its delays."""
         v = self._v
         s = v.state
         alt = -s.down_m
+        out: list[Emit] = []
         if not v.in_air and alt > IN_AIR_ALT_M:
             v.in_air = True
+            self._touchdown_t = None
             v.modes.on_takeoff_detected()
         elif v.in_air and alt <= TOUCHDOWN_ALT_M and s.vd_m_s >= -0.05:
             v.in_air = False
-            v.modes.landed_t = t
+            self._touchdown_t = t
             v.state = replace(s, down_m=0.0, vn_m_s=0.0, ve_m_s=0.0, vd_m_s=0.0, yawspeed_rad_s=0.0)
-            return [Emit(v.tele.statustext(mavlink.MAV_SEVERITY_INFO, "Landing detected"))]
-        return []
+        start = v.modes.takeoff_start_t
+        if v.armed and not self.takeoff_detected and (
+                v.in_air or (start is not None and t >= start + TAKEOFF_DETECT_S)):
+            self.takeoff_detected = True
+            v.modes.on_takeoff_detected()
+            out.append(Emit(v.tele.statustext(mavlink.MAV_SEVERITY_INFO, "Takeoff detected")))
+        if self._touchdown_t is not None and not v.in_air and t >= self._touchdown_t + LAND_DETECT_S:
+            self._touchdown_t = None
+            self.takeoff_detected = False
+            v.modes.landed_t = t
+            v.modes.takeoff_start_t = None
+            out.append(Emit(v.tele.statustext(mavlink.MAV_SEVERITY_INFO, "Landing detected")))
+        return out
 
     def _check_collisions(self, old: KinematicState, new: KinematicState, t0: float, t1: float) -> list[Emit]:
         v = self._v

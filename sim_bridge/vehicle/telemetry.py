@@ -102,7 +102,12 @@ class Telemetry:
 
     def heartbeat(self) -> Any:
         v = self._v
-        status = mavlink.MAV_STATE_ACTIVE if v.armed else mavlink.MAV_STATE_STANDBY
+        if not v.armed:
+            status = mavlink.MAV_STATE_STANDBY
+        elif v.modes.failsafe_t is not None:
+            status = mavlink.MAV_STATE_CRITICAL  # PX4 during a failsafe
+        else:
+            status = mavlink.MAV_STATE_ACTIVE
         return self._mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, self.base_mode(),
                                           v.mode.custom_mode, status, 3)
 

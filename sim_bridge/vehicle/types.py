@@ -20,6 +20,15 @@ MISSION_ALT_ACCEPT_M = 1.0  # PX4 NAV_MC_ALT_RAD is 0.8 m
 LAND_POSITION_ACCEPT_M = 1.0
 GRAVITY_M_S2 = 9.80665
 
+# Timings measured on PX4 SITL with SIH (../shared/px4-sih/README.md), in sim seconds.
+BOOT_PREFLIGHT_FAIL_S = 2.56  # "Preflight Fail: heading estimate not stable"
+BOOT_HEALTHY_S = 4.2  # arming TEMPORARILY_REJECTED before this
+PRFLT_DISARM_LAG_S = 1.0  # "Disarmed by auto preflight disarming" comes COM_DISARM_PRFLT + 1 s after arming
+TAKEOFF_DETECT_S = 1.6  # "Takeoff detected" after the take-off command, still on the ground
+TAKEOFF_SPOOLUP_S = 4.0  # on the ground this long after the take-off command before it lifts
+TAKEOFF_APPROACH_KP_1_S = 0.5  # climb rate per metre below the take-off altitude in the upper half
+LAND_DETECT_S = 2.0  # on the ground this long before "Landing detected"
+
 
 class LandedState(IntEnum):
     UNDEFINED = mavlink.MAV_LANDED_STATE_UNDEFINED

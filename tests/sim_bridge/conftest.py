@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from sim_bridge.streams import API_PROFILE
-from sim_bridge.testing import GcsCodec
+from sim_bridge.testing import GcsCodec, boot
 from sim_bridge.vehicle import SimVehicle
 
 
@@ -16,11 +16,14 @@ def gcs() -> GcsCodec:
 
 @pytest.fixture
 def make_vehicle():
-    """``make_vehicle(mission, index=0)``: a SimVehicle of ``mission.vehicles[index]`` with an "api" link."""
+    """``make_vehicle(mission, index=0)``: a SimVehicle of ``mission.vehicles[index]`` with an "api" link,
+    booted past PX4's preflight checks unless ``booted=False``."""
 
-    def make(mission, index: int = 0, **kwargs) -> SimVehicle:
+    def make(mission, index: int = 0, *, booted: bool = True, **kwargs) -> SimVehicle:
         v = SimVehicle(mission.vehicles[index], mission, **kwargs)
         v.add_link("api", API_PROFILE)
+        if booted:
+            boot(v)
         return v
 
     return make

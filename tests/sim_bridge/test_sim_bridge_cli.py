@@ -96,6 +96,9 @@ def test_cli_sigterm_stops_cleanly(tmp_path: Path):
     (["{mission}", "--loss", "2"], "loss 2.0: must be a probability in [0, 1]"),
     (["{mission}", "--blackout", "5"], "expected START:DURATION"),
     (["{mission}", "--gcs-port", "70000"], "70000 is not a UDP port"),
+    (["{mission}", "--param", "COM_OBL_RC_ACT"], "expected NAME=VALUE"),
+    (["{mission}", "--param", "NO_SUCH_PARAM=1"], "--param NO_SUCH_PARAM: unknown parameter"),
+    (["{mission}", "--param", "COM_OBL_RC_ACT=9"], "--param COM_OBL_RC_ACT=9: outside [0, 7]"),
 ])
 def test_cli_bad_input_is_one_clear_line(tmp_path: Path, args: list[str], message: str):
     mission = tmp_path / "cli.yaml"

@@ -118,8 +118,11 @@ def test_mavproxy_sees_both_vehicles_and_arms_and_changes_modes():
 
                 await mp.send("vehicle 1")
                 await mp.expect(r"Set vehicle 1")
-                await mp.send(f"long DO_SET_MODE {CUSTOM} {Px4MainMode.OFFBOARD} 0")  # no setpoints: refused
-                await mp.expect(r"COMMAND_ACK: DO_SET_MODE: DENIED")
+                # No setpoints: PX4 ACKs ACCEPTED, then refuses the switch and says so.
+                await mp.send(f"long DO_SET_MODE {CUSTOM} {Px4MainMode.OFFBOARD} 0")
+                await mp.expect(r"COMMAND_ACK: DO_SET_MODE: ACCEPTED", after=len(mp.lines) - 1)
+                await mp.expect(r"Switching to Offboard is currently not available")
+                assert sim.vehicle("a").mode is FlightMode.HOLD
                 await mp.send(f"long DO_SET_MODE {CUSTOM} {Px4MainMode.AUTO} {Px4AutoSubMode.LAND}")
                 await mp.expect(r"COMMAND_ACK: DO_SET_MODE: ACCEPTED", after=len(mp.lines) - 1)
                 assert await sim.wait_for(lambda: sim.vehicle("a").mode is FlightMode.LAND, 5.0)

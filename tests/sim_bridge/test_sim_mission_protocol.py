@@ -235,14 +235,16 @@ def test_mission_ending_with_land_lands_and_disarms(mission, gcs, vehicle_with_p
     send(v, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     send(v, gcs, mavlink.MAV_CMD_DO_SET_MODE, 1, 4, 4)  # what MAVSDK's start_mission sends
     emitted = run(v, 300.0, until=lambda v: not v.armed)
-    assert not v.armed and v.mode is FlightMode.LAND
+    assert not v.armed and v.mode is FlightMode.MISSION  # PX4 stays in MISSION, landed and disarmed
     assert [m.seq for m in emitted if m.get_type() == "MISSION_ITEM_REACHED"] == [0, 1]
     assert v.position_enu_m == pytest.approx((150.0, 150.0, 0.0), abs=1.5)
 
 
 def test_set_current_jumps_and_mission_without_plan_is_denied(mission, gcs, make_vehicle, vehicle_with_plan):
     v = make_vehicle(mission)
-    assert send(v, gcs, mavlink.MAV_CMD_DO_SET_MODE, 1, 4, 4).result == mavlink.MAV_RESULT_DENIED
+    # ACCEPTED as PX4 acks it, but the mode does not change without a plan.
+    assert send(v, gcs, mavlink.MAV_CMD_DO_SET_MODE, 1, 4, 4).result == mavlink.MAV_RESULT_ACCEPTED
+    assert v.mode is FlightMode.HOLD
     v = vehicle_with_plan(mission, gcs, [(100.0, 150.0, 10.0), (150.0, 150.0, 10.0), (150.0, 100.0, 10.0)])
     emits = v.handle(gcs.wire(gcs.enc.mission_set_current_encode(1, 1, 2)), "api")
     assert [(e.msg.get_type(), e.msg.seq) for e in emits] == [("MISSION_CURRENT", 2)]

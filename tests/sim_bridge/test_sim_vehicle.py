@@ -7,6 +7,7 @@ them back), so the vehicle sees exactly what it sees on a link.
 from __future__ import annotations
 
 import math
+import struct
 
 import pytest
 from pymavlink import mavutil
@@ -71,6 +72,11 @@ def takeoff(v, gcs):
     assert v.mode is FlightMode.HOLD and v.in_air
 
 
+def int32_param(value: int) -> float:
+    """An INT32 parameter value as PX4 puts it on the wire (the bytes, read as a float)."""
+    return struct.unpack("<f", struct.pack("<i", value))[0]
+
+
 def setpoint_body(gcs, fwd, right, down, yaw_rate):
     mask = 0x5C7  # what MAVSDK set_velocity_body sends: velocity + yaw rate, BODY_NED
     return gcs.wire(gcs.enc.set_position_target_local_ned_encode(
@@ -130,11 +136,12 @@ def test_vehicle_boots_landed_disarmed_at_its_station_with_its_heading(mission, 
 
 
 def test_telemetry_is_stamped_with_sim_time_and_consistent(mission, vehicle):
+    t_ms = int(vehicle.sim_time_s * 1000)
     run(vehicle, 1.0)
     (lp,) = vehicle.build(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
     (gp,) = vehicle.build(mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)
     (home,) = vehicle.build(mavlink.MAVLINK_MSG_ID_HOME_POSITION)
-    assert lp.time_boot_ms == gp.time_boot_ms == 1000
+    assert lp.time_boot_ms == gp.time_boot_ms == pytest.approx(t_ms + 1000, abs=1)
     x, y, _ = geodetic_to_local(mission.origin, gp.lat * 1e-7, gp.lon * 1e-7)
     assert (y, x) == pytest.approx((lp.x, lp.y), abs=0.05)  # the same point in both frames
     assert (home.x, home.y, home.z) == (lp.x, lp.y, 0.0)
@@ -204,11 +211,16 @@ def test_arm_takeoff_to_mis_takeoff_alt_then_hold(vehicle, gcs):
     nan = math.nan
     emits = vehicle.handle(gcs.command(mavlink.MAV_CMD_NAV_TAKEOFF, nan, nan, nan, nan, nan, nan, nan), "api")
     assert ack_of(emits, mavlink.MAV_CMD_NAV_TAKEOFF).result == mavlink.MAV_RESULT_ACCEPTED
-    # The mode change shows in a heartbeat sent with the ACK, not a second later.
-    (hb,) = [e.msg for e in emits if e.msg.get_type() == "HEARTBEAT"]
+    # As PX4: no extra heartbeat with the ACK; the next 1 Hz one shows the mode.
+    assert not [e for e in emits if e.msg.get_type() == "HEARTBEAT"]
+    (hb,) = vehicle.build(mavlink.MAVLINK_MSG_ID_HEARTBEAT)
     assert decode_custom_mode(hb.custom_mode) == (Px4MainMode.AUTO, Px4AutoSubMode.TAKEOFF)
+    assert "Using default takeoff altitude: 2.5 m" in [m.text for m in (e.msg for e in emits)
+                                                       if m.get_type() == "STATUSTEXT"]
     run(vehicle, 2.0)
-    assert vehicle.landed_state is LandedState.TAKEOFF
+    # PX4's land detector says TAKEOFF while the motors still spool up on the ground.
+    assert vehicle.landed_state is LandedState.TAKEOFF and vehicle.position_enu_m[2] == 0.0
+    run(vehicle, 3.0)
     assert -vehicle.state.vd_m_s <= vehicle.param("MPC_TKO_SPEED") + 1e-9
     run(vehicle, 30, until=lambda v: v.mode is FlightMode.HOLD)
     assert vehicle.mode is FlightMode.HOLD and vehicle.landed_state is LandedState.IN_AIR
@@ -233,11 +245,15 @@ def test_arming_rules(vehicle, gcs):
     assert send(vehicle, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == mavlink.MAV_RESULT_DENIED
     send(vehicle, gcs, mavlink.MAV_CMD_DO_SET_MODE, 1, Px4MainMode.AUTO, Px4AutoSubMode.LOITER)
     takeoff(vehicle, gcs)
-    assert send(vehicle, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0).result == mavlink.MAV_RESULT_DENIED
-    assert vehicle.armed
+    result = send(vehicle, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0).result
+    assert result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED and vehicle.armed  # "Disarming denied: not landed"
     assert send(vehicle, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == mavlink.MAV_RESULT_ACCEPTED  # idempotent
-    # OFFBOARD needs a setpoint stream first; RTL needs to be flying (it is).
-    assert send(vehicle, gcs, mavlink.MAV_CMD_DO_SET_MODE, 1, Px4MainMode.OFFBOARD, 0).result == mavlink.MAV_RESULT_DENIED
+    # OFFBOARD needs a setpoint stream first. PX4 still ACKs the DO_SET_MODE ACCEPTED and only
+    # says "not available" in a STATUSTEXT: the heartbeat tells the truth.
+    emits = vehicle.handle(gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, Px4MainMode.OFFBOARD, 0), "api")
+    assert ack_of(emits, mavlink.MAV_CMD_DO_SET_MODE).result == mavlink.MAV_RESULT_ACCEPTED
+    texts = [e.msg.text for e in emits if e.msg.get_type() == "STATUSTEXT"]
+    assert texts == ["Switching to Offboard is currently not available"]
     assert vehicle.mode is FlightMode.HOLD
 
 
@@ -299,6 +315,7 @@ def test_acceleration_is_limited(vehicle, gcs):
 
 
 def test_offboard_loss_fails_safe_to_hold_within_timeout_plus_one_tick(vehicle, gcs):
+    vehicle.handle(gcs.wire(gcs.enc.param_set_encode(1, 1, b"COM_OBL_RC_ACT", int32_param(5), 6)), "api")
     takeoff(vehicle, gcs)
     make = lambda: setpoint_body(gcs, 5.0, 0.0, 0.0, 0.0)  # noqa: E731
     enter_offboard(vehicle, gcs, make)
@@ -309,8 +326,10 @@ def test_offboard_loss_fails_safe_to_hold_within_timeout_plus_one_tick(vehicle, 
     timeout = vehicle.param("COM_OF_LOSS_T")
     assert timeout < vehicle.sim_time_s - last_setpoint_t <= timeout + DT + 1e-9
     assert [(x.last_setpoint_t_s, x.failsafe_t_s) for x in vehicle.offboard_losses] == [(last_setpoint_t, vehicle.sim_time_s)]
-    assert any(m.get_type() == "HEARTBEAT" and decode_custom_mode(m.custom_mode)[1] == Px4AutoSubMode.LOITER
-               for m in emits)
+    assert [(m.severity, m.text) for m in emits if m.get_type() == "STATUSTEXT"] == [
+        (mavlink.MAV_SEVERITY_CRITICAL, "Failsafe activated")]
+    (hb,) = vehicle.build(mavlink.MAVLINK_MSG_ID_HEARTBEAT)
+    assert decode_custom_mode(hb.custom_mode)[1] == Px4AutoSubMode.LOITER and hb.system_status == mavlink.MAV_STATE_CRITICAL
     # HOLD brakes and stays: no drift after the failsafe.
     run(vehicle, 5.0)
     p = vehicle.position_enu_m
@@ -351,13 +370,17 @@ def test_land_descends_then_disarms_after_com_disarm_land(vehicle, gcs):
     assert send(vehicle, gcs, mavlink.MAV_CMD_NAV_LAND).result == mavlink.MAV_RESULT_ACCEPTED
     run(vehicle, 2.0)
     assert vehicle.landed_state is LandedState.LANDING
-    run(vehicle, 60.0, until=lambda v: not v.in_air)
+    emitted = run(vehicle, 60.0, until=lambda v: v.landed_state is LandedState.ON_GROUND)
     assert not vehicle.in_air and vehicle.armed and vehicle.mode is FlightMode.LAND
+    assert "Landing detected" in [m.text for m in emitted if m.get_type() == "STATUSTEXT"]
     t_land = vehicle.sim_time_s
-    run(vehicle, 5.0, until=lambda v: not v.armed)
-    assert not vehicle.armed
+    emitted = run(vehicle, 5.0, until=lambda v: not v.armed)
+    assert not vehicle.armed and "Disarmed by landing" in [m.text for m in emitted if m.get_type() == "STATUSTEXT"]
     assert vehicle.sim_time_s - t_land == pytest.approx(vehicle.param("COM_DISARM_LAND"), abs=DT + 1e-9)
     assert vehicle.position_enu_m == pytest.approx((x0, y0, 0.0), abs=0.3)
+    # As PX4: back to the mode before the landing, so the next flight can arm.
+    assert vehicle.mode is FlightMode.HOLD
+    assert send(vehicle, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == mavlink.MAV_RESULT_ACCEPTED
 
 
 def test_rtl_returns_home_and_lands(mission, vehicle, gcs):
@@ -368,7 +391,7 @@ def test_rtl_returns_home_and_lands(mission, vehicle, gcs):
     assert send(vehicle, gcs, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH).result == mavlink.MAV_RESULT_ACCEPTED
     run(vehicle, 200.0, until=lambda v: not v.armed)
     hx, hy = mission.vehicles[0].start_enu_m
-    assert vehicle.mode is FlightMode.RTL and not vehicle.armed
+    assert vehicle.mode is FlightMode.OFFBOARD and not vehicle.armed  # back to the mode before RTL
     assert vehicle.position_enu_m == pytest.approx((hx, hy, 0.0), abs=1.0)
 
 
@@ -434,7 +457,7 @@ def test_battery_drains_in_flight_only_and_reports_it(vehicle, gcs):
 
 
 def test_adsb_reports_each_moving_obstacle_where_it_truly_is(mission, vehicle):
-    run(vehicle, 10.0)
+    run(vehicle, 10.0 - vehicle.sim_time_s)
     msgs = vehicle.build(mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE)
     mover_index = [o.id for o in mission.world.obstacles].index("mover")
     (adsb,) = msgs  # the static wall is not reported

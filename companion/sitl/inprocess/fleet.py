@@ -25,6 +25,7 @@ class InProcessOptions:
     speed_headroom: float = 1.0  # vehicle speed limit = mission speed * headroom, as SimOptions
     energy: EnergyModel = field(default_factory=EnergyModel)
     wire: bool = False  # pack and parse every message both ways (slower; exercises the byte codec)
+    params: tuple[tuple[str, float], ...] = ()  # autopilot parameters at boot (NAME, VALUE)
 
     def __post_init__(self) -> None:
         SimClock(1.0 if self.speedup is None else self.speedup, self.physics_dt_s, 0.0)  # ClockError if unusable
@@ -44,7 +45,8 @@ class InProcessFleet:
         o = self.options
         self._vehicles: dict[str, InProcessVehicle] = {}
         for spec in mission.vehicles:
-            sim = SimVehicle(spec, mission, speed_headroom=o.speed_headroom, energy=o.energy)
+            sim = SimVehicle(spec, mission, speed_headroom=o.speed_headroom, energy=o.energy,
+                             speed_factor=1.0 if o.speedup is None else o.speedup, params=dict(o.params))
             sim.add_link(LINK, INPROCESS_PROFILE)
             self._vehicles[spec.name] = InProcessVehicle(self, sim, mission.origin, o.wire)
         self._steps = 0
@@ -116,6 +118,10 @@ async def open_inprocess_fleet(mission: Mission, options: InProcessOptions | Non
         async with asyncio.TaskGroup() as tg:
             driver = tg.create_task(fleet.run(), name="inprocess-sim")
             try:
+                # The autopilot was powered up before the companion connects: PX4 refuses to arm
+                # for its first seconds (heading estimate settling).
+                while not all(v.sim.modes.healthy() for v in fleet.vehicles):
+                    await asyncio.sleep(0 if fleet.options.speedup is None else fleet.options.physics_dt_s)
                 yield fleet
             finally:
                 driver.cancel()
