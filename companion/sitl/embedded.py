@@ -24,6 +24,11 @@ from companion.errors import LinkError
 from uav_model.mission import Mission
 
 READY_MARK = b"running at"
+# PX4 defaults the companion does not survive yet, overridden at the stub's boot until it does:
+# offboard loss -> Hold (PX4: Return; the companion stands down on RTL), and no auto-disarm before
+# take-off (PX4: 11 s of sim time after arming, 0.55 s of wall time at 20x, less than the
+# companion's arm -> all armed -> take-off sequence over a lossy link).
+COMPANION_COMPAT_PARAMS = ("COM_OBL_RC_ACT=5", "COM_DISARM_PRFLT=-1")
 
 
 @dataclass(frozen=True)
@@ -37,9 +42,7 @@ class StubOptions:
     blackouts: tuple[str, ...] = ()  # START:DURATION in sim seconds, as sim-bridge --blackout takes them
     tlog_dir: Path | None = None
     log_path: Path | None = None  # the child's output; None: discarded
-    # Autopilot parameters at boot (NAME=VALUE). Offboard loss -> Hold (PX4's default is Return)
-    # until the companion treats PX4's RTL failsafe as an offboard loss it can resume from.
-    params: tuple[str, ...] = ("COM_OBL_RC_ACT=5",)
+    params: tuple[str, ...] = COMPANION_COMPAT_PARAMS  # autopilot parameters at boot (NAME=VALUE)
 
     def argv(self, mission_path: Path) -> list[str]:
         out = [sys.executable, "-m", "companion.sitl.stub_child", str(mission_path), "--speedup", f"{self.speedup:g}",
