@@ -28,12 +28,12 @@ from uav_model.mission_errors import (MissionError, StrictLoader, dotted, fail, 
                                       schema_reason)
 from uav_model.mission_points import latlon_slips, localise
 from uav_model.mission_types import (VARIANTS, CoordinationSettings, Mission, Normalisation, PlannerSettings,
-                                     SafetySettings, SightlineCritic, Variant, VehicleSpec, shared_goals)
+                                     SafetySettings, SightlineCritic, SpawnHeading, Variant, VehicleSpec, shared_goals)
 from uav_model.plant import Plant
 from uav_model.world import Obstacle, Orbit, Patrol, Shuttle, Static, World, make_obstacle
 
 __all__ = ["API_PORT_BASE", "CoordinationSettings", "DEFAULT_ORIGIN", "VARIANTS", "Mission", "MissionError",
-           "Normalisation", "PlannerSettings", "SafetySettings", "SightlineCritic", "Variant", "VehicleSpec",
+           "Normalisation", "PlannerSettings", "SafetySettings", "SightlineCritic", "SpawnHeading", "Variant", "VehicleSpec",
            "load_mission", "mission_error",
            "mission_from_data", "mission_schema", "parse_mission", "shared_goals"]
 
@@ -304,6 +304,7 @@ def _vehicles(data: dict, stations: dict[str, tuple[float, float]], vdef: dict, 
             initial_heading_deg=float(_opt(v, vdef, "initial_heading_deg")),
             priority=int(v.get("priority", i)),
             battery_pct=float(_opt(v, vdef, "battery_pct")),
+            spawn_heading=SpawnHeading(_opt(v, vdef, "spawn_heading")),
         ))
     return vehicles
 

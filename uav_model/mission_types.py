@@ -28,6 +28,13 @@ class Normalisation(Enum):
     FIXED = "fixed"  # each critic over a fixed scale
 
 
+class SpawnHeading(Enum):
+    """Which way a vehicle faces on the ground before it flies."""
+
+    MISSION = "mission"  # the mission's initial_heading_deg (the paper's setting)
+    NORTH = "north"  # as PX4 SITL spawns every vehicle, whatever the mission says
+
+
 @dataclass(frozen=True, slots=True)
 class VehicleSpec:
     name: str
@@ -45,6 +52,7 @@ class VehicleSpec:
     initial_heading_deg: float
     priority: int
     battery_pct: float
+    spawn_heading: SpawnHeading = SpawnHeading.MISSION
 
     @property
     def max_yaw_rate_rad_s(self) -> float:
@@ -54,6 +62,11 @@ class VehicleSpec:
     @property
     def initial_heading_rad(self) -> float:
         return math.radians(self.initial_heading_deg)
+
+    @property
+    def spawn_heading_rad(self) -> float:
+        """The math-angle (ENU) heading the vehicle has on the ground before take-off."""
+        return self.initial_heading_rad if self.spawn_heading is SpawnHeading.MISSION else math.pi / 2
 
 
 @dataclass(frozen=True, slots=True)

@@ -119,7 +119,7 @@ def simulate(mission: Mission, variant: str | None = None, *,
                                  max_accel_m_s2=v.max_accel_m_s2) for v in vehicles}
     states: dict[str, KinematicState] = {}
     for v in vehicles:
-        h = v.initial_heading_rad
+        h = v.spawn_heading_rad
         # Already at cruise speed on the initial heading: the paper's UAVs depart at constant v.
         north, east, down = enu_to_ned(v.start_enu_m[0], v.start_enu_m[1], v.cruise_alt_m)
         vn, ve, _ = enu_to_ned(v.speed_m_s * math.cos(h), v.speed_m_s * math.sin(h))

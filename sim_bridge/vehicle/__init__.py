@@ -89,7 +89,7 @@ class SimVehicle:
         self.sim_time_s = 0.0
         self.steps = 0
         self.state = KinematicState(north_m=home_y, east_m=home_x, down_m=0.0,
-                                    yaw_rad=enu_heading_to_ned_yaw(spec.initial_heading_rad))
+                                    yaw_rad=enu_heading_to_ned_yaw(spec.spawn_heading_rad))
         self.armed = False
         self.mode = FlightMode.HOLD
         self.in_air = False

@@ -12,7 +12,7 @@ import struct
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from uav_model.mission import parse_mission
+from uav_model.mission import MissionError, parse_mission
 from sim_bridge.px4 import FlightMode, Px4MainMode
 from sim_bridge.testing import send_command, step_for, upload_waypoints
 from sim_bridge.vehicle import LandedState
@@ -232,3 +232,18 @@ def test_no_failsafe_while_disarmed_in_offboard(mission, gcs, make_vehicle):
     send_command(v, gcs, mavlink.MAV_CMD_DO_SET_MODE, 1, Px4MainMode.OFFBOARD, 0)
     step_for(v, 3.0)
     assert v.mode is FlightMode.OFFBOARD and not v.offboard_losses
+
+
+# ---------------------------------------------------------------- spawn heading -------------
+@pytest.mark.parametrize("spawn, yaw_ned_deg", [("mission", 45.0), ("north", 0.0)])
+def test_spawn_heading_is_the_missions_or_north_as_px4(make_vehicle, spawn, yaw_ned_deg):
+    # PX4 SITL spawns facing north whatever the mission says; the paper's runs face their heading.
+    text = MISSION_YAML.replace("cruise_alt_m: 20}", f"cruise_alt_m: 20, initial_heading_deg: 45, spawn_heading: {spawn}}}")
+    v = make_vehicle(parse_mission(text, "spawn.yaml"))
+    assert math.degrees(v.state.yaw_rad) == pytest.approx(yaw_ned_deg)
+
+
+def test_a_bad_spawn_heading_is_refused_naming_the_field():
+    text = MISSION_YAML.replace("cruise_alt_m: 20}", "cruise_alt_m: 20, spawn_heading: south}")
+    with pytest.raises(MissionError, match="spawn_heading"):
+        parse_mission(text, "spawn.yaml")
