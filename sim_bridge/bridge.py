@@ -18,12 +18,10 @@ PX4. Nothing here blocks: datagrams go out through ``transport.sendto`` and come
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import logging
 import math
 import time
-from collections import Counter, OrderedDict
-from dataclasses import dataclass, field
+from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, Hashable
 
@@ -31,109 +29,19 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import Mission
 from sim_bridge.clock import SimClock
-from sim_bridge.energy import EnergyModel
+from sim_bridge.endpoint import Endpoint, Link
 from sim_bridge.faults import Blackout, FaultConfig, LinkFaults
+from sim_bridge.options import SimBridgeError, SimOptions
 from sim_bridge.px4 import FlightMode
-from sim_bridge.streams import API_PROFILE, GCS_PROFILE, StreamProfile
 from sim_bridge.tlog import TlogSet
 from sim_bridge.vehicle import Emit, SimVehicle
+
+__all__ = ["API_LINK", "GCS_LINK", "SimBridge", "SimBridgeError", "SimOptions", "run_stub"]
 
 log = logging.getLogger(__name__)
 
 API_LINK = "api"
 GCS_LINK = "gcs"
-MAX_PEERS_PER_SOCKET = 8  # learned peers (and parsers) kept per socket; the oldest is dropped
-
-
-class SimBridgeError(RuntimeError):
-    """The stub cannot start (e.g. a socket cannot be bound)."""
-
-
-@dataclass(frozen=True)
-class SimOptions:
-    speedup: float = 1.0
-    host: str = "127.0.0.1"  # where the companion and the GCS listen
-    bind_host: str | None = None  # the stub's own address; None: loopback if host is loopback, else 0.0.0.0
-    api_port_base: int = 14540
-    api_ports: tuple[int, ...] | None = None  # explicit port per vehicle (tests: free ports); overrides the base
-    gcs_port: int | None = 14550  # None: no GCS link
-    physics_dt_s: float = 0.02
-    seed: int = 0
-    faults: FaultConfig = field(default_factory=FaultConfig)  # applied to the API links
-    faults_on_gcs: bool = False
-    tlog_dir: Path | None = None
-    tlog_per_vehicle: bool = False  # also one .tlog per vehicle beside the combined one
-    speed_headroom: float = 1.0  # vehicle speed limit = mission speed * headroom
-    energy: EnergyModel = field(default_factory=EnergyModel)
-    api_profile: StreamProfile = API_PROFILE
-    gcs_profile: StreamProfile = GCS_PROFILE
-    min_tick_wall_s: float = 0.004  # the loop wakes at most this often and runs the steps due
-    # Behind by more than this (the process was not scheduled), sim time slips instead of
-    # jumping: a jump would run the offboard-loss clock over setpoints still queued in the socket.
-    max_catchup_sim_s: float = 0.4
-    params: tuple[tuple[str, float], ...] = ()  # parameter values at boot (NAME, VALUE), as a SITL startup script
-
-    def api_port(self, index: int) -> int:
-        """The port vehicle ``index`` sends its API link to."""
-        if self.api_ports is not None:
-            return self.api_ports[index]
-        return self.api_port_base + index
-
-    @property
-    def resolved_bind_host(self) -> str:
-        if self.bind_host is not None:
-            return self.bind_host
-        try:
-            return "127.0.0.1" if ipaddress.ip_address(self.host).is_loopback else "0.0.0.0"
-        except ValueError:  # a host name
-            return "127.0.0.1" if self.host == "localhost" else "0.0.0.0"
-
-
-@dataclass
-class _Link:
-    """One (vehicle, link) pair: encoder, fault models, where its datagrams go."""
-
-    name: str
-    encoder: Any
-    faults_out: LinkFaults | None
-    faults_in: LinkFaults | None
-
-
-class _Endpoint(asyncio.DatagramProtocol):
-    def __init__(self, bridge: "SimBridge", socket_name: str, vehicle_index: int | None):
-        self.bridge = bridge
-        self.socket_name = socket_name
-        self.vehicle_index = vehicle_index
-        self.transport: asyncio.DatagramTransport | None = None
-        self.default_remote: tuple[str, int] | None = None
-        self.peers: OrderedDict[Hashable, Any] = OrderedDict()  # peer address -> parser
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport  # type: ignore[assignment]
-
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.bridge._on_datagram(self, data, addr)
-
-    def error_received(self, exc: Exception) -> None:
-        # ICMP port unreachable while nobody listens yet: normal before the companion starts.
-        self.bridge.stats["socket_errors"] += 1
-
-    def parser_for(self, addr: Hashable) -> Any:
-        parser = self.peers.get(addr)
-        if parser is None:
-            parser = mavlink.MAVLink(None, 0, 0)
-            parser.robust_parsing = True
-            self.peers[addr] = parser
-            while len(self.peers) > MAX_PEERS_PER_SOCKET:
-                self.peers.popitem(last=False)
-        else:
-            self.peers.move_to_end(addr)
-        return parser
-
-    def destinations(self) -> list[Hashable]:
-        out: list[Hashable] = [] if self.default_remote is None else [self.default_remote]
-        out += [p for p in self.peers if p != self.default_remote]
-        return out
 
 
 class SimBridge:
@@ -153,7 +61,7 @@ class SimBridge:
         except ValueError as exc:
             raise SimBridgeError(str(exc)) from None
         self._by_sysid = {v.system_id: i for i, v in enumerate(self.vehicles)}
-        self._links: list[dict[str, _Link]] = []
+        self._links: list[dict[str, Link]] = []
         for v in self.vehicles:
             links = {API_LINK: self._make_link(v, API_LINK, with_faults=not o.faults.is_clean)}
             v.add_link(API_LINK, o.api_profile)
@@ -163,8 +71,8 @@ class SimBridge:
             self._links.append(links)
         self.stats: Counter[str] = Counter()
         self._clock: SimClock | None = None
-        self._api: list[_Endpoint] = []
-        self._gcs: _Endpoint | None = None
+        self._api: list[Endpoint] = []
+        self._gcs: Endpoint | None = None
         self._task: asyncio.Task | None = None
         self._tlog: TlogSet | None = None
         self._timers: set[asyncio.TimerHandle] = set()
@@ -172,11 +80,11 @@ class SimBridge:
         self._wall_start = 0.0
         self._running = False
 
-    def _make_link(self, v: SimVehicle, name: str, with_faults: bool) -> _Link:
+    def _make_link(self, v: SimVehicle, name: str, with_faults: bool) -> Link:
         o = self.options
         fo = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/out") if with_faults else None
         fi = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/in") if with_faults else None
-        return _Link(name, mavlink.MAVLink(None, v.system_id, v.component_id), fo, fi)
+        return Link(name, mavlink.MAVLink(None, v.system_id, v.component_id), fo, fi)
 
     # ================================================================== lifecycle =========
     async def __aenter__(self) -> "SimBridge":
@@ -195,11 +103,11 @@ class SimBridge:
         bind = o.resolved_bind_host
         try:
             for i, v in enumerate(self.vehicles):
-                _, ep = await loop.create_datagram_endpoint(lambda i=i: _Endpoint(self, API_LINK, i), local_addr=(bind, 0))
+                _, ep = await loop.create_datagram_endpoint(lambda i=i: Endpoint(self, API_LINK, i), local_addr=(bind, 0))
                 ep.default_remote = (o.host, o.api_port(i))
                 self._api.append(ep)
             if o.gcs_port is not None:
-                _, ep = await loop.create_datagram_endpoint(lambda: _Endpoint(self, GCS_LINK, None), local_addr=(bind, 0))
+                _, ep = await loop.create_datagram_endpoint(lambda: Endpoint(self, GCS_LINK, None), local_addr=(bind, 0))
                 ep.default_remote = (o.host, o.gcs_port)
                 self._gcs = ep
         except OSError as exc:
@@ -271,7 +179,7 @@ class SimBridge:
             await asyncio.sleep(delay)
 
     # ================================================================== I/O ===============
-    def _on_datagram(self, ep: _Endpoint, data: bytes, addr: tuple[str, int]) -> None:
+    def _on_datagram(self, ep: Endpoint, data: bytes, addr: tuple[str, int]) -> None:
         self.stats["rx_datagrams"] += 1
         try:
             if ep.vehicle_index is not None:
@@ -287,7 +195,7 @@ class SimBridge:
             self.stats["rx_errors"] += 1
             log.debug("sim_bridge: error on datagram from %s", addr, exc_info=True)
 
-    def _decode(self, ep: _Endpoint, data: bytes, addr: tuple[str, int]) -> None:
+    def _decode(self, ep: Endpoint, data: bytes, addr: tuple[str, int]) -> None:
         if not self._running:
             return
         parser = ep.parser_for(addr)
@@ -331,7 +239,7 @@ class SimBridge:
                 if link is not None:
                     self._send(index, link, e.msg, e.peer)
 
-    def _send(self, index: int, link: _Link, msg: Any, peer: Hashable | None) -> None:
+    def _send(self, index: int, link: Link, msg: Any, peer: Hashable | None) -> None:
         ep = self._api[index] if link.name == API_LINK else self._gcs
         if ep is None or ep.transport is None:
             return
@@ -353,7 +261,7 @@ class SimBridge:
             else:
                 self._sendto(ep, buf, dest)
 
-    def _sendto(self, ep: _Endpoint, buf: bytes, dest: Hashable) -> None:
+    def _sendto(self, ep: Endpoint, buf: bytes, dest: Hashable) -> None:
         if ep.transport is None or ep.transport.is_closing():
             return
         try:
