@@ -55,7 +55,7 @@ async def first(agen, pred=bool, timeout_s: float = 15.0):
 @pytest.mark.timeout(60)
 def test_tlog_records_the_gcs_stream_both_ways_readable_by_pymavlink(mission, tmp_path):
     async def scenario():
-        async with stub_on_free_ports(mission, SimOptions(speedup=5.0, tlog_dir=tmp_path)) as sim:
+        async with stub_on_free_ports(mission, SimOptions(speedup=5.0, tlog_dir=tmp_path), booted=False) as sim:
             path = sim.tlog_path
             gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             try:

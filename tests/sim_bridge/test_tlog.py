@@ -34,7 +34,7 @@ def _records(path) -> list[tuple[float, int, str]]:
 def test_tlog_spans_sim_time_and_splits_per_vehicle(tmp_path):
     async def fly() -> tuple[float, list]:
         opts = SimOptions(speedup=20.0, tlog_dir=tmp_path, tlog_per_vehicle=True)
-        async with stub_on_free_ports(MISSION, opts) as sim:
+        async with stub_on_free_ports(MISSION, opts, booted=False) as sim:  # the log spans from boot
             t0 = sim.sim_time_s
             while sim.sim_time_s - t0 < 30.0:
                 await asyncio.sleep(0.05)
