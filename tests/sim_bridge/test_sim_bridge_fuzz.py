@@ -136,7 +136,13 @@ def test_fuzzing_every_port_leaves_the_stub_serving_and_mavsdk_healthy():
                     await asyncio.sleep(0.3)
                     assert not any(v.armed for v in sim.vehicles)
                     assert all(v.param("MPC_XY_VEL_MAX") == 10.0 for v in sim.vehicles)
-                    for _ in range(60):
+                    # Bursts of 50 every 20 ms until the stub has read 3000 datagrams: under load
+                    # the kernel drops what a descheduled stub's socket buffer cannot hold, so
+                    # count what arrived rather than what was sent.
+                    rx0 = sim.stats["rx_datagrams"]
+                    for _ in range(600):
+                        if sim.stats["rx_datagrams"] - rx0 >= 3000:
+                            break
                         for _ in range(50):
                             transport.sendto(garbage(rng), rng.choice(targets))
                         await asyncio.sleep(0.02)
@@ -166,6 +172,6 @@ def test_fuzzing_every_port_leaves_the_stub_serving_and_mavsdk_healthy():
         assert fuzzer.acks(mavlink.MAV_MISSION_NO_SPACE) >= 3
         assert fuzzer.acks(mavlink.MAV_MISSION_INVALID_SEQUENCE) >= 3
         assert sim.stats["garbage"] > 100 and sim.stats["loop_errors"] == 0
-        assert sim.stats["rx_datagrams"] >= 3000
+        assert sim.stats["rx_datagrams"] >= 3000  # the garbage alone, as read by the stub
 
     asyncio.run(scenario())
