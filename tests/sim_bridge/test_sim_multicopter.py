@@ -17,25 +17,15 @@ from test_sim_vehicle import (MISSION_YAML, enter_offboard, fly_offboard, run, s
 from uav_model.mission import parse_mission
 from uav_model.plant import MulticopterLimits, Plant
 from sim_bridge.px4 import FlightMode
-from sim_bridge.streams import API_PROFILE
-from sim_bridge.testing import GcsCodec
-from sim_bridge.vehicle import SimVehicle
 
 pytestmark = pytest.mark.timeout(60)
 
 
 @pytest.fixture
-def vehicle():
+def vehicle(make_vehicle):
     mission = parse_mission(MISSION_YAML.replace("plant: unicycle", "plant: multicopter"), "unit.yaml")
     assert mission.plant is Plant.MULTICOPTER
-    v = SimVehicle(mission.vehicles[0], mission)
-    v.add_link("api", API_PROFILE)
-    return v
-
-
-@pytest.fixture
-def gcs():
-    return GcsCodec()
+    return make_vehicle(mission)
 
 
 def _offboard(v, gcs, fwd, yaw_rate, seconds):
