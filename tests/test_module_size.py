@@ -16,8 +16,6 @@ MAX_LINES = 400
 # Modules still being split by their owners (issue 13). Each entry goes when its split lands;
 # test_the_allow_list_holds_only_modules_still_too_long fails once an entry is no longer needed.
 STILL_SPLITTING: dict[str, str] = {
-    "sim_bridge/vehicle.py": "simcore: along its banners behind a small facade",
-    "sim_bridge/bridge.py": "simcore",
     "companion/app/pilot.py": "safety",
 }
 
