@@ -10,7 +10,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.mission import parse_mission
 from sim_bridge.clock import ClockError, SimClock
 from sim_bridge.faults import Blackout, FaultConfig, FaultSpecError, LinkFaults
-from sim_bridge.streams import StreamProfile, StreamScheduler
+from sim_bridge.streams import API_PROFILE, StreamProfile, StreamScheduler
 from sim_bridge.truth import CollisionChecker
 
 pytestmark = pytest.mark.timeout(30)
@@ -32,6 +32,16 @@ def test_streams_run_in_sim_time_up_to_the_wall_cap():
     assert count_due(StreamScheduler(profile), POS, 1.0, 10.0) == pytest.approx(100, abs=2)  # 10 Hz at 1x
     assert count_due(StreamScheduler(profile), POS, 4.0, 10.0) == pytest.approx(400, abs=4)  # 40 Hz wall at 4x
     assert count_due(StreamScheduler(profile), POS, 20.0, 10.0) == pytest.approx(500, abs=5)  # capped at 50 Hz wall
+
+
+@pytest.mark.parametrize("name, px4_hz", [("ATTITUDE", 100), ("GLOBAL_POSITION_INT", 50), ("LOCAL_POSITION_NED", 30),
+                                          ("SYS_STATUS", 5), ("EXTENDED_SYS_STATE", 5), ("GPS_RAW_INT", 8)])
+def test_api_link_has_px4_sitl_rates_in_sim_time_and_a_wall_cap(name, px4_hz):
+    """PX4 SIH's measured onboard-link rates (../shared/px4-sih/README.md), capped on the wall clock."""
+    msg_id = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
+    assert count_due(StreamScheduler(API_PROFILE), msg_id, 1.0, 5.0, tick_wall_s=0.002) == pytest.approx(5 * px4_hz, rel=0.03)
+    at_20x = count_due(StreamScheduler(API_PROFILE), msg_id, 20.0, 5.0, tick_wall_s=0.002)
+    assert at_20x == pytest.approx(5 * min(20 * px4_hz, API_PROFILE.max_wall_rate_hz), rel=0.03)
 
 
 def test_heartbeat_keeps_one_hertz_of_wall_time_at_any_speed():
