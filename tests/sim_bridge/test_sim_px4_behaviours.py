@@ -16,9 +16,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.frames import local_to_geodetic, wrap_pi
 from uav_model.mission import parse_mission
 from sim_bridge.px4 import FlightMode, ParamType, Px4MainMode, Px4PosctlSubMode, decode_custom_mode
-from sim_bridge.streams import API_PROFILE
-from sim_bridge.testing import GcsCodec
-from sim_bridge.vehicle import SimVehicle
+from sim_bridge.testing import send_command, step_for
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -30,7 +28,6 @@ stations: {A: [100, 100], B: [900, 900]}
 vehicles:
   - {name: a, start: A, goal: B, speed_m_s: 10, turn_radius_m: 30, cruise_alt_m: 10}
 """
-DT = 0.02
 BOOT_S = 5.0  # PX4 refuses to arm for the first ~4.2 s
 
 # Read from PX4 SIH at boot (../shared/px4-sih/characterisation/px4_sih_1x.log) with their wire types.
@@ -54,61 +51,43 @@ def mission():
 
 
 @pytest.fixture
-def gcs():
-    return GcsCodec()
-
-
-@pytest.fixture
-def vehicle(mission):
-    v = SimVehicle(mission.vehicles[0], mission)
-    v.add_link("api", API_PROFILE)
-    return v
-
-
-def run(v, seconds, until=None):
-    out = []
-    for _ in range(int(round(seconds / DT))):
-        out += [e.msg for e in v.step(DT)]
-        if until is not None and until(v):
-            break
-    return out
+def vehicle(mission, make_vehicle):
+    return make_vehicle(mission)
 
 
 def send(v, gcs, command, *params):
-    emits = v.handle(gcs.command(command, *params), "api")
-    (ack,) = [e.msg for e in emits if e.msg.get_type() == "COMMAND_ACK"]
-    return ack.result, [e.msg for e in emits]
+    return send_command(v, gcs, command, *params).result
 
 
 def airborne(v, gcs, alt_m=10.0):
-    run(v, BOOT_S)
+    step_for(v, BOOT_S)
     v.handle(gcs.wire(gcs.enc.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", alt_m, ParamType.REAL32)), "api")
-    assert send(v, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)[0] == mavlink.MAV_RESULT_ACCEPTED
+    assert send(v, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
     nan = math.nan
-    assert send(v, gcs, mavlink.MAV_CMD_NAV_TAKEOFF, nan, nan, nan, nan, nan, nan, nan)[0] == mavlink.MAV_RESULT_ACCEPTED
-    run(v, 60.0, until=lambda v: v.mode is FlightMode.HOLD and v.in_air)
-    run(v, 3.0)
+    assert send(v, gcs, mavlink.MAV_CMD_NAV_TAKEOFF, nan, nan, nan, nan, nan, nan, nan) == mavlink.MAV_RESULT_ACCEPTED
+    step_for(v, 60.0, until=lambda v: v.mode is FlightMode.HOLD and v.in_air)
+    step_for(v, 3.0)
     assert v.in_air and v.position_enu_m[2] == pytest.approx(alt_m, abs=0.5)
 
 
 # ---------------------------------------------------------------- battery, STATUSTEXT -----
 def test_without_a_mission_charge_the_battery_is_px4_sitls_simulated_one(vehicle, gcs):
     assert vehicle.spec.battery_pct is None and vehicle.battery_pct == 100.0
-    run(vehicle, 30.0)
+    step_for(vehicle, 30.0)
     assert vehicle.battery_pct == 100.0  # disarmed: full
     airborne(vehicle, gcs)
-    run(vehicle, 5.0)
+    step_for(vehicle, 5.0)
     assert 50.0 < vehicle.battery_pct < 100.0
-    run(vehicle, 60.0)
+    step_for(vehicle, 60.0)
     assert vehicle.battery_pct == 50.0  # SIM_BAT_MIN_PCT after SIM_BAT_DRAIN / 2 armed
     (status,) = vehicle.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS)
     assert status.battery_remaining == 50
 
 
 def test_statustext_leaves_the_vehicle_in_px4s_wire_form(vehicle, gcs):
-    run(vehicle, BOOT_S)
-    _, msgs = send(vehicle, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-    texts = [m.text for m in msgs if m.get_type() == "STATUSTEXT"]
+    step_for(vehicle, BOOT_S)
+    emits = vehicle.handle(gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), "api")
+    texts = [e.msg.text for e in emits if e.msg.get_type() == "STATUSTEXT"]
     assert "Armed by external command\t" in texts  # as PX4's events mirror
     assert all(len(t) <= 50 for t in texts)
 
@@ -116,11 +95,11 @@ def test_statustext_leaves_the_vehicle_in_px4s_wire_form(vehicle, gcs):
 # ---------------------------------------------------------------- DO_ORBIT ----------------
 def orbit(v, gcs, center_enu, radius_m, speed_m_s, yaw=mavlink.ORBIT_YAW_BEHAVIOUR_HOLD_FRONT_TO_CIRCLE_CENTER):
     lat, lon, _ = local_to_geodetic(v.origin, *center_enu)
-    return send(v, gcs, mavlink.MAV_CMD_DO_ORBIT, radius_m, speed_m_s, yaw, 0, lat, lon, math.nan)[0]
+    return send(v, gcs, mavlink.MAV_CMD_DO_ORBIT, radius_m, speed_m_s, yaw, 0, lat, lon, math.nan)
 
 
 def test_do_orbit_is_refused_on_the_ground(vehicle, gcs):
-    run(vehicle, BOOT_S)
+    step_for(vehicle, BOOT_S)
     assert orbit(vehicle, gcs, (100, 120), 20.0, 3.0) == mavlink.MAV_RESULT_DENIED
     assert vehicle.mode is not FlightMode.ORBIT
 
@@ -133,10 +112,10 @@ def test_do_orbit_flies_the_circle_facing_its_centre_in_orbit_mode(vehicle, gcs,
     assert vehicle.mode is FlightMode.ORBIT
     (hb,) = vehicle.build(mavlink.MAVLINK_MSG_ID_HEARTBEAT)
     assert decode_custom_mode(hb.custom_mode) == (Px4MainMode.POSCTL, Px4PosctlSubMode.ORBIT)
-    run(vehicle, 40.0)
+    step_for(vehicle, 40.0)
     angles = []
     for _ in range(100):
-        run(vehicle, 0.2)
+        step_for(vehicle, 0.2)
         x, y, alt = vehicle.position_enu_m
         s = vehicle.state
         assert math.hypot(x - center[0], y - center[1]) == pytest.approx(abs(radius_m), abs=1.0)
@@ -151,10 +130,10 @@ def test_do_orbit_flies_the_circle_facing_its_centre_in_orbit_mode(vehicle, gcs,
 def test_a_mode_switch_ends_the_orbit(vehicle, gcs):
     airborne(vehicle, gcs)
     assert orbit(vehicle, gcs, (100, 130), 20.0, 3.0) == mavlink.MAV_RESULT_ACCEPTED
-    run(vehicle, 10.0)
-    hold = send(vehicle, gcs, mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 3)[0]
+    step_for(vehicle, 10.0)
+    hold = send(vehicle, gcs, mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 3)
     assert hold == mavlink.MAV_RESULT_ACCEPTED and vehicle.mode is FlightMode.HOLD
-    run(vehicle, 10.0)
+    step_for(vehicle, 10.0)
     assert vehicle.state.ground_speed_m_s < 0.1
 
 
@@ -171,12 +150,12 @@ def test_position_and_velocity_setpoint_flies_to_the_position_with_the_velocity_
 
     vehicle.handle(setpoint(), "api")
     ack = send(vehicle, gcs, mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-               Px4MainMode.OFFBOARD, 0)[0]
+               Px4MainMode.OFFBOARD, 0)
     assert ack == mavlink.MAV_RESULT_ACCEPTED
     peak = 0.0
     for _ in range(600):  # 60 s, a setpoint every 0.1 s
         vehicle.handle(setpoint(), "api")
-        run(vehicle, 0.1)
+        step_for(vehicle, 0.1)
         peak = max(peak, vehicle.state.ground_speed_m_s)
     s = vehicle.state
     assert s.north_m - n0 == pytest.approx(31.0, abs=0.3)  # v_ff / Kp beyond, as a P controller with feed-forward
