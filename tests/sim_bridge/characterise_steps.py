@@ -85,14 +85,14 @@ def statustext_split(log: list[Line]) -> bool:
 
 
 def auto_reentry_from_hold(log: list[Line]) -> bool:
-    """OFFBOARD seen in a heartbeat after the Hold failsafe and before the client asks for it."""
+    """OFFBOARD seen in a heartbeat after the Hold failsafe, well before the client asks for it.
+
+    The heartbeat that answers the client's own DO_SET_MODE comes with its ack (the script
+    prints it first), so a re-entry counts only if it shows 0.3 s (sim) or more before the ack.
+    """
     tail = _after(log, "STOP setpoints with COM_OBL_RC_ACT=5")
-    for line in tail:
-        if line.text.startswith("COMMAND_ACK re-enter OFFBOARD"):
-            return False
-        if line.text.startswith("HEARTBEAT mode OFFBOARD"):
-            return True
-    return False
+    ack_t = next((x.sim_s for x in tail if x.text.startswith("COMMAND_ACK re-enter OFFBOARD")), math.inf)
+    return any(x.text.startswith("HEARTBEAT mode OFFBOARD") and x.sim_s <= ack_t - 0.3 for x in tail)
 
 
 def failsafe_state(log: list[Line]) -> int | None:

@@ -83,6 +83,7 @@ KNOWN_DIFFERENT = {
     "loss.failsafe_text": f"'Offboard control lost' instead of 'Failsafe activated': {SIMCORE}",
     "loss.heartbeat_state": f"system_status ACTIVE in the failsafe, PX4 CRITICAL: {SIMCORE}",
     "loss.auto_reentry_mode": f"no automatic re-entry to OFFBOARD when setpoints resume: {SIMCORE}",
+    "loss5.auto_reentry": f"no automatic re-entry to OFFBOARD from the Hold failsafe: {SIMCORE}",
     "land.text": f"no 'Landing at current position' text: {SIMCORE}",
     "land.duration_s": f"lands 20 m in 18.7 s, PX4 30.4 s: {SIMCORE}",
     "land.disarm_text": f"'Disarmed by auto disarm after landing' instead of 'Disarmed by landing': {SIMCORE}",
