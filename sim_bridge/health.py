@@ -4,7 +4,7 @@ Measured on PX4 SIH (../shared/px4-sih/characterisation/px4_sih_1x.log): the fir
 reports no sensor present at all; the IMU, magnetometer and barometer appear ~2.2 s (sim) after
 boot, without GPS and with the pre-arm check failing ("Preflight Fail: heading estimate not
 stable"); at ~4.2 s GPS is present and the pre-arm check passes, and only then does PX4 arm.
-The arming rule itself lives with the arming code; it reads :data:`HEALTH_SETTLED_S`.
+The arming rule itself lives with the arming code (``vehicle.modes``); it reads :data:`HEALTH_SETTLED_S`.
 """
 
 from __future__ import annotations
@@ -32,8 +32,3 @@ def sensor_bits(sim_t_s: float, prearm_ok: bool) -> tuple[int, int, int]:
         return present, present, INERTIAL
     present = SENSORS_OK | PREARM_CHECK
     return present, present, SENSORS_OK | (PREARM_CHECK if prearm_ok else 0)
-
-
-def boot_settled(sim_t_s: float) -> bool:
-    """True once PX4 would accept arming as far as the boot is concerned."""
-    return sim_t_s >= HEALTH_SETTLED_S

@@ -39,7 +39,6 @@ from uav_model.plant import KinematicState, PlantLimits, step_for
 from sim_bridge.energy import EnergyModel
 from sim_bridge.mission_protocol import MissionProtocol
 from sim_bridge.px4 import FlightMode, default_params
-from sim_bridge.statustext import StatustextSplitter
 from sim_bridge.streams import API_PROFILE, StreamProfile
 from sim_bridge.truth import CollisionEvent
 from sim_bridge.vehicle.commands import Commands
@@ -74,7 +73,6 @@ class SimVehicle:
         self.energy = energy or EnergyModel()
         self.mav = mavlink.MAVLink(None, self.system_id, component_id)  # message factory only
         self.missions = MissionProtocol(self.system_id, component_id, self.mav)
-        self._texts = StatustextSplitter(self.mav)  # every emit leaves through it: PX4's STATUSTEXT form
         self.counters: Counter[str] = Counter()
         self._wall_t = 0.0  # last wall time the I/O layer reported (mission transfer timing)
 
@@ -175,7 +173,7 @@ class SimVehicle:
     def handle(self, msg: Any, link: str, peer: Hashable = None) -> list[Emit]:
         """React to one decoded message from ``link``/``peer``. Never raises."""
         try:
-            return self._texts.expand(self._handle(msg, link, peer))
+            return self._handle(msg, link, peer)
         except Exception:  # noqa: BLE001 - a bad message must never take the vehicle down
             self.counters["handler_error"] += 1
             log.exception("%s: error handling %s", self.name, getattr(msg, "get_type", lambda: "?")())
@@ -220,7 +218,7 @@ class SimVehicle:
             t = self.sim_time_s
             out += self.modes.check(t)
             out += self.nav.update(t)
-            return self._texts.expand(out + self.modes.check_auto_disarm(t))
+            return out + self.modes.check_auto_disarm(t)
         except Exception:  # noqa: BLE001 - keep flying (time still advances) and say so
             self.counters["step_error"] += 1
             if self.counters["step_error"] <= 5:

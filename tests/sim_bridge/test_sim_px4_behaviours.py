@@ -28,7 +28,6 @@ stations: {A: [100, 100], B: [900, 900]}
 vehicles:
   - {name: a, start: A, goal: B, speed_m_s: 10, turn_radius_m: 30, cruise_alt_m: 10}
 """
-BOOT_S = 5.0  # PX4 refuses to arm for the first ~4.2 s
 
 # Read from PX4 SIH at boot (../shared/px4-sih/characterisation/px4_sih_1x.log) with their wire types.
 PX4_DEFAULTS = {
@@ -60,7 +59,6 @@ def send(v, gcs, command, *params):
 
 
 def airborne(v, gcs, alt_m=10.0):
-    step_for(v, BOOT_S)
     v.handle(gcs.wire(gcs.enc.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", alt_m, ParamType.REAL32)), "api")
     assert send(v, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
     nan = math.nan
@@ -84,12 +82,17 @@ def test_without_a_mission_charge_the_battery_is_px4_sitls_simulated_one(vehicle
     assert status.battery_remaining == 50
 
 
-def test_statustext_leaves_the_vehicle_in_px4s_wire_form(vehicle, gcs):
-    step_for(vehicle, BOOT_S)
-    emits = vehicle.handle(gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), "api")
-    texts = [e.msg.text for e in emits if e.msg.get_type() == "STATUSTEXT"]
-    assert "Armed by external command\t" in texts  # as PX4's events mirror
-    assert all(len(t) <= 50 for t in texts)
+def test_sys_status_shows_px4s_boot_no_sensors_then_no_gps_then_healthy(mission, make_vehicle):
+    v = make_vehicle(mission, booted=False)
+    seen = []
+    for _ in range(60):
+        (status,) = v.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS)
+        seen.append((v.sim_time_s, status.onboard_control_sensors_present, status.onboard_control_sensors_health))
+        step_for(v, 0.1)
+    gps, prearm = mavlink.MAV_SYS_STATUS_SENSOR_GPS, mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    assert all(present == 0 for t, present, _ in seen if t < 2.2)
+    assert all(present and not present & gps and not health & prearm for t, present, health in seen if 2.3 < t < 4.1)
+    assert all(present & gps and health & prearm for t, present, health in seen if t >= 4.3)
 
 
 # ---------------------------------------------------------------- DO_ORBIT ----------------
@@ -99,7 +102,6 @@ def orbit(v, gcs, center_enu, radius_m, speed_m_s, yaw=mavlink.ORBIT_YAW_BEHAVIO
 
 
 def test_do_orbit_is_refused_on_the_ground(vehicle, gcs):
-    step_for(vehicle, BOOT_S)
     assert orbit(vehicle, gcs, (100, 120), 20.0, 3.0) == mavlink.MAV_RESULT_DENIED
     assert vehicle.mode is not FlightMode.ORBIT
 
