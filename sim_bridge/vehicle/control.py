@@ -104,7 +104,8 @@ class Controller:
         else:
             yawspeed = 0.0
         if sp.use_position and (sp.vx_m_s, sp.vy_m_s, sp.vz_m_s) != (0.0, 0.0, 0.0):
-            return replace(self.track((sp.x_m, sp.y_m, sp.z_m), (sp.vx_m_s, sp.vy_m_s, sp.vz_m_s)), yawspeed_rad_s=yawspeed)
+            cmd = self.track((sp.x_m, sp.y_m, sp.z_m), (sp.vx_m_s, sp.vy_m_s, sp.vz_m_s))
+            return replace(cmd, yawspeed_rad_s=yawspeed)
         if sp.use_position:
             cmd = self.goto((sp.x_m, sp.y_m, sp.z_m), self._v.limits.max_speed_m_s, dt_s, yaw_rad=sp.yaw_rad)
             return replace(cmd, yawspeed_rad_s=yawspeed)

@@ -171,6 +171,7 @@ class Telemetry:
         v = self._v
         e = v.energy
         drain = v.physics.drain_pct_s
+        start = 100.0 if v.spec.battery_pct is None else v.spec.battery_pct
         frac = v.battery_pct / 100.0
         p = v.params
         charge = (mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY if frac <= p["BAT_EMERGEN_THR"]
@@ -181,7 +182,7 @@ class Telemetry:
         time_left = int(v.battery_pct / drain) if drain > 0 else 0
         return self._mav.battery_status_encode(
             0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO, 32767, voltages,
-            int(e.current_a(drain) * 100), int(e.consumed_mah(100.0 if v.spec.battery_pct is None else v.spec.battery_pct, v.battery_pct)), -1,
+            int(e.current_a(drain) * 100), int(e.consumed_mah(start, v.battery_pct)), -1,
             int(round(v.battery_pct)), time_left, charge)
 
     def mission_current(self) -> Any:
