@@ -34,6 +34,7 @@ PX4_SIH = Path(os.environ.get("PX4_SIH_DIR", REPO.parent / "shared" / "px4-sih")
 SCRIPT = PX4_SIH / "characterise.py"
 PX4_LOG = PX4_SIH / "characterisation" / "px4_sih_1x.log"
 SPEEDUP = 4.0  # 160 s of the 1x script in ~40 s
+MAX_SLIP_S = 5.0
 
 # Runs the script with its clock sped up; argv: script, speedup, then the script's own arguments.
 FAST_CLOCK = """
@@ -92,7 +93,9 @@ async def run_script_against_stub(out_prefix: Path) -> str:
             async with asyncio.timeout(100.0):
                 while line := await proc.stdout.readline():
                     lines.append(line)
-            assert sim.slipped_s < 1.0, f"the stub fell behind by {sim.slipped_s:.1f} s: a step log of a slower run"
+            # A stalled stub slips (it does not jump), so the steps, timed in sim time, survive a few
+            # seconds of it over the ~160 s run; beyond that the script outran the vehicle.
+            assert sim.slipped_s < MAX_SLIP_S, f"the stub fell behind by {sim.slipped_s:.1f} s: a slower run's log"
     finally:
         if proc.returncode is None:
             proc.kill()
