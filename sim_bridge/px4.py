@@ -156,6 +156,16 @@ PX4_PARAMS: tuple[ParamDef, ...] = (
     _f("MPC_Z_VEL_MAX_UP", 3.0, 0.1, 20.0, "climb-rate limit, m/s"),
     _f("MPC_Z_VEL_MAX_DN", 1.5, 0.1, 20.0, "descent-rate limit, m/s"),
     _f("NAV_ACC_RAD", 2.0, 0.05, 200.0, "default mission acceptance radius, m"),
+    # the multicopter plant's (uav_model.plant.MulticopterLimits reads them by these names)
+    _f("MPC_TILTMAX_AIR", 45.0, 1.0, 89.0, "maximum tilt in flight, deg"),
+    _f("MPC_XY_VEL_P_ACC", 1.8, 0.0, 20.0, "horizontal velocity P gain, 1/s"),
+    _f("MPC_XY_VEL_I_ACC", 0.4, 0.0, 20.0, "horizontal velocity I gain, 1/s^2"),
+    _f("MPC_XY_VEL_D_ACC", 0.2, 0.0, 10.0, "horizontal velocity D gain"),
+    _f("MPC_Z_VEL_P_ACC", 4.0, 0.0, 20.0, "vertical velocity P gain, 1/s"),
+    _f("MPC_ACC_UP_MAX", 4.0, 0.1, 50.0, "maximum upward acceleration, m/s^2"),
+    _f("MPC_ACC_DOWN_MAX", 3.0, 0.1, 50.0, "maximum downward acceleration, m/s^2"),
+    _f("SIH_KDV", 1.0, 0.0, 100.0, "SIH translational drag, N/(m/s)"),
+    _f("SIH_MASS", 1.0, 0.01, 100.0, "SIH vehicle mass, kg"),
     _f("MC_ORBIT_RAD_MAX", 1000.0, 1.0, 10000.0, "largest DO_ORBIT radius, m"),
     # battery
     _f("BAT_LOW_THR", 0.15, 0.0, 1.0, "battery low warning threshold, fraction"),
@@ -167,21 +177,27 @@ PX4_PARAMS: tuple[ParamDef, ...] = (
     _i("SYS_HITL", 0, 0, 2, "hardware in the loop (read by MAVSDK)"),
 )
 
-# Defaults a mission vehicle overrides while its plant is the paper's ideal one: the speed, turn
-# and acceleration limits come from the mission (the plant reads them), as if the airframe had
-# been tuned for it. Every other default is PX4's.
-MISSION_TUNED = ("MPC_XY_VEL_MAX", "MPC_XY_CRUISE", "MPC_ACC_HOR", "MPC_YAWRAUTO_MAX", "RTL_RETURN_ALT")
+# Defaults a mission vehicle overrides while its plant is the paper's ideal one (the unicycle):
+# the speed, turn and acceleration limits come from the mission (the plant reads them), as if the
+# airframe had been tuned for it. On the multicopter plant they are PX4's.
+UNICYCLE_TUNED = ("MPC_XY_VEL_MAX", "MPC_XY_CRUISE", "MPC_ACC_HOR", "MPC_YAWRAUTO_MAX")
 
 
-def default_params(system_id: int, speed_m_s: float, max_yaw_rate_rad_s: float,
-                   max_accel_m_s2: float, cruise_alt_m: float) -> tuple[ParamDef, ...]:
-    """The parameters one stub vehicle owns: PX4's, with the MISSION_TUNED ones from the mission.
+def default_params(system_id: int, speed_m_s: float, max_yaw_rate_rad_s: float, max_accel_m_s2: float,
+                   cruise_alt_m: float, *, mission_tuned: bool = True) -> tuple[ParamDef, ...]:
+    """The parameters one stub vehicle owns: PX4's defaults, except
+
+    - UNICYCLE_TUNED from the mission when ``mission_tuned`` (the unicycle plant; pass False for
+      the multicopter, which flies PX4's);
+    - RTL_RETURN_ALT = the mission's cruise altitude, as an operator sets it for a mission.
 
     MIS_TAKEOFF_ALT stays PX4's 2.5 m: a client sets the mission altitude (MAVSDK's
     ``set_takeoff_altitude``), as it must on PX4.
     """
-    tuned = dict(zip(MISSION_TUNED, (speed_m_s, speed_m_s, max_accel_m_s2, math.degrees(max_yaw_rate_rad_s),
-                                     cruise_alt_m), strict=True))
+    tuned = {"RTL_RETURN_ALT": cruise_alt_m}
+    if mission_tuned:
+        tuned |= dict(zip(UNICYCLE_TUNED, (speed_m_s, speed_m_s, max_accel_m_s2, math.degrees(max_yaw_rate_rad_s)),
+                          strict=True))
     defs = tuple(replace(d, default=tuned[d.name]) if d.name in tuned else d for d in PX4_PARAMS)
     sys_id = _i("MAV_SYS_ID", system_id, system_id, system_id,
                 "system id (read-only here: the link is already bound to it)")

@@ -186,3 +186,18 @@ def test_issue_11_parameters_read_with_px4_names_types_and_defaults_and_set(vehi
     wire = struct.unpack("<f", struct.pack("<i", int(new)))[0] if name in INT_PARAMS else float(new)
     vehicle.handle(gcs.wire(gcs.enc.param_set_encode(1, 1, name.encode(), wire, ptype)), "api")
     assert read_param(vehicle, gcs, name)[0] == pytest.approx(new) and vehicle.param(name) == pytest.approx(new)
+
+
+def test_the_multicopter_plant_gets_px4s_limits_and_the_unicycle_the_missions():
+    from sim_bridge.px4 import default_params
+
+    def table(tuned: bool) -> dict[str, float]:
+        return {d.name: d.default for d in default_params(1, 10.0, 10.0 / 30.0, 8.0, 30.0, mission_tuned=tuned)}
+
+    px4, mission = table(False), table(True)
+    assert {k: px4[k] for k in MISSION_TUNED} == {"MPC_XY_VEL_MAX": 12.0, "MPC_XY_CRUISE": 5.0, "MPC_ACC_HOR": 3.0,
+                                                   "MPC_YAWRAUTO_MAX": 60.0}
+    assert {k: mission[k] for k in MISSION_TUNED} == pytest.approx(MISSION_TUNED)
+    assert px4["RTL_RETURN_ALT"] == mission["RTL_RETURN_ALT"] == 30.0  # the mission's cruise altitude either way
+    assert {k: v for k, v in px4.items() if k not in MISSION_TUNED} == {k: v for k, v in mission.items()
+                                                                         if k not in MISSION_TUNED}
