@@ -11,15 +11,13 @@ Resolve system health failures first" arrives as "... failures firs" then "t\\t"
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any, NamedTuple, TypeVar
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
 CHUNK_BYTES = 50
 EVENT_SUFFIX = "\t"
 PLAIN_PREFIXES = ("Preflight Fail:",)  # PX4 health reports: no events mirror, no tab
-
-E = TypeVar("E", bound=NamedTuple)
 
 
 def px4_text(text: str) -> str:
@@ -49,10 +47,11 @@ class StatustextSplitter:
         self._next_id = self._next_id % 65535 + 1  # 0 means "single chunk"
         return self._next_id
 
-    def expand(self, emits: Iterable[E]) -> list[E]:
-        out: list[E] = []
+    def expand(self, emits: Iterable[Any]) -> list[Any]:
+        """``emits`` (NamedTuples with a ``msg``, as the vehicle's Emit) with each STATUSTEXT in wire form."""
+        out: list[Any] = []
         for e in emits:
-            msg = e.msg  # type: ignore[attr-defined]
+            msg = e.msg
             if msg.get_msgId() != mavlink.MAVLINK_MSG_ID_STATUSTEXT:
                 out.append(e)
                 continue
