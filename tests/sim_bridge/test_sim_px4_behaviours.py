@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import math
 import struct
+from dataclasses import replace
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import local_to_geodetic, wrap_pi
 from uav_model.mission import parse_mission
+from uav_model.plant import Plant
 from sim_bridge.px4 import FlightMode, ParamType, Px4MainMode, Px4PosctlSubMode, decode_custom_mode
 from sim_bridge.testing import send_command, step_for
 
@@ -106,8 +108,16 @@ def test_do_orbit_is_refused_on_the_ground(vehicle, gcs):
     assert vehicle.mode is not FlightMode.ORBIT
 
 
+# (plant, radius tolerance m, speed tolerance m/s, angle tolerance): the multicopter's velocity loop
+# lags in the turn (as PX4's), so it rides the circle a little wide and slow.
+ORBIT_TOLERANCES = {"unicycle": (1.0, 0.3, 0.1), "multicopter": (1.5, 0.45, 0.2)}
+
+
+@pytest.mark.parametrize("plant", sorted(ORBIT_TOLERANCES))
 @pytest.mark.parametrize("radius_m", [20.0, -20.0])
-def test_do_orbit_flies_the_circle_facing_its_centre_in_orbit_mode(vehicle, gcs, radius_m):
+def test_do_orbit_flies_the_circle_facing_its_centre_in_orbit_mode(mission, make_vehicle, gcs, radius_m, plant):
+    vehicle = make_vehicle(replace(mission, plant=Plant(plant)))
+    r_tol, v_tol, turn_rel = ORBIT_TOLERANCES[plant]
     airborne(vehicle, gcs)
     center = (100.0, 130.0)  # 30 m north of the vehicle: it first closes to the radius
     assert orbit(vehicle, gcs, center, radius_m, 3.0) == mavlink.MAV_RESULT_ACCEPTED
@@ -120,13 +130,13 @@ def test_do_orbit_flies_the_circle_facing_its_centre_in_orbit_mode(vehicle, gcs,
         step_for(vehicle, 0.2)
         x, y, alt = vehicle.position_enu_m
         s = vehicle.state
-        assert math.hypot(x - center[0], y - center[1]) == pytest.approx(abs(radius_m), abs=1.0)
-        assert s.ground_speed_m_s == pytest.approx(3.0, abs=0.3) and alt == pytest.approx(10.0, abs=0.3)
+        assert math.hypot(x - center[0], y - center[1]) == pytest.approx(abs(radius_m), abs=r_tol)
+        assert s.ground_speed_m_s == pytest.approx(3.0, abs=v_tol) and alt == pytest.approx(10.0, abs=0.3)
         to_center_ned = math.atan2(center[0] - x, center[1] - y)  # yaw of the centre, from north to east
         assert abs(wrap_pi(s.yaw_rad - to_center_ned)) < math.radians(10)
         angles.append(math.atan2(y - center[1], x - center[0]))  # ENU angle: CCW positive
     turned = sum(wrap_pi(b - a) for a, b in zip(angles, angles[1:]))
-    assert turned == pytest.approx(-math.copysign(20.0 * 3.0 / 20.0, radius_m), rel=0.1)  # clockwise for r > 0
+    assert turned == pytest.approx(-math.copysign(20.0 * 3.0 / 20.0, radius_m), rel=turn_rel)  # clockwise for r > 0
 
 
 def test_a_mode_switch_ends_the_orbit(vehicle, gcs):
