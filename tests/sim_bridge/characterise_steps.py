@@ -104,12 +104,14 @@ def failsafe_state(log: list[Line]) -> int | None:
 
 
 def exchange(label: str):
-    """Message types and sequence numbers of a mission transfer, without timings."""
+    """Message types and sequence numbers of a mission transfer, without timings or repeats."""
     def get(log: list[Line]) -> list[tuple[str, Any]] | None:
         line = next((x for x in log if x.text.startswith(label)), None)
         if line is None:
             return None
-        return re.findall(r"'(MISSION_\w+)', \{'(?:seq|count|type)': (\d+)", line.text)
+        found = re.findall(r"'(MISSION_\w+)', \{'(?:seq|count|type)': (\d+)", line.text)
+        # The script asks again every 0.5 s while it waits; a repeated answer to a repeated request is fine.
+        return [m for i, m in enumerate(found) if i == 0 or m != found[i - 1]]
     return get
 
 

@@ -111,7 +111,7 @@ def test_offboard_position_ned_reaches_each_position(mission):
             await off.set_position_ned(PositionNedYaw(n0 + dn, e0 + de, -10.0, yaw))
             await wait_until(sim, lambda: math.hypot(v.state.north_m - n0 - dn, v.state.east_m - e0 - de) < 0.2
                              and v.state.ground_speed_m_s < 0.1, 10.0, f"position ({dn}, {de})")
-            assert math.degrees(v.state.yaw_rad) % 360.0 == pytest.approx(yaw, abs=1.0)
+            assert abs(math.remainder(math.degrees(v.state.yaw_rad) - yaw, 360.0)) < 1.0
         await off.stop()
 
     run(mission, scenario)
@@ -130,7 +130,8 @@ def test_offboard_position_velocity_ned_uses_the_velocity_as_feed_forward(missio
         await wait_until(sim, lambda: v.state.ground_speed_m_s > 5.0, 5.0, "flying toward the position")
         await wait_until(sim, lambda: v.state.north_m > n0 + 45.0 and v.state.ground_speed_m_s < 0.05, 20.0,
                          "stopped at the position")
-        assert v.state.north_m - n0 == pytest.approx(51.0, abs=0.5)  # 1 m past: v_ff / Kp, as a P loop with feed-forward
+        # Just past it: v_ff / Kp = 1 m on the unicycle, ~3 m on the multicopter, whose velocity loop lags.
+        assert 50.5 < v.state.north_m - n0 < 54.0
         assert v.state.east_m == pytest.approx(e0, abs=0.3)
         await off.stop()
 
@@ -282,11 +283,12 @@ def test_do_orbit_flies_a_circle_facing_its_centre(mission):
         await ActionAsync(system).do_orbit(10.0, 2.0, OrbitYawBehavior.HOLD_FRONT_TO_CIRCLE_CENTER, lat, lon, math.nan)
         await wait_until(sim, lambda: v.mode is StubMode.ORBIT, 2.0, "ORBIT mode")
         assert await first(TelemetryAsync(system).subscribe_flight_mode()) != FlightMode.HOLD
-        await wait_until(sim, lambda: abs(math.dist(v.position_enu_m[:2], (100.0, 115.0)) - 10.0) < 0.3
-                         and abs(v.state.ground_speed_m_s - 2.0) < 0.1, 20.0, "on the circle at 2 m/s")
+        # The multicopter's lagging velocity loop rides the circle a little wide and slow, as PX4's.
+        await wait_until(sim, lambda: abs(math.dist(v.position_enu_m[:2], (100.0, 115.0)) - 10.0) < 1.0
+                         and abs(v.state.ground_speed_m_s - 2.0) < 0.3, 20.0, "on the circle at 2 m/s")
         t0 = sim.sim_time_s
         await wait_until(sim, lambda: sim.sim_time_s > t0 + 10.0, 5.0, "10 s of orbit")
-        assert abs(math.dist(v.position_enu_m[:2], (100.0, 115.0)) - 10.0) < 0.3
+        assert abs(math.dist(v.position_enu_m[:2], (100.0, 115.0)) - 10.0) < 1.0
         assert v.position_enu_m[2] == pytest.approx(10.0, abs=0.3)
         await ActionAsync(system).hold()
         await wait_until(sim, lambda: v.mode is StubMode.HOLD, 2.0, "Hold ends the orbit")

@@ -65,10 +65,10 @@ KNOWN_DIFFERENT = {
     "param.MPC_ACC_HOR": f"mission-tuned acceleration until the {PLANT}",
     "param.MPC_YAWRAUTO_MAX": f"mission-tuned v/r yaw-rate limit until the {PLANT}",
     "param.MPC_XY_CRUISE": f"mission-tuned cruise speed until the {PLANT}",
-    "offboard.turn_speed_m_s": f"the unicycle keeps 10 m/s in the turn, PX4 7.6: {PLANT}",
-    "offboard.turn_yawspeed_rad_s": f"yaw rate as commanded, PX4 lower: {PLANT}",
+    "offboard.turn_yawspeed_rad_s": f"ATTITUDE reports the heading rate, PX4 the body rate (x cos tilt): {PLANT}",
     "offboard.turn_alt_m": f"no altitude drift in fast flight: {PLANT}",
-    "offboard.yaw_in_place_deg_s": f"yaw rate clipped to v/r (19 deg/s), PX4 86 (MC_YAWRATE_MAX): {PLANT}",
+    "land.duration_s": f"the RTL failsafe at the mission-tuned 10 m/s reaches home and descends before the client "
+                       f"resumes, so LAND starts lower (22.1 s vs 30.4 s): {PLANT}",
     # PX4 showed OFFBOARD on the ground, disarmed, without a setpoint stream; the stub acks and stays.
     "ground.offboard_no_setpoints_mode": f"stays in Hold (the ack is ACCEPTED, as PX4's): {SIMCORE}",
     "takeoff.climb_to_19m_s": f"19 m in 15.8 s, PX4 19.2 s at 1x (its 4x trace: 16.7 s): {SIMCORE}",
