@@ -33,6 +33,7 @@ from sim_bridge.endpoint import Endpoint, Link
 from sim_bridge.faults import Blackout, FaultConfig, LinkFaults
 from sim_bridge.options import SimBridgeError, SimOptions
 from sim_bridge.px4 import FlightMode
+from sim_bridge.statustext import StatustextSplitter
 from sim_bridge.tlog import TlogSet
 from sim_bridge.vehicle import Emit, SimVehicle
 
@@ -61,6 +62,7 @@ class SimBridge:
         except ValueError as exc:
             raise SimBridgeError(str(exc)) from None
         self._by_sysid = {v.system_id: i for i, v in enumerate(self.vehicles)}
+        self._texts = [StatustextSplitter(v.mav) for v in self.vehicles]  # PX4's STATUSTEXT wire form
         self._links: list[dict[str, Link]] = []
         for v in self.vehicles:
             links = {API_LINK: self._make_link(v, API_LINK, with_faults=not o.faults.is_clean)}
@@ -232,7 +234,7 @@ class SimBridge:
 
     def _dispatch(self, index: int, emits: list[Emit]) -> None:
         links = self._links[index]
-        for e in emits:
+        for e in self._texts[index].expand(emits):
             names = links if e.link is None else (e.link,)
             for name in names:
                 link = links.get(name)

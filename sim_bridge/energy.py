@@ -39,3 +39,15 @@ class EnergyModel:
 
     def consumed_mah(self, start_pct: float, pct: float) -> float:
         return max(0.0, start_pct - pct) / 100.0 * self.capacity_mah
+
+
+def px4_sim_battery_pct(pct: float, armed: bool, dt_s: float, drain_s: float, min_pct: float) -> float:
+    """PX4 SITL's simulated battery (``battery_simulator``), used when the mission sets no charge.
+
+    Armed, the charge falls by 100 % every SIM_BAT_DRAIN seconds, but never below
+    SIM_BAT_MIN_PCT; disarmed, it is full again at once. So on PX4 a flight of a minute or more
+    always reports 50 %, which is what a client sees there.
+    """
+    if not armed:
+        return 100.0
+    return max(min_pct, pct - 100.0 * dt_s / max(drain_s, 1e-3))

@@ -143,8 +143,12 @@ def validate_item(item: MissionItem) -> int:
         return mavlink.MAV_MISSION_INVALID_PARAM2
     if item.mission_type == FENCE and item.command in (mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
                                                        mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION):
-        if not (math.isfinite(item.param1) and item.param1 > 0.0):
-            return mavlink.MAV_MISSION_INVALID_PARAM1  # radius
+        if not (math.isfinite(item.param1) and item.param1 >= 0.0):
+            return mavlink.MAV_MISSION_INVALID_PARAM1  # radius; PX4 stores 0 (MAVSDK's geofence example sends it)
+    if item.mission_type == FENCE and item.command in (mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+                                                       mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION):
+        if not (math.isfinite(item.param1) and item.param1 >= 3.0):
+            return mavlink.MAV_MISSION_INVALID_PARAM1  # vertex count: PX4 refuses polygons of < 3 vertices
     return mavlink.MAV_MISSION_ACCEPTED
 
 

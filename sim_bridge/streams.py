@@ -25,9 +25,12 @@ def _rates(**by_name: float) -> Mapping[int, float]:
     return MappingProxyType({getattr(mavlink, f"MAVLINK_MSG_ID_{name}"): hz for name, hz in by_name.items()})
 
 
-# Sim-time rates (Hz). The API link feeds the companion's planner; the GCS link only watches.
-API_RATES_HZ = _rates(HEARTBEAT=1.0, SYS_STATUS=1.0, EXTENDED_SYS_STATE=2.0, LOCAL_POSITION_NED=20.0,
-                      GLOBAL_POSITION_INT=20.0, ATTITUDE=20.0, GPS_RAW_INT=2.0, HOME_POSITION=0.5,
+# Sim-time rates (Hz). The API link has PX4 SITL's onboard-link rates as measured on PX4 SIH
+# (../shared/px4-sih/README.md: ATTITUDE 100, GLOBAL_POSITION_INT 50, LOCAL_POSITION_NED 30,
+# SYS_STATUS 5, EXTENDED_SYS_STATE 5, GPS_RAW_INT 8); the GCS link only watches. ADSB_VEHICLE
+# is the stub's own (PX4 SIH has no traffic): the companion's moving-obstacle feed.
+API_RATES_HZ = _rates(HEARTBEAT=1.0, SYS_STATUS=5.0, EXTENDED_SYS_STATE=5.0, LOCAL_POSITION_NED=30.0,
+                      GLOBAL_POSITION_INT=50.0, ATTITUDE=100.0, GPS_RAW_INT=8.0, HOME_POSITION=0.5,
                       BATTERY_STATUS=1.0, MISSION_CURRENT=1.0, ADSB_VEHICLE=4.0)
 GCS_RATES_HZ = _rates(HEARTBEAT=1.0, SYS_STATUS=1.0, EXTENDED_SYS_STATE=1.0, LOCAL_POSITION_NED=4.0,
                       GLOBAL_POSITION_INT=4.0, ATTITUDE=4.0, GPS_RAW_INT=1.0, HOME_POSITION=0.5,

@@ -303,7 +303,7 @@ def _vehicles(data: dict, stations: dict[str, tuple[float, float]], vdef: dict, 
             cruise_alt_m=float(_opt(v, vdef, "cruise_alt_m")),
             initial_heading_deg=float(_opt(v, vdef, "initial_heading_deg")),
             priority=int(v.get("priority", i)),
-            battery_pct=float(_opt(v, vdef, "battery_pct")),
+            battery_pct=None if _opt(v, vdef, "battery_pct") is None else float(_opt(v, vdef, "battery_pct")),
             spawn_heading=SpawnHeading(_opt(v, vdef, "spawn_heading")),
         ))
     return vehicles

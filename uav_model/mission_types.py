@@ -51,7 +51,7 @@ class VehicleSpec:
     cruise_alt_m: float
     initial_heading_deg: float
     priority: int
-    battery_pct: float
+    battery_pct: float | None  # None: PX4 SITL's simulated battery
     spawn_heading: SpawnHeading = SpawnHeading.MISSION
 
     @property

@@ -45,6 +45,7 @@ from sim_bridge.vehicle.commands import Commands
 from sim_bridge.vehicle.control import Controller
 from sim_bridge.vehicle.modes import Modes
 from sim_bridge.vehicle.navigator import Navigator
+from sim_bridge.vehicle.orbit import Orbit
 from sim_bridge.vehicle.params import ParamStore
 from sim_bridge.vehicle.physics import Physics
 from sim_bridge.vehicle.telemetry import ADSB_ICAO_BASE, Telemetry
@@ -93,7 +94,8 @@ class SimVehicle:
         self.armed = False
         self.mode = FlightMode.HOLD
         self.in_air = False
-        self.battery_pct = float(spec.battery_pct)
+        self.orbit: Orbit | None = None  # the last DO_ORBIT, flown in FlightMode.ORBIT
+        self.battery_pct = 100.0 if spec.battery_pct is None else float(spec.battery_pct)
 
         self.tele = Telemetry(self)
         self.modes = Modes(self)

@@ -11,6 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.frames import geodetic_to_local
 from sim_bridge.mission_protocol import MISSION, RELATIVE_ALT_FRAMES
 from sim_bridge.px4 import FlightMode, decode_custom_mode
+from sim_bridge.vehicle.orbit import make_orbit
 from sim_bridge.vehicle.types import FORCE_ARM_MAGIC, Command, Emit, Result
 
 if TYPE_CHECKING:
@@ -41,6 +42,7 @@ class Commands:
             mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             mavlink.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
             mavlink.MAV_CMD_DO_REPOSITION: self._reposition,
+            mavlink.MAV_CMD_DO_ORBIT: self._orbit,
         }
 
     # ---------------------------------------------------------------- messages -----------
@@ -256,3 +258,22 @@ class Commands:
         result = self._commanded(FlightMode.HOLD)
         v.nav.hold_ned = (y, x, -rel)
         return result, []
+
+    def _orbit(self, cmd: Command, link: str, peer: Hashable) -> Result:
+        """Fly a circle (PX4's ORBIT mode); in the air only."""
+        v = self._v
+        radius, speed, yaw, _, lat, lon, alt = cmd.params
+        if not (v.armed and v.in_air):
+            return mavlink.MAV_RESULT_DENIED, []
+        center = None
+        if math.isfinite(lat) and math.isfinite(lon):
+            if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+                return mavlink.MAV_RESULT_DENIED, []
+            x, y, _ = geodetic_to_local(v.origin, lat, lon)
+            center = (y, x)
+        down = -self._relative_alt(cmd, alt) if math.isfinite(alt) else None
+        orbit = make_orbit(v.state, radius, speed, yaw, center, down, v.params["MC_ORBIT_RAD_MAX"])
+        if orbit is None or (down is not None and not 0.0 <= -down <= v.params.max_alt_m):
+            return mavlink.MAV_RESULT_DENIED, []
+        v.orbit = orbit
+        return self._commanded(FlightMode.ORBIT), []

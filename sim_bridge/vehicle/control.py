@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 from uav_model.frames import wrap_pi
 from uav_model.plant import HOVER, VelocityCommand, VelocityFrame
 from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.orbit import orbit_command
 from sim_bridge.vehicle.types import KP_ALTITUDE_1_S, KP_POSITION_1_S, TAKEOFF_APPROACH_KP_1_S, TOUCHDOWN_ALT_M, clip
 
 if TYPE_CHECKING:
@@ -62,6 +63,19 @@ class Controller:
         vd = clip(TAKEOFF_APPROACH_KP_1_S * (target[2] - v.state.down_m), -p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"])
         return replace(cmd, z_m_s=vd)
 
+    def track(self, target: NED, feed_forward: NED) -> VelocityCommand:
+        """PX4's position controller with a velocity feed-forward: v = v_ff + Kp (p_sp - p), limited."""
+        s = self._v.state
+        lim = self._v.limits
+        vn = feed_forward[0] + KP_POSITION_1_S * (target[0] - s.north_m)
+        ve = feed_forward[1] + KP_POSITION_1_S * (target[1] - s.east_m)
+        speed = math.hypot(vn, ve)
+        if speed > lim.max_speed_m_s:
+            vn, ve = vn * lim.max_speed_m_s / speed, ve * lim.max_speed_m_s / speed
+        vd = clip(feed_forward[2] + KP_ALTITUDE_1_S * (target[2] - s.down_m), -self._v.params["MPC_Z_VEL_MAX_UP"],
+                  self._v.params["MPC_Z_VEL_MAX_DN"])
+        return VelocityCommand(VelocityFrame.LOCAL_NED, vn, ve, vd, 0.0)
+
     def land_command(self, north_m: float, east_m: float, dt_s: float) -> VelocityCommand:
         v = self._v
         p = v.params
@@ -89,6 +103,9 @@ class Controller:
             yawspeed = self.yawspeed_toward(sp.yaw_rad, dt_s)
         else:
             yawspeed = 0.0
+        if sp.use_position and (sp.vx_m_s, sp.vy_m_s, sp.vz_m_s) != (0.0, 0.0, 0.0):
+            cmd = self.track((sp.x_m, sp.y_m, sp.z_m), (sp.vx_m_s, sp.vy_m_s, sp.vz_m_s))
+            return replace(cmd, yawspeed_rad_s=yawspeed)
         if sp.use_position:
             cmd = self.goto((sp.x_m, sp.y_m, sp.z_m), self._v.limits.max_speed_m_s, dt_s, yaw_rad=sp.yaw_rad)
             return replace(cmd, yawspeed_rad_s=yawspeed)
@@ -112,6 +129,8 @@ class Controller:
             return nav.mission_command(dt_s)
         if mode is FlightMode.RTL:
             return nav.rtl_command(dt_s)
+        if mode is FlightMode.ORBIT:
+            return orbit_command(v.orbit, v.state, v.limits, dt_s) if v.orbit is not None else HOVER
         return HOVER  # pragma: no cover - every FlightMode is handled above
 
     def command(self, dt_s: float) -> VelocityCommand | None:

@@ -182,7 +182,7 @@ class Modes:
         if use_pos and frame == mavlink.MAV_FRAME_LOCAL_OFFSET_NED:
             x, y, z = x + v.state.north_m, y + v.state.east_m, z + v.state.down_m
         self.setpoint = Setpoint(
-            body=body, use_position=use_pos and not use_vel, x_m=x, y_m=y, z_m=z,
+            body=body, use_position=use_pos, x_m=x, y_m=y, z_m=z,
             vx_m_s=float(msg.vx) if use_vel else 0.0, vy_m_s=float(msg.vy) if use_vel else 0.0,
             vz_m_s=float(msg.vz) if use_vel else 0.0, yaw_rad=yaw, yaw_rate_rad_s=yaw_rate,
             received_t_s=v.sim_time_s)

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.plant import KinematicState
+from sim_bridge.energy import px4_sim_battery_pct
 from sim_bridge.truth import CollisionChecker, CollisionEvent
 from sim_bridge.vehicle.types import IN_AIR_ALT_M, LAND_DETECT_S, TAKEOFF_DETECT_S, TOUCHDOWN_ALT_M, Emit
 
@@ -107,8 +108,13 @@ class Physics:
         v = self._v
         s = v.state
         p = v.params
-        self.drain_pct_s = v.energy.drain_pct_s(v.armed, v.in_air, s.ground_speed_m_s, -s.vd_m_s)
-        v.battery_pct = max(0.0, v.battery_pct - self.drain_pct_s * dt_s)
+        if v.spec.battery_pct is None:  # the mission sets no charge: PX4 SITL's simulated battery
+            before = v.battery_pct
+            v.battery_pct = px4_sim_battery_pct(before, v.armed, dt_s, p["SIM_BAT_DRAIN"], p["SIM_BAT_MIN_PCT"])
+            self.drain_pct_s = max(0.0, before - v.battery_pct) / dt_s
+        else:
+            self.drain_pct_s = v.energy.drain_pct_s(v.armed, v.in_air, s.ground_speed_m_s, -s.vd_m_s)
+            v.battery_pct = max(0.0, v.battery_pct - self.drain_pct_s * dt_s)
         frac = v.battery_pct / 100.0
         level = (3 if frac <= p["BAT_EMERGEN_THR"] else 2 if frac <= p["BAT_CRIT_THR"]
                  else 1 if frac <= p["BAT_LOW_THR"] else 0)

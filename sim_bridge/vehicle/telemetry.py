@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import local_to_geodetic
+from sim_bridge.health import sensor_bits
 from sim_bridge.mission_protocol import MISSION
 from sim_bridge.px4 import PX4_FLIGHT_SW_VERSION, FlightMode
 from sim_bridge.streams import API_PROFILE, StreamProfile, StreamScheduler
@@ -16,9 +17,6 @@ from sim_bridge.vehicle.types import GRAVITY_M_S2, Emit, clip
 if TYPE_CHECKING:
     from sim_bridge.vehicle import SimVehicle
 
-SENSORS_OK = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-              | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_GPS)
-PREARM_CHECK = mavlink.MAV_SYS_STATUS_PREARM_CHECK
 
 CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -94,7 +92,9 @@ class Telemetry:
         base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
         if v.mode is not FlightMode.POSCTL:
             base |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
-        if v.mode not in (FlightMode.POSCTL, FlightMode.OFFBOARD):
+        if v.mode is FlightMode.ORBIT:  # as PX4: a position-control sub mode, not an auto one
+            base |= mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+        elif v.mode not in (FlightMode.POSCTL, FlightMode.OFFBOARD):
             base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED
         if v.armed:
             base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
@@ -113,11 +113,10 @@ class Telemetry:
 
     def sys_status(self) -> Any:
         v = self._v
-        present = SENSORS_OK | PREARM_CHECK
-        health = SENSORS_OK | (PREARM_CHECK if v.modes.armable() else 0)
+        present, enabled, health = sensor_bits(v.sim_time_s, v.modes.armable())
         e = v.energy
         return self._mav.sys_status_encode(
-            present, present, health, 100, int(e.voltage_v(v.battery_pct) * 1000),
+            present, enabled, health, 100, int(e.voltage_v(v.battery_pct) * 1000),
             int(e.current_a(v.physics.drain_pct_s) * 100), int(round(v.battery_pct)), 0, 0, 0, 0, 0, 0)
 
     def extended_sys_state(self) -> Any:
@@ -172,6 +171,7 @@ class Telemetry:
         v = self._v
         e = v.energy
         drain = v.physics.drain_pct_s
+        start = 100.0 if v.spec.battery_pct is None else v.spec.battery_pct
         frac = v.battery_pct / 100.0
         p = v.params
         charge = (mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY if frac <= p["BAT_EMERGEN_THR"]
@@ -182,7 +182,7 @@ class Telemetry:
         time_left = int(v.battery_pct / drain) if drain > 0 else 0
         return self._mav.battery_status_encode(
             0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO, 32767, voltages,
-            int(e.current_a(drain) * 100), int(e.consumed_mah(v.spec.battery_pct, v.battery_pct)), -1,
+            int(e.current_a(drain) * 100), int(e.consumed_mah(start, v.battery_pct)), -1,
             int(round(v.battery_pct)), time_left, charge)
 
     def mission_current(self) -> Any:
@@ -228,4 +228,5 @@ class Telemetry:
             CAPABILITIES, PX4_FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid, [sid] + [0] * 17)
 
     def statustext(self, severity: int, text: str) -> Any:
-        return self._mav.statustext_encode(severity, text[:50].encode("ascii", "replace"))
+        # The whole text: the vehicle's StatustextSplitter cuts it into 50-byte chunks on the way out.
+        return self._mav.statustext_encode(severity, text.encode("ascii", "replace"))

@@ -10,11 +10,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import AsyncIterator, Callable
-from typing import Any, TypeVar
+from typing import Any
 
 import pytest
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, System
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mission import MissionAsync, MissionItem, MissionPlan
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, VelocityBodyYawspeed, VelocityNedYaw
@@ -22,11 +20,11 @@ from mavsdk.asyncio.plugins.telemetry import FixType, FlightMode, LandedState, T
 
 from uav_model.frames import local_to_geodetic
 from uav_model.mission import Mission, parse_mission
-from sim_bridge.bridge import SimBridge, SimOptions
+from sim_bridge.bridge import SimOptions
 from sim_bridge.px4 import FlightMode as StubMode
 from sim_bridge.testing import sim_connection_url, stub_on_free_ports
 
-T = TypeVar("T")
+from mavsdk_helpers import arm_and_take_off, first, mavsdk_client, quantize, wait_until
 
 # The link contract is asserted with the unicycle's exact kinematics (8.00 m/s in a turn, the yaw
 # rate clipped to v/r); the multicopter's responses are in test_sim_multicopter.py.
@@ -54,43 +52,6 @@ vehicles:
 @pytest.fixture(scope="module")
 def mission() -> Mission:
     return parse_mission(MISSION_YAML, "mavsdk_scenario.yaml")
-
-
-@contextlib.asynccontextmanager
-async def mavsdk_client(url: str) -> AsyncIterator[System]:
-    """One Mavsdk instance on one link, as the companion runs it; yields the autopilot."""
-    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as sdk:
-        await sdk.add_any_connection(url)
-        system = await sdk.first_autopilot(timeout_s=10.0)
-        assert system is not None, f"no autopilot on {url}"
-        yield system
-
-
-async def first(agen: AsyncIterator[T], pred: Callable[[T], bool] = lambda _: True, timeout_s: float = 15.0) -> T:
-    """The first item of a MAVSDK subscription that satisfies ``pred``; closes the subscription."""
-    async with contextlib.aclosing(agen):  # type: ignore[type-var]
-        async with asyncio.timeout(timeout_s):
-            async for item in agen:
-                if pred(item):
-                    return item
-    raise AssertionError("subscription ended")
-
-
-def quantize(deg: float) -> float:
-    """Degrees as MAVLink's int32 degE7 carries them (and as MAVSDK converts them back)."""
-    return round(deg * 1e7) * 1e-7
-
-
-async def wait_until(sim: SimBridge, pred: Callable[[], bool], timeout_s: float, what: str) -> None:
-    assert await sim.wait_for(pred, timeout_s), f"timed out waiting for {what}"
-
-
-async def arm_and_take_off(system: System, sim: SimBridge, index: int) -> None:
-    tel, act = TelemetryAsync(system), ActionAsync(system)
-    await first(tel.subscribe_health_all_ok(), bool)
-    await act.arm()
-    await act.takeoff()
-    await first(tel.subscribe_flight_mode(), lambda m: m == FlightMode.HOLD and sim.vehicle(index).in_air, 30.0)
 
 
 # ---------------------------------------------------------------- (1) connect, health ------

@@ -94,7 +94,7 @@ def test_upload_then_download_gives_back_the_same_items(mission, proto, gcs):
 
 def test_mission_types_are_stored_separately(mission, proto, gcs):
     upload(proto, gcs, [waypoint(gcs, mission, 0, 10, 10, 10)])
-    fence = [waypoint(gcs, mission, i, 10 * i, 0, 0, command=mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+    fence = [waypoint(gcs, mission, i, 10 * i, 0, 0, hold_s=3.0, command=mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
                       mission_type=FENCE, frame=mavlink.MAV_FRAME_GLOBAL_INT) for i in range(3)]
     replies, events = upload(proto, gcs, fence, FENCE)
     assert types(replies) == [("MISSION_ACK", mavlink.MAV_MISSION_ACCEPTED)] and events[0].mission_type == FENCE
@@ -108,6 +108,23 @@ def test_mission_types_are_stored_separately(mission, proto, gcs):
     assert proto.plan(FENCE) == () and len(proto.plan(MISSION)) == 1
     proto.handle(gcs.wire(gcs.enc.mission_clear_all_encode(1, 1, mavlink.MAV_MISSION_TYPE_ALL)), "api", None, 0.0)
     assert proto.plan(MISSION) == ()
+
+
+@pytest.mark.parametrize("command, param1, code", [
+    (mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0.0, mavlink.MAV_MISSION_ACCEPTED),  # MAVSDK's geofence example
+    (mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, 25.0, mavlink.MAV_MISSION_ACCEPTED),
+    (mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, -1.0, mavlink.MAV_MISSION_INVALID_PARAM1),
+    (mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, math.nan, mavlink.MAV_MISSION_INVALID_PARAM1),
+    (mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, 2.0, mavlink.MAV_MISSION_INVALID_PARAM1),
+])
+def test_fence_circles_of_radius_0_are_stored_and_polygons_need_3_vertices(mission, proto, gcs, command, param1, code):
+    """As PX4: it stores a radius-0 circle and refuses only polygons of fewer than 3 vertices."""
+    item = waypoint(gcs, mission, 0, 10, 10, 0, hold_s=param1, command=command, mission_type=FENCE,
+                    frame=mavlink.MAV_FRAME_GLOBAL_INT)
+    proto.handle(count(gcs, 1, FENCE), "api", None, 0.0)
+    replies, _ = proto.handle(item, "api", None, 0.0)
+    assert types(replies) == [("MISSION_ACK", code)]
+    assert len(proto.plan(FENCE)) == (1 if code == mavlink.MAV_MISSION_ACCEPTED else 0)
 
 
 @pytest.mark.parametrize("n", [MAX_ITEMS[MISSION] + 1, 65535])

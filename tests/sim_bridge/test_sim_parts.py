@@ -10,7 +10,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.mission import parse_mission
 from sim_bridge.clock import ClockError, SimClock
 from sim_bridge.faults import Blackout, FaultConfig, FaultSpecError, LinkFaults
-from sim_bridge.streams import StreamProfile, StreamScheduler
+from sim_bridge.streams import API_PROFILE, StreamProfile, StreamScheduler
 from sim_bridge.truth import CollisionChecker
 
 pytestmark = pytest.mark.timeout(30)
@@ -32,6 +32,16 @@ def test_streams_run_in_sim_time_up_to_the_wall_cap():
     assert count_due(StreamScheduler(profile), POS, 1.0, 10.0) == pytest.approx(100, abs=2)  # 10 Hz at 1x
     assert count_due(StreamScheduler(profile), POS, 4.0, 10.0) == pytest.approx(400, abs=4)  # 40 Hz wall at 4x
     assert count_due(StreamScheduler(profile), POS, 20.0, 10.0) == pytest.approx(500, abs=5)  # capped at 50 Hz wall
+
+
+@pytest.mark.parametrize("name, px4_hz", [("ATTITUDE", 100), ("GLOBAL_POSITION_INT", 50), ("LOCAL_POSITION_NED", 30),
+                                          ("SYS_STATUS", 5), ("EXTENDED_SYS_STATE", 5), ("GPS_RAW_INT", 8)])
+def test_api_link_has_px4_sitl_rates_in_sim_time_and_a_wall_cap(name, px4_hz):
+    """PX4 SIH's measured onboard-link rates (../shared/px4-sih/README.md), capped on the wall clock."""
+    msg_id = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
+    assert count_due(StreamScheduler(API_PROFILE), msg_id, 1.0, 5.0, tick_wall_s=0.002) == pytest.approx(5 * px4_hz, rel=0.03)
+    at_20x = count_due(StreamScheduler(API_PROFILE), msg_id, 20.0, 5.0, tick_wall_s=0.002)
+    assert at_20x == pytest.approx(5 * min(20 * px4_hz, API_PROFILE.max_wall_rate_hz), rel=0.03)
 
 
 def test_heartbeat_keeps_one_hertz_of_wall_time_at_any_speed():
@@ -182,3 +192,57 @@ def _envelope_world():
     if not _WORLD_CACHE:
         _WORLD_CACHE.append(parse_mission(ENVELOPE_YAML, "envelope.yaml").world)
     return _WORLD_CACHE[0]
+
+
+# ---------------------------------------------------------------- PX4 look-alikes ---------
+def test_statustext_is_split_as_px4_splits_it():
+    """Measured on PX4 SIH: event texts end in a tab; a long one arrives as two chunks."""
+    from typing import Any, NamedTuple
+
+    from sim_bridge.statustext import StatustextSplitter
+
+    class Out(NamedTuple):
+        msg: Any
+        link: str | None = None
+
+    mav = mavlink.MAVLink(None, 1, 1)
+    split = StatustextSplitter(mav)
+    hb = Out(mav.heartbeat_encode(2, 12, 0, 0, 3, 3))
+    long_text = "Arming denied: Resolve system health failures first"
+    out = split.expand([hb, Out(mav.statustext_encode(2, long_text.encode()), "api"),
+                        Out(mav.statustext_encode(6, b"Armed by external command")),
+                        Out(mav.statustext_encode(2, b"Preflight Fail: heading estimate not stable"))])
+    assert out[0] is hb
+    texts = [(o.msg.text, o.msg.id, o.msg.chunk_seq, o.link) for o in out[1:]]
+    first_id = texts[0][1]
+    assert first_id != 0 and texts[:2] == [("Arming denied: Resolve system health failures firs", first_id, 0, "api"),
+                                           ("t\t", first_id, 1, "api")]
+    assert texts[2:] == [("Armed by external command\t", 0, 0, None),
+                         ("Preflight Fail: heading estimate not stable", 0, 0, None)]
+    for o in out:  # every chunk fits the wire
+        o.msg.pack(mav)
+
+
+def test_px4_sim_battery_drains_to_its_floor_when_armed_and_refills_when_disarmed():
+    from sim_bridge.energy import px4_sim_battery_pct
+
+    pct, t = 100.0, 0.0
+    while t < 20.0:
+        pct, t = px4_sim_battery_pct(pct, True, 0.02, 60.0, 50.0), t + 0.02
+    assert pct == pytest.approx(100.0 - 100.0 * 20.0 / 60.0, abs=0.05)  # SIM_BAT_DRAIN 60 s per 100 %
+    for _ in range(5000):
+        pct = px4_sim_battery_pct(pct, True, 0.02, 60.0, 50.0)
+    assert pct == 50.0  # SIM_BAT_MIN_PCT
+    assert px4_sim_battery_pct(pct, False, 0.02, 60.0, 50.0) == 100.0
+
+
+def test_sys_status_reports_no_sensors_then_no_gps_then_healthy_at_boot():
+    from sim_bridge.health import HEALTH_SETTLED_S, PREARM_CHECK, SENSORS_PRESENT_S, sensor_bits
+
+    gps = mavlink.MAV_SYS_STATUS_SENSOR_GPS
+    assert sensor_bits(0.0, True)[0] == 0
+    present, _, health = sensor_bits(SENSORS_PRESENT_S + 0.1, True)
+    assert present & mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO and not present & gps and not health & PREARM_CHECK
+    present, enabled, health = sensor_bits(HEALTH_SETTLED_S, True)
+    assert present & gps and health & gps and health & PREARM_CHECK and enabled == present
+    assert not sensor_bits(HEALTH_SETTLED_S + 10.0, False)[2] & PREARM_CHECK  # e.g. battery too low

@@ -116,7 +116,9 @@ def test_px4_custom_modes_match_pymavlink_and_px4_layout():
     assert FlightMode.MISSION.custom_mode == (4 << 16) | (mavutil.PX4_CUSTOM_SUB_MODE_AUTO_MISSION << 24)
     assert FlightMode.TAKEOFF.value == (Px4MainMode.AUTO, Px4AutoSubMode.TAKEOFF)
     for mode in FlightMode:
-        assert FlightMode.from_px4(*decode_custom_mode(mode.custom_mode)) is mode
+        if mode is not FlightMode.ORBIT:  # PX4 enters orbit by DO_ORBIT, not by a mode switch
+            assert FlightMode.from_px4(*decode_custom_mode(mode.custom_mode)) is mode
+    assert FlightMode.ORBIT.custom_mode == (3 << 16) | (1 << 24)  # POSCTL, PX4_CUSTOM_SUB_MODE_POSCTL_ORBIT
     assert decode_custom_mode(encode_custom_mode(4, 6)) == (4, 6)
     assert FlightMode.from_px4(Px4MainMode.MANUAL, 0) is None
     assert FlightMode.from_px4(Px4MainMode.AUTO, 99) is None

@@ -20,8 +20,10 @@ GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 # the streams this link's one reader never reads: building them is a third of the telemetry cost.
 UNREAD_STREAMS = frozenset({mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
                             mavlink.MAVLINK_MSG_ID_MISSION_CURRENT})
+INPROCESS_MAX_RATE_HZ = 20.0  # PX4's 50-100 Hz attitude and position: the planner ticks at 2 Hz
 INPROCESS_PROFILE = StreamProfile(
-    MappingProxyType({k: hz for k, hz in API_RATES_HZ.items() if k not in UNREAD_STREAMS}), max_wall_rate_hz=0.0)
+    MappingProxyType({k: min(hz, INPROCESS_MAX_RATE_HZ) for k, hz in API_RATES_HZ.items() if k not in UNREAD_STREAMS}),
+    max_wall_rate_hz=0.0)
 # SET_POSITION_TARGET_LOCAL_NED: body velocity + yaw rate (position, acceleration and yaw ignored).
 BODY_VELOCITY_YAW_RATE_MASK = (
     mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_Y_IGNORE
