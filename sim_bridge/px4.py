@@ -142,6 +142,7 @@ PX4_PARAMS: tuple[ParamDef, ...] = (
     _i("COM_RC_IN_MODE", 1, 0, 4, "manual control source (1: MAVLink joystick only, as PX4 SITL)"),
     _f("COM_FAIL_ACT_T", 5.0, 0.0, 25.0, "delay between a failsafe and its action (hold meanwhile), s"),
     _i("GF_ACTION", 2, 0, 5, "geofence breach action: 0 none, 1 warning, 2 hold, 3 RTL, 4 terminate, 5 land"),
+    _i("GF_PREDICT", 0, 0, 1, "geofence: also trigger on the braking point (PX4's experimental predictive breach)"),
     _f("GF_MAX_HOR_DIST", 0.0, 0.0, 10000.0, "maximum horizontal distance from home, m; 0 off"),
     _f("GF_MAX_VER_DIST", 0.0, 0.0, 10000.0, "maximum height above home, m; 0 off"),
     _f("RTL_RETURN_ALT", 60.0, 0.0, 5000.0, "RTL return altitude above home, m"),

@@ -18,6 +18,7 @@ battery) and routes to its parts, one concern each:
     navigator.Navigator   AUTO-mode targets: take-off, hold, land, RTL, mission items
     control.Controller    the velocity command each mode asks of the plant
     physics.Physics       the plant step, land detector, collisions, battery
+    geofence.Geofence     the stored FENCE plan, its breach check and GF_ACTION
     telemetry.Telemetry   message builders and per-link stream schedulers
 
 Frames: the plant and every MAVLink field are in PX4's local NED frame, whose origin is the
@@ -43,6 +44,7 @@ from sim_bridge.streams import API_PROFILE, StreamProfile
 from sim_bridge.truth import CollisionEvent
 from sim_bridge.vehicle.commands import Commands
 from sim_bridge.vehicle.control import Controller
+from sim_bridge.vehicle.geofence import Geofence
 from sim_bridge.vehicle.modes import Modes
 from sim_bridge.vehicle.navigator import Navigator
 from sim_bridge.vehicle.orbit import Orbit
@@ -103,6 +105,7 @@ class SimVehicle:
         self.control = Controller(self)
         self.physics = Physics(self)
         self.commands = Commands(self)
+        self.geofence = Geofence(self)
         self._handlers: dict[str, Callable[[Any, str, Hashable], list[Emit]]] = {
             "COMMAND_LONG": self.commands.on_command_long,
             "COMMAND_INT": self.commands.on_command_int,
@@ -217,6 +220,7 @@ class SimVehicle:
             out = self.physics.step(dt_s)
             t = self.sim_time_s
             out += self.modes.check(t)
+            out += self.geofence.check(t)
             out += self.nav.update(t)
             return out + self.modes.check_auto_disarm(t)
         except Exception:  # noqa: BLE001 - keep flying (time still advances) and say so

@@ -1,0 +1,206 @@
+"""PX4's geofence: the stored FENCE plan as geometry in the mission's ENU frame, and its breach action.
+
+    fence_from_items(items, origin) -> Fence        pure: MISSION_ITEM_INTs -> rings / circles
+    Fence.breached(x_east_m, y_north_m) -> bool     outside every inclusion, or inside an exclusion
+    Geofence(vehicle).check(t) -> [Emit]            per step: a new breach takes GF_ACTION
+
+As PX4 (navigator ``Geofence``, commander ``failsafe.cpp`` ``fromGfActParam``): a position is
+inside the fence when it lies in at least one inclusion zone (if there are any) and in no exclusion
+zone; a breach is reported once, as it begins ("Geofence violation: approaching or outside
+geofence"), and while armed it takes GF_ACTION: 0 none, 1 warning, 2 Hold, 3 Return, 4 terminate,
+5 Land (PX4's default 2). The action is not undone by the stub: a client may switch mode again
+(PX4 lets the user take over a geofence Hold by a mode switch), and a new breach acts again.
+GF_PREDICT 1 also checks the braking point (PX4's experimental predictive trigger, default 0).
+PX4 refuses to arm while the vehicle is outside its fence; so does the stub.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from itertools import takewhile
+from typing import TYPE_CHECKING
+
+from pymavlink.dialects.v20 import common as mavlink
+from shapely.geometry import Polygon
+
+from uav_model import frames
+from sim_bridge.mission_protocol import FENCE, MissionItem
+from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.types import Emit
+
+if TYPE_CHECKING:
+    from sim_bridge.vehicle import SimVehicle
+
+BREACH_TEXT = "Geofence violation: approaching or outside geofence"  # PX4's geofenceCheck.cpp
+_VERTEX = {mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION: True,
+           mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION: False}
+_CIRCLE = {mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION: True, mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION: False}
+
+
+class GeofenceAction(enum.IntEnum):
+    """GF_ACTION, with PX4's values."""
+
+    NONE = 0
+    WARN = 1
+    HOLD = 2
+    RTL = 3
+    TERMINATE = 4
+    LAND = 5
+
+
+@dataclass(frozen=True, slots=True)
+class Circle:
+    x_east_m: float
+    y_north_m: float
+    radius_m: float
+
+    def contains(self, x: float, y: float) -> bool:
+        return math.hypot(x - self.x_east_m, y - self.y_north_m) <= self.radius_m
+
+
+@dataclass(frozen=True, slots=True)
+class Ring:
+    """A fence polygon (ENU vertices, no closing repeat). Checked every physics step, so in plain
+    Python: a scalar shapely predicate costs ~50 us, this a few (bounding box first)."""
+
+    vertices: tuple[tuple[float, float], ...]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        xs, ys = zip(*self.vertices)
+        return min(xs), min(ys), max(xs), max(ys)
+
+    @property
+    def polygon(self) -> Polygon:
+        return Polygon(self.vertices)
+
+    def contains(self, x: float, y: float) -> bool:
+        """Even-odd ray casting (a point exactly on an edge may fall either way)."""
+        inside = False
+        vs = self.vertices
+        x1, y1 = vs[-1]
+        for x2, y2 in vs:
+            if (y1 > y) != (y2 > y) and x < x1 + (y - y1) * (x2 - x1) / (y2 - y1):
+                inside = not inside
+            x1, y1 = x2, y2
+        return inside
+
+
+@dataclass(frozen=True)
+class Fence:
+    """Inclusion and exclusion zones in mission ENU metres."""
+
+    inclusion_polygons: tuple[Ring, ...] = ()
+    exclusion_polygons: tuple[Ring, ...] = ()
+    inclusion_circles: tuple[Circle, ...] = ()
+    exclusion_circles: tuple[Circle, ...] = ()
+    empty: bool = field(default=True, init=False)
+    _boxes: tuple[tuple[float, float, float, float], ...] = field(default=(), init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_boxes", tuple(r.bounds for r in self.exclusion_polygons))
+        object.__setattr__(self, "empty", not (self.inclusion_polygons or self.exclusion_polygons
+                                               or self.inclusion_circles or self.exclusion_circles))
+
+    def breached(self, x_east_m: float, y_north_m: float) -> bool:
+        x, y = x_east_m, y_north_m
+        if self.inclusion_polygons or self.inclusion_circles:
+            for zone in self.inclusion_polygons + self.inclusion_circles:
+                if zone.contains(x, y):
+                    break
+            else:
+                return True
+        for (x0, y0, x1, y1), r in zip(self._boxes, self.exclusion_polygons):
+            if x0 <= x <= x1 and y0 <= y <= y1 and r.contains(x, y):
+                return True
+        for c in self.exclusion_circles:
+            if c.radius_m > 0.0 and c.contains(x, y):
+                return True
+        return False
+
+
+def fence_from_items(items: Sequence[MissionItem], origin: frames.GeoOrigin) -> Fence:
+    """The zones a FENCE plan describes. A polygon is ``param1`` consecutive vertex items of one
+    kind (the mission protocol refuses fewer than 3); an incomplete one is ignored."""
+    polys: dict[bool, list[Ring]] = {True: [], False: []}
+    circles: dict[bool, list[Circle]] = {True: [], False: []}
+    i = 0
+    while i < len(items):
+        it = items[i]
+        x, y, _ = frames.geodetic_to_local(origin, it.lat_deg, it.lon_deg)
+        if it.command in _CIRCLE:
+            circles[_CIRCLE[it.command]].append(Circle(x, y, float(it.param1)))
+            i += 1
+            continue
+        if it.command not in _VERTEX:  # the return point
+            i += 1
+            continue
+        n = max(int(it.param1), 1)
+        run = list(takewhile(lambda r: r.command == it.command, items[i:i + n]))
+        if n >= 3 and len(run) == n:
+            ring = [frames.geodetic_to_local(origin, r.lat_deg, r.lon_deg)[:2] for r in run]
+            polys[_VERTEX[it.command]].append(Ring(tuple(ring)))
+        i += len(run)
+    return Fence(tuple(polys[True]), tuple(polys[False]), tuple(circles[True]), tuple(circles[False]))
+
+
+class Geofence:
+    """The vehicle's geofence: rebuilt when the FENCE plan changes, checked every step."""
+
+    def __init__(self, v: "SimVehicle"):
+        self._v = v
+        self._items: tuple[MissionItem, ...] = ()
+        self.fence = Fence()
+        self.breached = False
+        self.breaches: list[tuple[float, GeofenceAction]] = []  # (sim time, action taken), for tests
+
+    @property
+    def action(self) -> GeofenceAction:
+        return GeofenceAction(int(self._v.params["GF_ACTION"]))
+
+    def outside(self) -> bool:
+        """Whether the vehicle is outside its fence now (or, with GF_PREDICT, will be once it brakes)."""
+        v = self._v
+        items = v.missions.plan(FENCE)
+        if items is not self._items:
+            self._items = items
+            self.fence = fence_from_items(items, v.origin)
+        if self.fence.empty or v.params["GF_ACTION"] == GeofenceAction.NONE:
+            return False
+        s = v.state
+        if self.fence.breached(s.east_m, s.north_m):
+            return True
+        if v.params["GF_PREDICT"] >= 1:
+            north, east, _ = v.modes.braking_point()
+            return self.fence.breached(east, north)
+        return False
+
+    def check(self, t: float) -> list[Emit]:
+        """One step: on a new breach, say so and (armed) take GF_ACTION."""
+        now = self.outside()
+        started = now and not self.breached
+        self.breached = now
+        if not started:
+            return []
+        v = self._v
+        out = [Emit(v.tele.statustext(mavlink.MAV_SEVERITY_CRITICAL, BREACH_TEXT))]
+        action = self.action
+        if not v.armed:
+            return out
+        self.breaches.append((t, action))
+        if action is GeofenceAction.WARN:
+            return out
+        out.append(Emit(v.tele.statustext(mavlink.MAV_SEVERITY_CRITICAL, "Failsafe activated")))
+        if action is GeofenceAction.TERMINATE:
+            return out + v.modes.disarm(True, "failsafe")[1]
+        target = {GeofenceAction.HOLD: FlightMode.HOLD, GeofenceAction.RTL: FlightMode.RTL,
+                  GeofenceAction.LAND: FlightMode.LAND}[action]
+        if target is FlightMode.RTL and not v.in_air:
+            target = FlightMode.HOLD
+        v.modes.enter(target)
+        if target is FlightMode.RTL:
+            out.append(Emit(v.nav.rtl_start_text()))
+        return out
