@@ -34,6 +34,7 @@ from companion.planning.routes import Route, plan_routes
 from uav_model.world import Obstacle, Shuttle
 
 REFERENCE_SIDE_M = 4500.0 / math.sqrt(2.0)
+MAX_VEHICLES = 8  # the mission schema's maxItems
 
 
 class ScenarioError(ValueError):
@@ -58,6 +59,7 @@ class ScenarioConfig:
     max_redraws: int = 200
     time_limit_s: float | None = None  # None: the mission default (SPEC §2: 2500 s)
     plant: str = Plant.MULTICOPTER.value  # unicycle: the paper's ideal vehicle (its Table IV)
+    vehicles: int = 2  # around the square's perimeter, each flying across it (see fleet_layout)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -79,6 +81,8 @@ class ScenarioConfig:
             raise ScenarioError(f"time_limit_s: must be positive (got {self.time_limit_s})")
         if self.plant not in {p.value for p in Plant}:
             raise ScenarioError(f"plant: use {' or '.join(p.value for p in Plant)} (got {self.plant!r})")
+        if not 2 <= self.vehicles <= MAX_VEHICLES:
+            raise ScenarioError(f"vehicles: use 2 to {MAX_VEHICLES} (got {self.vehicles})")
         if self.moving_path_m[1] >= self.side_m:
             raise ScenarioError(f"moving_path_m: a path must fit in the {self.side_m:g} m square")
 
@@ -160,24 +164,60 @@ def _draw(rng: random.Random, cfg: ScenarioConfig, seed: int, index: int) -> dic
         obstacles.append({"id": f"m{k}", "shape": "circle", "center": [_r(cx), _r(cy)],
                           "radius_m": _r(radius),
                           "motion": {"type": "shuttle", "to": [_r(tx), _r(ty)], "speed_m_s": _r(speed)}})
+    fleet = fleet_layout(side, cfg.vehicles)
     doc = {
         "name": f"random_s{seed}_i{index}",
         "description": f"Seeded random complex scenario (seed {seed}, index {index}; SPEC §3)",
         "plant": cfg.plant,
         "area": {"x_min_m": 0.0, "y_min_m": 0.0, "x_max_m": side, "y_max_m": side, "geofence_margin_m": 200.0},
-        "stations": {"A": [0.0, 0.0], "B": [side, side]},
+        "stations": fleet["stations"],
         "obstacles": obstacles,
-        "vehicles": [
-            {"name": "a", "start": "A", "goal": "B", "speed_m_s": 10.0, "turn_radius_m": 30.0,
-             "initial_heading_deg": 45.0, "battery_pct": 100.0},
-            {"name": "b", "start": "B", "goal": "A", "speed_m_s": 10.0, "turn_radius_m": 30.0,
-             "initial_heading_deg": -135.0, "battery_pct": 35.0},
-        ],
+        "vehicles": fleet["vehicles"],
         "planner": {"inflation_ratio": cfg.inflation_ratio},
     }
     if cfg.time_limit_s is not None:
         doc["safety"] = {"time_limit_s": cfg.time_limit_s}
     return doc
+
+
+def _perimeter_point(side: float, d: float) -> tuple[float, float]:
+    """The point ``d`` metres along the square's perimeter from (0, 0), counter-clockwise."""
+    d %= 4.0 * side
+    if d <= side:
+        return d, 0.0
+    if d <= 2.0 * side:
+        return side, d - side
+    if d <= 3.0 * side:
+        return 3.0 * side - d, side
+    return 0.0, 4.0 * side - d
+
+
+def fleet_layout(side: float, count: int) -> dict[str, Any]:
+    """Stations and vehicles of an N-vehicle scenario: vehicle i starts at the perimeter point
+    i/N of the way round from (0, 0) and flies to the point opposite it through the centre, so
+    every route crosses the middle and every goal is distinct. Priority is the order (vehicle
+    ``a`` first); the first keeps a full battery, as in the paper's two-vehicle case. Two
+    vehicles give the paper's A (0, 0) <-> B (side, side) exactly."""
+    starts = [_perimeter_point(side, i * 4.0 * side / count) for i in range(count)]
+    goals = [(side - x, side - y) for x, y in starts]
+    points: list[tuple[float, float]] = []
+    for p in [*starts, *goals]:
+        p = (_r(p[0]), _r(p[1]))
+        if p not in points:
+            points.append(p)
+    # stations named in perimeter order, A at (0, 0)
+    along = {p: math.atan2(p[1] - side / 2.0, p[0] - side / 2.0) for p in points}
+    first = along[points[0]]
+    points.sort(key=lambda p: (along[p] - first) % (2.0 * math.pi))
+    name = {p: chr(ord("A") + k) for k, p in enumerate(points)}
+    vehicles = []
+    for i, (start, goal) in enumerate(zip(starts, goals)):
+        start, goal = (_r(start[0]), _r(start[1])), (_r(goal[0]), _r(goal[1]))
+        heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
+        vehicles.append({"name": chr(ord("a") + i), "start": name[start], "goal": name[goal], "speed_m_s": 10.0,
+                         "turn_radius_m": 30.0, "initial_heading_deg": _r(heading),
+                         "battery_pct": 100.0 if i == 0 else 35.0})
+    return {"stations": {name[p]: [p[0], p[1]] for p in points}, "vehicles": vehicles}
 
 
 def swept_region(obstacle: Obstacle) -> BaseGeometry:

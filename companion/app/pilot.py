@@ -34,6 +34,7 @@ from companion.errors import (CommandRefused, CompanionError, MissionAborted, Mi
                               primary_error)
 from uav_model.mission import VehicleSpec
 from companion.planning.dwa import OtherUav, Pose, inflated_clearance
+from companion.planning.fleet import Neighbour, choose_other
 from companion.planning.obstacle_field import ObstacleField, ObstacleTrack
 from companion.planning.routes import higher_routes
 from companion.planning.vehicle_planner import TickResult, VehiclePlanner
@@ -413,23 +414,29 @@ class Pilot:
         return min(max(age, 0.0), 5.0) if math.isfinite(age) else 0.0
 
     def _other(self, pose: PoseSample) -> OtherUav | None:
-        return self._nearest_other(pose)[1]
+        """The vehicle the planner reacts to (fleet.choose_other: separation first, then priority)."""
+        chosen = choose_other(pose.x_east_m, pose.y_north_m, self.ctx.rank[self.name], self._neighbours(pose),
+                              self.planner.config)
+        return None if chosen is None else chosen.uav
 
     def _nearest_other(self, pose: PoseSample) -> tuple[str | None, OtherUav | None]:
         """The nearest other vehicle, from its own telemetry, extrapolated to this pose's time."""
-        best: tuple[str | None, OtherUav | None] = (None, None)
-        best_d = math.inf
+        nearest = min(self._neighbours(pose), default=None,
+                      key=lambda n: math.hypot(n.uav.x_m - pose.x_east_m, n.uav.y_m - pose.y_north_m))
+        return (None, None) if nearest is None else (nearest.name, nearest.uav)
+
+    def _neighbours(self, pose: PoseSample) -> list[Neighbour]:
+        """Every other vehicle with telemetry, extrapolated to this pose's time."""
+        out = []
         for name, v in self.ctx.vehicles.items():
             p = v.latest_pose() if name != self.name else None
             if p is None:
                 continue
             age = self._age_s(pose, p.t_sim_s, p.t_wall_s, same_link=False)
             x, y = p.x_east_m + p.vx_east_m_s * age, p.y_north_m + p.vy_north_m_s * age
-            d = math.hypot(x - pose.x_east_m, y - pose.y_north_m)
-            if d < best_d:
-                parked = name in self.ctx.arrived
-                best, best_d = (name, OtherUav(x, y, p.vx_east_m_s, p.vy_north_m_s, arrived=parked)), d
-        return best
+            out.append(Neighbour(name, self.ctx.rank[name],
+                                 OtherUav(x, y, p.vx_east_m_s, p.vy_north_m_s, arrived=name in self.ctx.arrived)))
+        return out
 
     def _traffic(self) -> dict[str, TrafficReport]:
         """Each moving obstacle's latest report, preferring this vehicle's own link."""

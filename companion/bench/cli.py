@@ -50,10 +50,12 @@ def _positive_float(text: str) -> float:
 
 def _variant_list(text: str) -> tuple[str, ...]:
     chosen = tuple(v.strip() for v in text.split(",") if v.strip())
-    unknown = [v for v in chosen if v not in VARIANTS]
+    from companion.bench.orca import BASELINES  # numpy and the planner: only when variants are chosen
+    known = VARIANTS + BASELINES
+    unknown = [v for v in chosen if v not in known]
     if unknown or not chosen:
         raise argparse.ArgumentTypeError(f"unknown variant(s) {', '.join(unknown) or '(none given)'}; "
-                                         f"choose from {', '.join(VARIANTS)}")
+                                         f"choose from {', '.join(known)}")
     if len(set(chosen)) != len(chosen):
         raise argparse.ArgumentTypeError(f"a variant is listed twice: {text}")
     return chosen
@@ -62,7 +64,8 @@ def _variant_list(text: str) -> tuple[str, ...]:
 def configure(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     add_common_arguments(parser, scenarios=120, why=", as the paper's Table IV", out="bench_s<seed>_n<N>")
     parser.add_argument("--variants", type=_variant_list, default=DEFAULT_VARIANTS, metavar="V[,V...]",
-                        help=f"comma-separated planner variants (default {','.join(DEFAULT_VARIANTS)})")
+                        help=f"comma-separated planner variants (default {','.join(DEFAULT_VARIANTS)}); "
+                             "baseline: orca (ORCA via pyrvo, the orca extra)")
     parser.set_defaults(handler=main)
     return parser
 
@@ -89,6 +92,8 @@ def add_common_arguments(parser: argparse.ArgumentParser, *, scenarios: int, why
     parser.add_argument("--plant", choices=("multicopter", "unicycle"), default=None,
                         help="the scenarios' dynamics (default: the scenario config's, multicopter); "
                              "unicycle is the paper's ideal vehicle, for its Table IV")
+    parser.add_argument("--vehicles", type=positive_int, default=None, metavar="N",
+                        help="vehicles per scenario, 2 to 8 (default: the scenario config's, 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -170,6 +175,12 @@ def fly(args: argparse.Namespace, out: Path, variants: Sequence[str], weight_set
     config = scenario_config(args.scenario_config)
     if args.plant is not None:
         config = dataclasses.replace(config, plant=args.plant)
+    if args.vehicles is not None:
+        from companion.scenarios import ScenarioError
+        try:
+            config = dataclasses.replace(config, vehicles=args.vehicles)
+        except ScenarioError as exc:
+            raise BadInput(str(exc)) from None
     out = make_out_dir(out)
     execute.clear_failures(out)
     with open_pool(spec) as pool:

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from companion.bench.diagnose import diagnose, hold_ticks
+from companion.bench.orca import BASELINES, ROUTE_VARIANT, simulate_orca
 from companion.bench.executors import ExecutorError, ExecutorSpec, Pool, open_pool
 from companion.bench.table import run_row
 from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
@@ -83,13 +84,14 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
     bounds = {v.name: vehicle_lower_bound_s(scenario.mission, v.name) for v in scenario.mission.vehicles}
     for k, (variant, weights) in enumerate(task.runs()):
         mission = scenario.mission if weights is None else weights.apply(scenario.mission)
-        routes = scenario.routes if variant_needs_route(variant) else {}
+        routes = scenario.routes if variant in BASELINES or variant_needs_route(variant) else {}
         row, result = _fly(task, scenario.doc["name"], mission, variant, routes, bounds)
         rows.append(_weighted(row, weights))
         if not task.artefacts:
             continue
         if not row["success"]:
-            doc = with_variant(scenario.doc if weights is None else weights.apply_doc(scenario.doc), variant)
+            doc = with_variant(scenario.doc if weights is None else weights.apply_doc(scenario.doc),
+                               ROUTE_VARIANT if variant in BASELINES else variant)
             files += _failure_files(failure_dir_name(variant, task.seed, task.index, weights), doc, rows[-1], result)
         if task.example and k == 0 and result is not None:
             files.append((EXAMPLE_NAME, _png(result, f"{scenario.doc['name']} - {variant}")))
@@ -105,7 +107,10 @@ def _fly(task: ScenarioTask, name: str, mission: Any, variant: str, routes: dict
     """One run as a row (and its result, None when it did not fly)."""
     started = time.perf_counter()
     try:
-        result = simulate(mission, variant, routes=routes, lower_bounds_s=bounds)
+        if variant in BASELINES:
+            result = simulate_orca(mission, routes=routes, lower_bounds_s=bounds)
+        else:
+            result = simulate(mission, variant, routes=routes, lower_bounds_s=bounds)
         summary = result.summary.summary_dict()
         facts = {"hold_ticks": hold_ticks(result.ticks), **diagnose(result.mission, result.tracks, summary)}
         return run_row(task.seed, task.index, name, variant, summary,

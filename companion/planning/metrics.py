@@ -184,6 +184,7 @@ class RunSummary:
     planner_ms_per_tick: float | None
     duration_s: float
     extra: dict[str, Any] = field(default_factory=dict)
+    pairs: dict[str, "PairMetrics"] = field(default_factory=dict)  # every pair, higher priority first
 
     def summary_dict(self) -> dict[str, Any]:
         """The summary.json of ``companion simulate`` / ``run`` (JSON-ready)."""
@@ -199,6 +200,7 @@ class RunSummary:
             "los_blocked_fraction": self.los_blocked_fraction,
             "crossing_occluded": self.crossing_occluded,
             "planner_ms_per_tick": self.planner_ms_per_tick,
+            "pairs": {name: {k: getattr(p, k) for k in PairMetrics.__slots__} for name, p in self.pairs.items()},
         }
         out.update(self.extra)
         return _json_ready(out)
@@ -308,27 +310,16 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
 
     t_all = np.unique(np.concatenate([tracks[n].t_s for n in names]))
     min_sep = los_fraction = occluded = None
+    pairs = {}
     if len(names) >= 2:
-        xy = {n: tracks[n].at(t_all) for n in names}
-        sep_steps = []
-        for i, a in enumerate(names):
-            for b in names[i + 1:]:
-                (ax, ay), (bx, by) = xy[a], xy[b]
-                if len(t_all) > 1:
-                    d = pair_min_distance(ax[:-1], ay[:-1], ax[1:], ay[1:], bx[:-1], by[:-1], bx[1:], by[1:])
-                else:
-                    d = np.hypot(ax - bx, ay - by)
-                sep_steps.append(d)
-        sep = np.min(np.stack(sep_steps), axis=0)
+        pairs, sep = _pair_metrics(geometry, names, {n: tracks[n].at(t_all) for n in names}, t_all)
         min_sep = float(sep.min())
         close = np.flatnonzero(sep < safety.min_separation_m)
         if close.size:
             events.append((float(t_all[min(close[0] + 1, len(t_all) - 1)]), 1, "separation"))
-        # Sight metrics are the paper's pair: the two vehicles first in priority.
-        (ax, ay), (bx, by) = xy[names[0]], xy[names[1]]
-        blocked = geometry.sight_blocked(ax, ay, bx, by, t_all)
-        los_fraction = float(blocked.mean())
-        occluded = bool(blocked[int(np.argmin(np.hypot(ax - bx, ay - by)))])
+        # The headline sight metrics are the paper's pair: the two vehicles first in priority.
+        headline = pairs[pair_name(names[0], names[1])]
+        los_fraction, occluded = headline.los_blocked_fraction, headline.crossing_occluded
 
     reason = None
     fail_t = None
@@ -348,8 +339,42 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
         reason=reason, failure_t_s=fail_t, vehicles=per_vehicle, min_separation_m=min_sep,
         los_blocked_fraction=los_fraction, crossing_occluded=occluded,
         planner_ms_per_tick=float(np.mean(all_ms)) if all_ms else None,
-        duration_s=float(t_all[-1] - t_all[0]),
+        duration_s=float(t_all[-1] - t_all[0]), pairs=pairs,
     )
+
+
+def pair_name(a: str, b: str) -> str:
+    """A pair's key: the higher-priority vehicle first."""
+    return f"{a}-{b}"
+
+
+@dataclass(frozen=True, slots=True)
+class PairMetrics:
+    """Separation and sightline of one pair of vehicles over the whole flight."""
+
+    min_separation_m: float
+    los_blocked_fraction: float  # of the common sample times, the sight line crossed a true footprint
+    crossing_occluded: bool  # the sight line was blocked at the pair's closest approach
+
+
+def _pair_metrics(geometry: TruthGeometry, names: Sequence[str], xy: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                  t_all: np.ndarray) -> tuple[dict[str, PairMetrics], np.ndarray]:
+    """Every pair (in priority order) on the merged times, and the fleet's closest approach per step."""
+    pairs: dict[str, PairMetrics] = {}
+    sep_steps = []
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            (ax, ay), (bx, by) = xy[a], xy[b]
+            if len(t_all) > 1:
+                d = pair_min_distance(ax[:-1], ay[:-1], ax[1:], ay[1:], bx[:-1], by[:-1], bx[1:], by[1:])
+            else:
+                d = np.hypot(ax - bx, ay - by)
+            sep_steps.append(d)
+            blocked = geometry.sight_blocked(ax, ay, bx, by, t_all)
+            pairs[pair_name(a, b)] = PairMetrics(
+                min_separation_m=float(d.min()), los_blocked_fraction=float(blocked.mean()),
+                crossing_occluded=bool(blocked[int(np.argmin(np.hypot(ax - bx, ay - by)))]))
+    return pairs, np.min(np.stack(sep_steps), axis=0)
 
 
 def vehicle_lower_bound_s(mission: "Mission", name: str) -> float | None:

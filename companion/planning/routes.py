@@ -11,6 +11,8 @@ Discs of radius ``min_separation + 2 cells`` around the later vehicle's own star
 exempt: stations are shared, and meeting there is separated in time, which is the local
 planner's job. The line is geometric, so the direction each vehicle flies does not matter.
 
+With more than two vehicles no route is constrained (see plan_routes).
+
 If that makes the later route impossible, the constraint is relaxed, and the Route records what
 held:
 
@@ -84,7 +86,7 @@ def plan_routes(mission: Mission, *, max_expansions: int | None = None) -> dict[
     base = rasterise(world, resolution_m)
     routes: dict[str, Route] = {}
     for vehicle in mission.by_priority:
-        earlier = list(routes.values())
+        earlier = list(routes.values()) if priority_rule_applies(mission) else []
         failure: NoPath | None = None
         ladder = _constraint_ladder(earlier, (vehicle.start_enu_m, vehicle.goal_enu_m),
                                     mission.safety.min_separation_m, resolution_m, world.geofence)
@@ -143,8 +145,19 @@ def detour_route(grid: OccupancyGrid, world: World, from_xy: tuple[float, float]
     raise AssertionError("the constraint ladder always ends with 'none'")
 
 
+def priority_rule_applies(mission: Mission) -> bool:
+    """The paper's rule is for a pair. With more vehicles whose routes must cross (a fleet flying
+    across the square), it pushes each later route around the ends of the earlier ones, through
+    the geofence margin; their routes are planned freely and the local planner keeps the
+    separation (:mod:`companion.planning.fleet`)."""
+    return len(mission.vehicles) <= 2
+
+
 def higher_routes(mission: Mission, routes: Mapping[str, Route], name: str) -> list[Route]:
-    """The routes of the vehicles planned before ``name`` (higher priority), in that order."""
+    """The routes of the vehicles planned before ``name`` (higher priority), in that order; none
+    when the priority rule does not apply."""
+    if not priority_rule_applies(mission):
+        return []
     order = [v.name for v in mission.by_priority]
     return [routes[n] for n in order[:order.index(name)] if n in routes]
 

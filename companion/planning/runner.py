@@ -28,6 +28,7 @@ import numpy as np
 from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to_ned, ned_to_enu, ned_yaw_to_enu_heading
 from uav_model.mission import Mission
 from companion.planning.dwa import OtherUav, Pose
+from companion.planning.fleet import Neighbour, choose_other
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.coordination import plan_coordinated
 from companion.planning.vehicle_planner import VARIANTS as PLANNER_VARIANTS
@@ -35,7 +36,8 @@ from companion.planning.vehicle_planner import TickResult, VehiclePlanner, varia
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
 from companion.planning.routes import Route, higher_routes, plan_routes
-from uav_model.plant import HOVER, KinematicState, VelocityCommand, VelocityFrame, initial_state, limits_for, step_for
+from uav_model.plant import (HOVER, KinematicState, PlantLimits, VelocityCommand, VelocityFrame, initial_state,
+                             limits_for, step_for)
 
 if TYPE_CHECKING:
     from companion.planning.timed import TimedRoute
@@ -88,6 +90,22 @@ def _other(s: KinematicState, parked: bool = False) -> OtherUav:
     return OtherUav(*_xy(s), vx, vy)
 
 
+def start_states(mission: Mission) -> tuple[dict[str, PlantLimits], dict[str, KinematicState]]:
+    """Each vehicle's plant limits and its state at t = 0, at its start station."""
+    limits = {v.name: limits_for(mission.plant, speed_m_s=v.speed_m_s, max_yaw_rate_rad_s=v.max_yaw_rate_rad_s,
+                                 max_accel_m_s2=v.max_accel_m_s2) for v in mission.vehicles}
+    states: dict[str, KinematicState] = {}
+    for v in mission.by_priority:
+        h = v.spawn_heading_rad
+        # Already at cruise speed on the initial heading: the paper's UAVs depart at constant v.
+        north, east, down = enu_to_ned(v.start_enu_m[0], v.start_enu_m[1], v.cruise_alt_m)
+        vn, ve, _ = enu_to_ned(v.speed_m_s * math.cos(h), v.speed_m_s * math.sin(h))
+        states[v.name] = initial_state(mission.plant, KinematicState(
+            north_m=north, east_m=east, down_m=down, vn_m_s=vn, ve_m_s=ve, yaw_rad=enu_heading_to_ned_yaw(h)),
+            limits[v.name])
+    return limits, states
+
+
 def simulate(mission: Mission, variant: str | None = None, *,
              routes: dict[str, Route] | None = None,
              lower_bounds_s: dict[str, float | None] | None = None,
@@ -115,23 +133,14 @@ def simulate(mission: Mission, variant: str | None = None, *,
                                              earlier=higher_routes(mission, routes, v.name),
                                              timed_route=timed_routes.get(v.name)) for v in vehicles}
     step = step_for(mission.plant)
-    limits = {v.name: limits_for(mission.plant, speed_m_s=v.speed_m_s, max_yaw_rate_rad_s=v.max_yaw_rate_rad_s,
-                                 max_accel_m_s2=v.max_accel_m_s2) for v in vehicles}
-    states: dict[str, KinematicState] = {}
-    for v in vehicles:
-        h = v.spawn_heading_rad
-        # Already at cruise speed on the initial heading: the paper's UAVs depart at constant v.
-        north, east, down = enu_to_ned(v.start_enu_m[0], v.start_enu_m[1], v.cruise_alt_m)
-        vn, ve, _ = enu_to_ned(v.speed_m_s * math.cos(h), v.speed_m_s * math.sin(h))
-        states[v.name] = initial_state(mission.plant, KinematicState(
-            north_m=north, east_m=east, down_m=down, vn_m_s=vn, ve_m_s=ve, yaw_rad=enu_heading_to_ned_yaw(h)),
-            limits[v.name])
+    limits, states = start_states(mission)
     field = ObstacleField.from_world(mission.world)
     truth = TruthGeometry(mission.world)
     dt = mission.planner.dt_s
     n_ticks = int(math.floor(mission.safety.time_limit_s / dt + 1e-9))
     names = [v.name for v in vehicles]
     others = {n: [m for m in names if m != n] for n in names}
+    rank = {n: i for i, n in enumerate(names)}
     # rows[i] = every vehicle's (x, y) at t = i * dt; an arrived vehicle repeats its last row.
     rows = [[_xy(states[n]) for n in names]]
     last_row = {n: None for n in names}  # the row of arrival
@@ -147,12 +156,10 @@ def simulate(mission: Mission, variant: str | None = None, *,
         commands = {}
         for name in list(active):
             own = states[name]
-            candidates = others[name]
-            nearest = candidates[0] if len(candidates) == 1 else min(
-                candidates, default=None,
-                key=lambda n: (states[n].east_m - own.east_m) ** 2 + (states[n].north_m - own.north_m) ** 2)
+            neighbours = [Neighbour(n, rank[n], _other(states[n], parked=n not in active)) for n in others[name]]
             # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
-            other = None if nearest is None else _other(states[nearest], parked=nearest not in active)
+            chosen = choose_other(*_xy(own), rank[name], neighbours, planners[name].config)
+            other = None if chosen is None else chosen.uav
             planner = planners[name]
             result = planner.tick(_pose(own), other, snapshot, t)
             if planner.replan_due:  # no progress for a while: a new route from here, at once
@@ -171,22 +178,18 @@ def simulate(mission: Mission, variant: str | None = None, *,
             states[name] = step(states[name], command, limits[name], dt)
         rows.append([_xy(states[n]) for n in names])
         if len(rows) - 1 - checked >= _CHECK_EVERY_TICKS:
-            bad = _first_violation(mission, truth, rows, checked, dt)
+            bad = first_violation(mission, truth, rows, checked, dt)
             if bad is not None:
                 break
             checked = len(rows) - 1
     if bad is None and len(rows) - 1 > checked:
-        bad = _first_violation(mission, truth, rows, checked, dt)
+        bad = first_violation(mission, truth, rows, checked, dt)
     if bad is not None:  # stop at the step that broke a rule: drop what was flown after it
         del rows[bad + 2:]
         for name in names:
             del ticks[name][bad + 1:]
 
-    xy = np.asarray(rows)  # (T, V, 2)
-    tracks = {}
-    for i, name in enumerate(names):
-        end = len(xy) - 1 if last_row[name] is None else min(last_row[name], len(xy) - 1)
-        tracks[name] = Track(dt * np.arange(end + 1), xy[:end + 1, i, 0], xy[:end + 1, i, 1])
+    tracks = tracks_from_rows(names, rows, last_row, dt)
     planner_ms = {n: [r.planner_ms for r in ticks[n] if not r.arrived] for n in ticks}
     summary = summarize(mission, tracks, routes=routes, planner_ms=planner_ms, geometry=truth,
                         lower_bounds_s=lower_bounds_s)
@@ -198,7 +201,17 @@ def simulate(mission: Mission, variant: str | None = None, *,
     return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started)
 
 
-def _first_violation(mission: Mission, truth: TruthGeometry, rows: list, first: int, dt: float) -> int | None:
+def tracks_from_rows(names: list[str], rows: list, last_row: dict[str, int | None], dt: float) -> dict[str, Track]:
+    """Per-vehicle tracks from rows of every vehicle's (x, y) per tick; a track ends at its arrival row."""
+    xy = np.asarray(rows)  # (T, V, 2)
+    tracks = {}
+    for i, name in enumerate(names):
+        end = len(xy) - 1 if last_row[name] is None else min(last_row[name], len(xy) - 1)
+        tracks[name] = Track(dt * np.arange(end + 1), xy[:end + 1, i, 0], xy[:end + 1, i, 1])
+    return tracks
+
+
+def first_violation(mission: Mission, truth: TruthGeometry, rows: list, first: int, dt: float) -> int | None:
     """The first step i >= first (rows[i] -> rows[i + 1]) that breaks a safety rule, or None.
 
     Checked in batches for speed; metrics.summarize then names the rule from the tracks.

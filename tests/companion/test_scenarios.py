@@ -17,7 +17,7 @@ from shapely.geometry import LineString, Point
 
 from uav_model.mission import load_mission, parse_mission
 from companion.planning.routes import plan_routes
-from companion.scenarios import (ScenarioConfig, ScenarioError, generate, generate_scenario,
+from companion.scenarios import (ScenarioConfig, ScenarioError, fleet_layout, generate, generate_mission, generate_scenario,
                                  station_clearances_m, with_variant, write_mission_yaml)
 
 CFG = ScenarioConfig()
@@ -139,3 +139,31 @@ def test_written_yaml_replays_the_same_mission_with_its_variant(tmp_path):
     assert mission.planner.variant == "bdwa"
     assert yaml.safe_load(path.read_text()) == doc
     assert generate(3, 1)["planner"] == {"inflation_ratio": 0.2}  # with_variant copies, never mutates
+
+
+def test_two_vehicles_are_the_papers_pair():
+    side = ScenarioConfig().side_m
+    layout = fleet_layout(side, 2)
+    assert layout["stations"] == {"A": [0.0, 0.0], "B": [side, side]}
+    assert [(v["name"], v["start"], v["goal"], v["initial_heading_deg"], v["battery_pct"])
+            for v in layout["vehicles"]] == [("a", "A", "B", 45.0, 100.0), ("b", "B", "A", -135.0, 35.0)]
+
+
+@pytest.mark.parametrize("count", [3, 4, 8])
+def test_n_vehicles_fly_across_the_square_to_distinct_goals(count):
+    doc = generate(2026, 1, ScenarioConfig(vehicles=count))
+    mission = generate_mission(2026, 1, ScenarioConfig(vehicles=count))
+    side = ScenarioConfig().side_m
+    assert [v.name for v in mission.by_priority] == [chr(ord("a") + i) for i in range(count)]
+    goals = [v["goal"] for v in doc["vehicles"]]
+    assert len(set(goals)) == count
+    for v in mission.vehicles:
+        (sx, sy), (gx, gy) = v.start_enu_m, v.goal_enu_m
+        assert min(sx, sy, side - sx, side - sy) == pytest.approx(0.0, abs=0.01)  # on the perimeter
+        assert (sx + gx, sy + gy) == pytest.approx((side, side), abs=0.02)  # opposite through the centre
+
+
+def test_vehicle_count_is_checked():
+    for bad in (1, 9):
+        with pytest.raises(ScenarioError, match="vehicles"):
+            ScenarioConfig(vehicles=bad)
