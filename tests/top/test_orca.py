@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-pytest.importorskip("pyrvo")  # the orca extra; also in the test extra
+pytest.importorskip("pyrvo", reason="the orca extra is not installed: pip install -e '.[orca]'")  # .ci/run installs it
 
 from companion.bench.execute import run_bench  # noqa: E402
 from companion.bench.orca import ORCA, simulate_orca  # noqa: E402
