@@ -25,6 +25,7 @@ from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.routes import detour_route
 from uav_model.mission import Normalisation, SightlineCritic
 from uav_model.world import World
+from uav_model.plant import tracking_margin_m
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission, VehicleSpec
@@ -177,7 +178,10 @@ class VehiclePlanner:
         goals_from = spec.goals
         sightline = spec.sightline and mission.by_priority[0].name != vehicle.name
         nodes = variant_nodes(variant, vehicle, route)
-        fence = tuple(float(v) for v in mission.world.geofence.bounds)
+        # Keep-in box: the geofence, less what the plant may stray from the unicycle rollouts.
+        inset = tracking_margin_m(mission.plant, vehicle.speed_m_s)
+        x0, y0, x1, y1 = (float(v) for v in mission.world.geofence.bounds)
+        fence = (x0 + inset, y0 + inset, x1 - inset, y1 - inset)
         window = window_settings(mission, variant)
         if not sightline:
             del window["w_s"]  # the first in priority flies without the term

@@ -68,8 +68,15 @@ def inside_fence_by(px: np.ndarray, py: np.ndarray, fence: tuple[float, float, f
 
 
 def fence_ok(px: np.ndarray, py: np.ndarray, fence: tuple[float, float, float, float], here: float) -> np.ndarray:
-    """(S, K + 1): rollout points inside the fence, or no further out than the pose is now."""
-    return inside_fence_by(px, py, fence) >= min(here, 0.0) - 1e-9
+    """(S, K + 1): rollout points inside the fence, or no further out than the pose is now.
+
+    Outside, a rollout must also end further in than the pose: "no further out" alone lets a
+    plant that trails its rollouts ratchet outward a little every tick along the fence."""
+    depth = inside_fence_by(px, py, fence)
+    ok = depth >= min(here, 0.0) - 1e-9
+    if here < 0.0:
+        ok &= depth[:, -1:] > here
+    return ok
 
 
 def legal_rollouts(ok_by_rule: dict[Rule, np.ndarray], config: DwaConfig) -> np.ndarray:
