@@ -158,9 +158,14 @@ def test_moving_obstacles_over_connect_need_no_clock_flag(sitl, companion, tmp_p
     # The README's command: an external sim-bridge, --connect per vehicle, no --shared-clock. The
     # companion finds that both vehicles stamp with the stub's clock (which moves the obstacles),
     # so tracks and the obstacles' truth share a time base: no false collision.
-    stub = sitl(MOVING, speedup=20)
+    # On the unicycle, as the reference: this test is about the clock, not the multicopter's approach.
+    mission = tmp_path / "moving_unicycle.yaml"
+    text = MOVING.read_text()
+    assert "plant:" not in text
+    mission.write_text(text.replace("\nvehicles:", "\nplant: unicycle\nvehicles:", 1))
+    stub = sitl(mission, speedup=20)
     stub.wait_for_clock(60.0)  # the stub has run a while: mission time and the stub's clock differ
-    result = _run(companion, MOVING, stub, tmp_path / "out", timeout_s=180)
+    result = _run(companion, mission, stub, tmp_path / "out", timeout_s=180)
     assert "clock: one sim clock for all vehicles (detected)" in result.stdout
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     stub.assert_success()
