@@ -220,7 +220,7 @@ class UplinkCut:
 def _fly_with_uplink_cut(sitl, companion, *args: str, cut_after_s: float, cut_s: float):
     """Fly SMALL through an UplinkCut relay; cut both uplinks ``cut_after_s`` sim seconds after
     departure for ``cut_s`` seconds of wall time. Returns (stub, run)."""
-    stub = sitl(SMALL, speedup=20)
+    stub = sitl(SMALL, speedup=20, extra=("--param", "COM_OBL_RC_ACT=0"))  # PX4's default, not the harness's
     companion_base = free_udp_port_block(2)
     relay = UplinkCut([stub.api_port_base, stub.api_port_base + 1], [companion_base, companion_base + 1])
     try:
