@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import functools
 import json
 import logging
@@ -23,12 +24,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from companion.sitl.embedded import StubOptions, embedded_stub
+from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_base, embedded_stub
 from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
+from companion.app.preflight import PreflightSettings
 from companion.app.runner import RunResult, run_mission, summary_table
-from companion.errors import CompanionError
-from companion.cli_common import EXIT_FAILED, EXIT_OK, BadInput, add_variant_option, bad_input, output_dir
+from companion.errors import CompanionError, PreflightRefused
+from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_variant_option, bad_input,
+                                  output_dir)
 from uav_model.mission import MissionError, load_mission, mission_schema, shared_goals
 
 if TYPE_CHECKING:
@@ -98,16 +101,24 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--blackout", type=_blackout, action="append", default=[], metavar="START:DURATION",
                    help="embedded stub: API link blackout in sim seconds (repeatable), e.g. 150:3")
     p.add_argument("--seed", type=int, default=0, help="embedded stub: fault-injection seed")
-    p.add_argument("--port-base", type=_port, default=14540,
-                   help="embedded stub: vehicle i talks to PORT_BASE + i (default 14540)")
+    p.add_argument("--port-base", type=_port, default=None,
+                   help=f"embedded stub: vehicle i talks to PORT_BASE + i (default: {DEFAULT_PORT_BASE}, or the next "
+                        "free block when another autopilot is already there)")
     p.add_argument("--gcs-port", type=_port, default=14550, help="embedded stub: GCS link port (default 14550)")
     p.add_argument("--progress-every", type=_positive, default=20.0, metavar="S",
                    help="a progress line per vehicle every S sim seconds (default 20)")
     p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
-    p.add_argument("--shared-clock", action="store_true",
-                   help="with --connect: every vehicle stamps telemetry with one sim clock, the one that moves the "
-                        "mission's obstacles (an external sim-bridge); tracks and scoring then use it, as with the "
-                        "embedded stub")
+    p.add_argument("--shared-clock", action="store_true", default=None,
+                   help="with --connect: assert that every vehicle stamps telemetry with one sim clock (an external "
+                        "sim-bridge). Not needed: the companion detects it when the vehicles' clocks agree")
+    p.add_argument("--keep-failsafe", action="store_true",
+                   help="leave the autopilot's COM_OBL_RC_ACT as it is (PX4's default: Return on an offboard loss) "
+                        "instead of setting 5 (Hold); the companion resumes OFFBOARD from either")
+    p.add_argument("--plan-from-current", action="store_true",
+                   help="plan from where each vehicle is and its heading, instead of refusing a vehicle that is "
+                        "away from its mission station")
+    p.add_argument("--station-tolerance", type=_positive, default=None, metavar="M",
+                   help="how far a vehicle may be from its mission station (default: twice the arrival radius)")
     p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S", help="wall seconds (default 15)")
     p.add_argument("--in-process", action="store_true",
                    help="no stub process and no sockets: fly the stub's vehicles inside the companion on one sim "
@@ -295,8 +306,11 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     inproc = _inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out)
     _quiet_mavsdk(out)
-    settings = RunSettings(shared_clock=conns is None or args.shared_clock, connect_timeout_s=args.connect_timeout,
-                           progress_every_s=args.progress_every, land=not args.no_land)
+    settings = RunSettings(shared_clock=True if conns is None else args.shared_clock,
+                           connect_timeout_s=args.connect_timeout, progress_every_s=args.progress_every,
+                           land=not args.no_land, failsafe_hold=not args.keep_failsafe)
+    checks = PreflightSettings(station_tolerance_m=args.station_tolerance, plan_from_current=args.plan_from_current,
+                               set_failsafe_hold=not args.keep_failsafe)
     stub = None
     if conns is None and inproc is None:
         stub = StubOptions(speedup=args.speedup or 1.0, api_port_base=args.port_base, gcs_port=args.gcs_port,
@@ -307,7 +321,10 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
         print("companion: note: --speedup/--loss/--latency-ms/--blackout only apply to the embedded stub; "
               "ignored with --connect", file=sys.stderr)
     try:
-        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc))
+        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks))
+    except PreflightRefused as exc:
+        print(f"companion: refused: {exc}; nothing was armed", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except CompanionError as exc:
         print(f"companion: {exc}", file=sys.stderr)
         return EXIT_FAILED
@@ -336,7 +353,8 @@ def _inprocess_options(args: argparse.Namespace) -> InProcessOptions:
 
 
 async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions | None,
-               settings: RunSettings, out: Path | None, inproc: InProcessOptions | None = None) -> RunResult:
+               settings: RunSettings, out: Path | None, inproc: InProcessOptions | None = None,
+               checks: PreflightSettings = PreflightSettings()) -> RunResult:
     started = time.monotonic()
     report = _printer(started)
     stop = asyncio.Event()
@@ -363,13 +381,17 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
             report(f"flying in process (no stub process, no sockets), {pace}")
             async with open_inprocess_fleet(plan.mission, inproc) as fleet:
                 return await run_mission(plan, fleet.connections(), settings, out, report, stop, extra,
-                                         open_vehicle=fleet.open_vehicle)
+                                         open_vehicle=fleet.open_vehicle, checks=checks)
         if stub is None:
             assert conns is not None
-            return await run_mission(plan, conns, settings, out, report, stop, extra)
+            return await run_mission(plan, conns, settings, out, report, stop, extra, checks=checks)
+        base, note = await choose_port_base(len(plan.mission.vehicles), stub.api_port_base, stub.gcs_port)
+        if note:
+            report(note)
+        stub = dataclasses.replace(stub, api_port_base=base)
         report(f"starting the embedded sim_bridge at {stub.speedup:g}x on 127.0.0.1:{stub.api_port_base}+i")
         async with embedded_stub(plan.mission, stub) as embedded_conns:
-            return await run_mission(plan, embedded_conns, settings, out, report, stop, extra)
+            return await run_mission(plan, embedded_conns, settings, out, report, stop, extra, checks=checks)
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)

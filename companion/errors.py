@@ -11,6 +11,8 @@ Raised, never printed; ``str()`` is one line that names the vehicle and says wha
      │                             (arm, takeoff, offboard start, hold, land, param set ...);
      │                             carries ``vehicle``, ``command``, ``result`` and ``retryable``
      ├── MissionUploadError        upload or download failed, or the read-back differs
+     ├── PreflightRefused          a pre-flight check failed before anything armed (CLI exit 2)
+     │    └── LinkConflict         two autopilots answer as one system on a link, or the port is taken
      └── MissionAborted            a safety monitor or the operator stopped the flight;
                                    carries the SPEC §2 failure ``reason`` (``link_lost``,
                                    ``interrupted``, ``geofence``, ``separation`` ...)
@@ -71,6 +73,14 @@ class CommandRefused(CompanionError):
 
 class MissionUploadError(CompanionError):
     """The route could not be uploaded, downloaded, or the read-back differs from it."""
+
+
+class PreflightRefused(CompanionError):
+    """A pre-flight check failed: nothing was armed. The message carries the numbers and the fix."""
+
+
+class LinkConflict(PreflightRefused):
+    """Two autopilots answer as one system id on one link, or the link's port is taken."""
 
 
 class MissionAborted(CompanionError):

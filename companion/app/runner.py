@@ -12,6 +12,7 @@ tracks are scored by the shared metrics module, exactly as ``companion simulate`
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import math
 import time
@@ -26,8 +27,10 @@ import numpy as np
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings
+from companion.app.preflight import PreflightSettings
+from companion.app.readiness import get_ready
 from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
-                              VehicleNotReady, primary_error)
+                              PreflightRefused, VehicleNotReady, primary_error)
 from uav_model.mission import VehicleSpec
 from companion.planning.metrics import RunSummary, Track, summarize
 from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
@@ -59,15 +62,18 @@ async def _watch_stop(stop: asyncio.Event) -> None:
 async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings: RunSettings,
                       out_dir: Path | None, report: Callable[[str], None],
                       stop: asyncio.Event | None = None, extra: Mapping[str, Any] | None = None,
-                      open_vehicle: VehicleOpener | None = None) -> RunResult:
+                      open_vehicle: VehicleOpener | None = None,
+                      checks: PreflightSettings = PreflightSettings()) -> RunResult:
     """Fly ``plan`` over the given MAVSDK connection URLs (vehicle name -> URL), or through
-    ``open_vehicle`` (e.g. the in-process fleet's) when given."""
+    ``open_vehicle`` (e.g. the in-process fleet's) when given. The pre-flight checks run before
+    anything arms; a refusal is raised (PreflightRefused), not returned."""
     mission = plan.mission
     stop = stop or asyncio.Event()
     started = time.monotonic()
     outcomes: dict[str, PilotOutcome] = {}
     reason: str | None = None
     message: str | None = None
+    shared_clock = False
     with FlightLog(out_dir) as log:
         try:
             async with AsyncExitStack() as stack:
@@ -79,7 +85,9 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
                         connect_timeout_s=settings.connect_timeout_s))
                     vehicles[spec.name] = await stack.enter_async_context(opened)
                     report(f"{spec.name}: connected on {url} (system id {spec.system_id})")
-                ctx = FlightContext(plan, settings, log, vehicles, report)
+                ready = await get_ready(plan, vehicles, settings, checks, report)
+                plan, shared_clock = ready.plan, ready.shared_clock
+                ctx = FlightContext(plan, settings, log, vehicles, report, shared_clock=ready.shared_clock)
                 pilots = [Pilot(ctx, spec) for spec in mission.by_priority]
                 outcomes = {p.name: p.outcome for p in pilots}
                 try:
@@ -99,11 +107,13 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
                     raise primary_error(group) from None
         except MissionAborted as exc:
             reason, message = exc.reason, str(exc)
+        except PreflightRefused:
+            raise
         except CompanionError as exc:
             reason, message = _reason_of(exc), str(exc)
         log.flush()
 
-        summary = _score(plan, log, outcomes, reason)
+        summary = _score(plan, log, outcomes, reason, shared_clock)
         doc = _summary_doc(plan, summary, outcomes, reason, message, time.monotonic() - started, extra)
         # Seconds of pure work: in a worker thread, and only once the vehicles are done with.
         doc["occlusion_certificate"] = await asyncio.to_thread(_certificate_doc, plan)
@@ -137,12 +147,19 @@ def _tracks(log: FlightLog) -> dict[str, Track]:
 
 
 def _score(plan: FlightPlan, log: FlightLog, outcomes: Mapping[str, PilotOutcome],
-           reason: str | None) -> RunSummary | None:
+           reason: str | None, shared_clock: bool) -> RunSummary | None:
     tracks = _tracks(log)
     if len(tracks) < len(plan.mission.vehicles):
         return None  # some vehicle never departed: nothing was flown to score
     failure_t = max(float(tr.t_s[-1]) for tr in tracks.values()) if reason else None
-    return summarize(plan.mission, tracks, routes=plan.routes,
+    mission = plan.mission
+    if shared_clock:
+        # Tracks keep the clock that moves the obstacles (it may have run for a long time before
+        # this flight): the time limit counts from the departure, not from the stub's start.
+        t0 = min(float(tr.t_s[0]) for tr in tracks.values())
+        mission = dataclasses.replace(mission, safety=dataclasses.replace(
+            mission.safety, time_limit_s=mission.safety.time_limit_s + t0))
+    return summarize(mission, tracks, routes=plan.routes,
                      planner_ms={n: o.planner_ms for n, o in outcomes.items()},
                      failure=reason, failure_t_s=failure_t)
 

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-from companion.errors import LinkError
+from companion.errors import LinkConflict, LinkError
+from companion.vehicle.link_probe import listen
 from uav_model.mission import Mission
 
 READY_MARK = b"running at"
@@ -29,12 +30,16 @@ READY_MARK = b"running at"
 # take-off (PX4: 11 s of sim time after arming, 0.55 s of wall time at 20x, less than the
 # companion's arm -> all armed -> take-off sequence over a lossy link).
 COMPANION_COMPAT_PARAMS = ("COM_OBL_RC_ACT=5", "COM_DISARM_PRFLT=-1")
+DEFAULT_PORT_BASE = 14540
+PORT_PROBE_S = 0.3  # wall: an autopilot streams telemetry many times a second
+PORT_BASE_STEP = 20  # the next candidate block (14540, 14560, ...), clear of PX4's GCS port 14550
+PORT_BASE_TRIES = 10
 
 
 @dataclass(frozen=True)
 class StubOptions:
     speedup: float = 1.0
-    api_port_base: int = 14540
+    api_port_base: int | None = None  # None: the first free block from 14540 (choose_port_base)
     gcs_port: int | None = 14550
     loss: float = 0.0
     latency_ms: float = 0.0
@@ -59,6 +64,45 @@ class StubOptions:
         for p in self.params:
             out += ["--param", p]
         return out
+
+
+async def port_busy(port: int) -> str | None:
+    """Why the embedded stub cannot use UDP ``port`` for a vehicle link, or None if it is free
+    and quiet (nobody listening on it, nobody sending to it)."""
+    try:
+        senders = await listen("0.0.0.0", port, PORT_PROBE_S)
+    except OSError as exc:
+        return f"taken by another program ({exc.strerror})"
+    if senders:
+        ids = ", ".join(f"system {sysid} from {h}:{p}" for sysid, addrs in sorted(senders.items()) for h, p in addrs)
+        return f"another autopilot is already sending to it ({ids})"
+    return None
+
+
+async def choose_port_base(count: int, requested: int | None, gcs_port: int | None) -> tuple[int, str | None]:
+    """The embedded stub's API port block: ``requested`` if it is free (LinkConflict naming the
+    port and the --port-base fix otherwise), or the first free block from 14540. Returns the base
+    and a note when it is not the default."""
+    bases = [requested] if requested is not None else [
+        DEFAULT_PORT_BASE + k * PORT_BASE_STEP for k in range(PORT_BASE_TRIES)]
+    first_problem: str | None = None
+    for base in bases:
+        ports = [base + i for i in range(count)]
+        if gcs_port is not None and gcs_port in ports:
+            problem = f"UDP port {gcs_port} is also the GCS port"
+        else:
+            why = await asyncio.gather(*(port_busy(p) for p in ports))
+            problem = next((f"UDP port {p}: {w}" for p, w in zip(ports, why) if w is not None), None)
+        if problem is None:
+            note = None if base == DEFAULT_PORT_BASE else (
+                f"port {DEFAULT_PORT_BASE} busy ({first_problem}); using ports {base}+i" if requested is None else None)
+            return base, note
+        first_problem = first_problem or problem
+        if requested is not None:
+            raise LinkConflict(f"embedded stub: {problem}; pick free ports with --port-base "
+                               f"(e.g. --port-base {requested + PORT_BASE_STEP})")
+    raise LinkConflict(f"embedded stub: no free port block from {DEFAULT_PORT_BASE} ({first_problem}); "
+                       "pick free ports with --port-base")
 
 
 def connections(mission: Mission, api_port_base: int) -> dict[str, str]:

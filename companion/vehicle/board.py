@@ -9,10 +9,41 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 
 from companion.errors import TelemetryLost
-from companion.vehicle.port import PoseSample, TrafficReport, VehicleStatus
+from companion.vehicle.port import FlightMode, PoseSample, TrafficReport, VehicleStatus
+
+# STATUSTEXTs that mean the autopilot took control away because setpoints stopped: PX4's
+# "Failsafe activated" (then RTL or Hold, per COM_OBL_RC_ACT) and the stub's own wording.
+FAILSAFE_TEXTS = ("failsafe activated", "offboard control lost")
+
+
+# Faster than any multicopter this companion flies: a sample this far from the last one is another
+# vehicle's (two systems with one id on the link), not a fast flight.
+JUMP_SPEED_M_S = 60.0
+JUMP_MIN_M = 30.0
+CLOCK_BACKSTEPS = 2  # clock steps back by > 1 s: one is a reboot, two are two clocks interleaved
+# One jump can be a pairing artefact (MAVSDK's position carries no stamp: after a link gap it is
+# paired with the newest attitude); two systems interleaved jump on most samples.
+JUMPS_TO_FLAG = 3
+JUMP_WINDOW = 20  # samples
+
+
+def implausible_jump(prev: PoseSample, x_east_m: float, y_north_m: float, t_sim_s: float) -> str | None:
+    """Why a new sample cannot follow ``prev`` on one vehicle, or None."""
+    d = ((x_east_m - prev.x_east_m) ** 2 + (y_north_m - prev.y_north_m) ** 2) ** 0.5
+    dt = max(t_sim_s - prev.t_sim_s, 0.05)
+    if d > JUMP_MIN_M and d / dt > JUMP_SPEED_M_S:
+        return (f"position jumped {d:.0f} m in {t_sim_s - prev.t_sim_s:.2f} s sim "
+                f"({d / dt:.0f} m/s; no vehicle here flies above {JUMP_SPEED_M_S:g})")
+    return None
+
+
+def is_failsafe_text(text: str) -> bool:
+    low = text.lower()
+    return any(t in low for t in FAILSAFE_TEXTS)
 
 
 class VehicleBoard:
@@ -29,6 +60,10 @@ class VehicleBoard:
         self.clock_t_sim_s: float | None = None
         self.clock_t_wall_s: float | None = None
         self.latest_clock_s: float | None = None
+        self.latest_clock_wall_s: float | None = None  # time.monotonic() when latest_clock_s arrived
+        self.texts: deque[tuple[float, str]] = deque(maxlen=64)  # (wall, STATUSTEXT) as heard
+        self._clock_backsteps = 0
+        self._jumps: deque[bool] = deque(maxlen=JUMP_WINDOW)
         # Sim seconds per wall second, smoothed; None until measured.
         self.sim_rate: float | None = None
 
@@ -84,16 +119,42 @@ class VehicleBoard:
                 self.clock_t_sim_s, self.clock_t_wall_s = t_sim_s, now
         else:
             self.clock_t_sim_s, self.clock_t_wall_s = t_sim_s, now
+        if self.latest_clock_s is not None and t_sim_s < self.latest_clock_s - 1.0:
+            self._clock_backsteps += 1
+            if self._clock_backsteps >= CLOCK_BACKSTEPS and self._status.link_anomaly is None:
+                self._status = dataclasses.replace(self._status, link_anomaly=(
+                    f"the vehicle clock stepped back {self._clock_backsteps} times "
+                    f"(last {self.latest_clock_s:.1f} -> {t_sim_s:.1f} s)"))
         self.latest_clock_s = t_sim_s
+        self.latest_clock_wall_s = now
         await self._notify()
 
+    async def put_text(self, text: str) -> None:
+        """A STATUSTEXT; failsafe notices are counted in the status (PX4 splits long texts, and
+        appends a tab: the match is on a lower-cased fragment)."""
+        text = text.strip()
+        self.texts.append((time.monotonic(), text))
+        if is_failsafe_text(text):
+            await self.put_status(failsafe_notices=self._status.failsafe_notices + 1)
+
     async def put_pose(self, **fields: float) -> PoseSample:
+        if self._pose is not None and self._status.link_anomaly is None:
+            why = implausible_jump(self._pose, fields["x_east_m"], fields["y_north_m"], fields["t_sim_s"])
+            self._jumps.append(why is not None)
+            if why is not None and sum(self._jumps) >= JUMPS_TO_FLAG:
+                self._status = dataclasses.replace(self._status, link_anomaly=(
+                    f"{sum(self._jumps)} of the last {len(self._jumps)} positions jumped (last: {why})"))
         self._seq += 1
         self._pose = PoseSample(seq=self._seq, t_wall_s=time.monotonic(), **fields)
         await self._notify()
         return self._pose
 
     async def put_status(self, **changes) -> None:
+        mode = changes.get("mode")
+        if mode is not None and mode is not self._status.mode:
+            changes["mode_changes"] = self._status.mode_changes + 1
+            if mode is not FlightMode.OFFBOARD:
+                changes["last_other_mode"] = mode
         self._status = dataclasses.replace(self._status, **changes)
         await self._notify()
 

@@ -26,6 +26,8 @@ from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, MavsdkConnectio
 from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync, MissionRawError
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError, VelocityBodyYawspeed
+from mavsdk.asyncio.plugins.param import ParamAsync
+from mavsdk.plugins.param import ParamError, ParamResult
 from mavsdk.asyncio.plugins.telemetry import FlightMode as MavFlightMode
 from mavsdk.asyncio.plugins.telemetry import LandedState as MavLandedState
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync, TelemetryError
@@ -36,6 +38,7 @@ from uav_model import frames
 from companion.errors import CommandRefused, ConnectTimeout, LinkError, MissionUploadError, VehicleNotReady
 from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import traffic_velocity_enu  # shared with the in-process adapter
+from companion.vehicle.link_probe import probe_udpin
 from companion.vehicle.port import (
     FlightMode,
     GeoWaypoint,
@@ -52,6 +55,7 @@ MAV_CMD_NAV_WAYPOINT = 16
 MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
 MAV_MISSION_TYPE_MISSION = 0
 COMMAND_TIMEOUT_S = 5.0  # wall; MAVSDK itself retries a COMMAND_LONG for ~0.5 s x 3
+PARAM_LIST_TIMEOUT_S = 60.0  # wall; PX4 SITL sends its ~1000 parameters in about a second
 MISSION_TRANSFER_TIMEOUT_S = 30.0  # wall; the protocol has its own per-item timeouts
 _RETRYABLE = frozenset({"BUSY", "TIMEOUT", "CONNECTION_ERROR", "UNKNOWN"})
 
@@ -102,6 +106,9 @@ class MavsdkVehicle(BoardReaders):
         self._action = ActionAsync(system)
         self._offboard = OffboardAsync(system)
         self._mission = MissionRawAsync(system)
+        self._param = ParamAsync(system)
+        self._params: dict[str, float] | None = None  # all of the autopilot's, read once
+        self._params_lock = asyncio.Lock()
         self._transponder = TransponderAsync(system)
         # Latest halves of a pose; a sample is emitted once both have been refreshed.
         self._att: tuple[float, float] | None = None  # (t_sim_s, heading_enu_rad)
@@ -153,6 +160,44 @@ class MavsdkVehicle(BoardReaders):
             raise CommandRefused(command, type(exc).__name__, vehicle=self._name, retryable=False,
                                  detail=str(exc)) from None
 
+    async def get_param(self, name: str) -> float | None:
+        """From one PARAM_REQUEST_LIST at the first call (kept up to date by set_param): PX4
+        ignores a name it does not have, and MAVSDK then retries it for 3 s, queueing every later
+        request behind it; a call abandoned early would leave its thread blocked past shutdown."""
+        async with self._params_lock:
+            if self._params is None:
+                try:
+                    async with asyncio.timeout(PARAM_LIST_TIMEOUT_S):
+                        everything = await self._param.get_all_params()
+                except (TimeoutError, ParamError) as exc:
+                    raise CommandRefused("read parameters", getattr(getattr(exc, "result", None), "name", "TIMEOUT"),
+                                         vehicle=self._name) from None
+                self._params = {p.name: float(p.value) for p in (*everything.int_params, *everything.float_params)}
+        return self._params.get(name)
+
+    async def set_param(self, name: str, value: float) -> None:
+        async def attempt() -> None:
+            try:
+                await self._param.set_param_float(name, float(value))
+            except ParamError as exc:
+                if exc.result not in (ParamResult.WRONG_TYPE, ParamResult.TYPE_MISMATCH):
+                    raise CommandRefused(f"set {name}", exc.result.name, vehicle=self._name,
+                                         retryable=exc.result is ParamResult.TIMEOUT) from None
+                await self._param.set_param_int(name, int(round(value)))
+        await self._command(f"set {name}", attempt)
+        if self._params is not None:
+            self._params[name] = float(value)
+
+    async def set_mode(self, mode: FlightMode, what: str = "set mode") -> None:
+        calls = {FlightMode.HOLD: self._action.hold, FlightMode.RETURN_TO_LAUNCH: self._action.return_to_launch,
+                 FlightMode.LAND: self._action.land}
+        if mode is FlightMode.OFFBOARD:
+            await self._command(what, self._offboard.start)
+            return
+        if mode not in calls:
+            raise CommandRefused(what, "UNSUPPORTED", vehicle=self._name, detail=f"no MAVSDK call for {mode.value}")
+        await self._command(what, calls[mode])
+
     async def upload_route(self, waypoints: Sequence[GeoWaypoint], acceptance_radius_m: float) -> None:
         if not waypoints:
             raise MissionUploadError("empty route", vehicle=self._name)
@@ -202,7 +247,7 @@ class MavsdkVehicle(BoardReaders):
     def start_pumps(self, tg: asyncio.TaskGroup) -> list[asyncio.Task]:
         pumps = (self._pump_attitude, self._pump_position, self._pump_velocity, self._pump_mode,
                  self._pump_armed, self._pump_landed, self._pump_health, self._pump_battery,
-                 self._pump_traffic)
+                 self._pump_traffic, self._pump_text, self._pump_gps, self._pump_home)
         return [tg.create_task(p(), name=f"{self._name}:{p.__name__}") for p in pumps]
 
     async def _maybe_emit(self) -> None:
@@ -253,6 +298,18 @@ class MavsdkVehicle(BoardReaders):
         async for ok in self._telemetry.subscribe_health_all_ok():
             await self._board.put_status(health_ok=bool(ok))
 
+    async def _pump_text(self) -> None:
+        async for t in self._telemetry.subscribe_status_text():
+            await self._board.put_text(str(t.text))
+
+    async def _pump_gps(self) -> None:
+        async for g in self._telemetry.subscribe_gps_info():
+            await self._board.put_status(gps_fix_type=int(g.fix_type))
+
+    async def _pump_home(self) -> None:
+        async for h in self._telemetry.subscribe_health():
+            await self._board.put_status(home_ok=bool(h.is_home_position_ok))
+
     async def _pump_battery(self) -> None:
         async for b in self._telemetry.subscribe_battery():
             pct = float(b.remaining_percent)
@@ -276,6 +333,7 @@ class MavsdkVehicle(BoardReaders):
 async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frames.GeoOrigin, *,
                               connect_timeout_s: float = 15.0) -> AsyncIterator[MavsdkVehicle]:
     """Connect to the autopilot on ``url`` and run its telemetry pumps while the context is open."""
+    await probe_udpin(url, system_id, name)  # two autopilots answering as one: refuse before MAVSDK mixes them
     sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
     try:
         try:

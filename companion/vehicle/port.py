@@ -70,6 +70,12 @@ class VehicleStatus:
     landed: LandedState = LandedState.UNKNOWN
     health_ok: bool = False
     battery_pct: float | None = None
+    home_ok: bool = False  # the autopilot has a home position
+    gps_fix_type: int | None = None  # GPS_FIX_TYPE (3 = 3D fix); None until reported
+    failsafe_notices: int = 0  # "Failsafe activated" / "Offboard control lost" texts heard so far
+    link_anomaly: str | None = None  # telemetry no single vehicle can produce (two systems on one link)
+    mode_changes: int = 0  # how many mode changes were heard: a brief failsafe shows even if it is over
+    last_other_mode: FlightMode | None = None  # the latest mode heard that was not OFFBOARD
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,6 +156,18 @@ class Vehicle(Protocol):
         ...
 
     async def wait_ready(self, timeout_s: float) -> None: ...
+
+    async def get_param(self, name: str) -> float | None:
+        """The autopilot's parameter ``name``; None if it has no such parameter."""
+        ...
+
+    async def set_param(self, name: str, value: float) -> None:
+        """Set a parameter and confirm it (CommandRefused if it stays different)."""
+        ...
+
+    async def set_mode(self, mode: FlightMode, what: str = "set mode") -> None:
+        """Ask for a flight mode (HOLD to re-arm after a landing in LAND, as PX4 users do)."""
+        ...
 
     async def upload_route(self, waypoints: Sequence[GeoWaypoint], acceptance_radius_m: float) -> None: ...
 

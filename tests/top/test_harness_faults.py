@@ -48,7 +48,7 @@ def test_link_blackout_mid_flight_holds_then_resumes(companion):
     # setpoint reaches the vehicles, so after COM_OF_LOSS_T (1 s, times the speed factor: 10 s of
     # sim time at 10x) they fail safe to HOLD (the embedded stub's COM_OBL_RC_ACT); when the link
     # is back OFFBOARD resumes (PX4 re-enters it by itself when setpoints come again).
-    start_s, duration_s = 100.0, 15.0
+    start_s, duration_s = 150.0, 15.0  # departure ~80-130 s at 10x (pre-flight checks take a few s)
     live = companion.start(REFERENCE, "--blackout", f"{start_s:g}:{duration_s:g}", speedup=10)
     stub = live.telemetry
     _depart(stub, 0.0)

@@ -3,6 +3,7 @@ protocol tables (PX4 modes, COMMAND_ACK results, mission results) that both dire
 
 from __future__ import annotations
 
+import struct
 from types import MappingProxyType
 from typing import Any
 
@@ -18,8 +19,7 @@ GCS_SYSTEM_ID = 245  # MAVSDK's ground-station identity, so the vehicles see the
 GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 # The stub's API stream rates, in sim time only (a wall-clock cap would starve a fast sim), less
 # the streams this link's one reader never reads: building them is a third of the telemetry cost.
-UNREAD_STREAMS = frozenset({mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
-                            mavlink.MAVLINK_MSG_ID_MISSION_CURRENT})
+UNREAD_STREAMS = frozenset({mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_MISSION_CURRENT})
 INPROCESS_MAX_RATE_HZ = 20.0  # PX4's 50-100 Hz attitude and position: the planner ticks at 2 Hz
 INPROCESS_PROFILE = StreamProfile(
     MappingProxyType({k: min(hz, INPROCESS_MAX_RATE_HZ) for k, hz in API_RATES_HZ.items() if k not in UNREAD_STREAMS}),
@@ -91,3 +91,15 @@ class Codec:
             return [msg]
         return [m for m in self._parser.parse_buffer(buf) or [] if m.get_type() != "BAD_DATA"]
 
+
+
+def int32_bits(value: float) -> float:
+    """An INT32 parameter as PX4 sends it: the int's bytes read as a float."""
+    return struct.unpack("<f", struct.pack("<i", int(round(value))))[0]
+
+
+def param_value(msg: Any) -> float:
+    """PARAM_VALUE's value, INT32 ones decoded bytewise (PX4)."""
+    if int(msg.param_type) == mavlink.MAV_PARAM_TYPE_INT32:
+        return float(struct.unpack("<i", struct.pack("<f", msg.param_value))[0])
+    return float(msg.param_value)

@@ -51,6 +51,7 @@ class TelemetryIntake:
         self.sensors_ok = False
         self.home_seen = False
         self.position_seen = False
+        self.param_types: dict[str, int] = {}  # PARAM_VALUE's type per name, as last heard
         # The pose's two halves, paired as the MAVSDK adapter pairs them (attitude stamp + position).
         self._att: tuple[float, float] | None = None  # (t_sim_s, heading_enu_rad)
         self._pos: tuple[float, float, float, float, float] | None = None  # x, y, alt, vx, vy
@@ -71,6 +72,7 @@ class TelemetryIntake:
         changes: dict[str, Any] = {}
         t_att: float | None = None
         adsb: list[Any] = []
+        texts: list[str] = []
         for m in msgs:
             kind = m.get_type()
             if kind == "ATTITUDE":
@@ -95,12 +97,18 @@ class TelemetryIntake:
                     "onboard_control_sensors_health"))
             elif kind == "HOME_POSITION":
                 self.home_seen = True
+                changes["home_ok"] = True
+            elif kind == "GPS_RAW_INT":
+                changes["gps_fix_type"] = int(m.fix_type)
+            elif kind == "PARAM_VALUE":
+                self.param_types[text_field(m.param_id)] = int(m.param_type)
             elif kind == "BATTERY_STATUS":
                 changes["battery_pct"] = float(m.battery_remaining) if m.battery_remaining >= 0 else None
             elif kind == "ADSB_VEHICLE":
                 adsb.append(m)
             elif kind == "STATUSTEXT":
                 log.info("%s: %s", self._name, text_field(m.text))
+                texts.append(text_field(m.text))
         changes["health_ok"] = self.sensors_ok and self.home_seen and self.position_seen
         changes = {k: v for k, v in changes.items() if getattr(status, k) != v}
         if changes:
@@ -114,6 +122,8 @@ class TelemetryIntake:
                                  vx_east_m_s=vx, vy_north_m_s=vy, heading_enu_rad=self._att[1])
         for m in adsb:
             await self._traffic(m)
+        for text in texts:
+            await board.put_text(text)
 
     async def _traffic(self, m: Any) -> None:
         callsign = text_field(m.callsign)

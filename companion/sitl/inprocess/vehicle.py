@@ -12,8 +12,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model import frames
 from companion.errors import CommandRefused, MissionUploadError, TelemetryLost, VehicleNotReady
 from companion.sitl.inprocess.link import (BODY_VELOCITY_YAW_RATE_MASK, COMMAND_RESULTS, GCS_COMPONENT_ID,
-                                           GCS_SYSTEM_ID, LINK, PEER, PX4_MODES, Codec, describe, mission_result,
-                                           text_field)
+                                           GCS_SYSTEM_ID, LINK, PEER, PX4_MODES, Codec, describe, int32_bits,
+                                           mission_result, param_value, text_field)
 from companion.sitl.inprocess.telemetry import TelemetryIntake
 from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.port import FlightMode, GeoWaypoint, VelocityYawRateSetpoint
@@ -203,18 +203,34 @@ class InProcessVehicle(BoardReaders):
         name, retryable = COMMAND_RESULTS.get(result, ("UNKNOWN", True))
         raise CommandRefused(what, name, vehicle=self.name, retryable=retryable)
 
+    async def get_param(self, name: str) -> float | None:
+        msg = self._up.factory.param_request_read_encode(self.system_id, self._sim.component_id,
+                                                         name.encode("ascii"), -1)
+        replies = self._exchange(msg)
+        await self._intake.absorb(replies)
+        values = [r for r in replies if r.get_type() == "PARAM_VALUE" and text_field(r.param_id) == name]
+        return None if not values else param_value(values[-1])
+
+    async def set_param(self, name: str, value: float) -> None:
+        await self._set_param(f"set {name}", name, value)
+
     async def _set_param(self, what: str, name: str, value: float) -> None:
+        if await self.get_param(name) is None:  # also learns its type: INT32 values travel bytewise (PX4)
+            raise CommandRefused(what, "DOES_NOT_EXIST", vehicle=self.name, detail=f"no parameter {name}")
+        ptype = self._intake.param_types.get(name, mavlink.MAV_PARAM_TYPE_REAL32)
+        wire = int32_bits(value) if ptype == mavlink.MAV_PARAM_TYPE_INT32 else float(value)
         msg = self._up.factory.param_set_encode(self.system_id, self._sim.component_id, name.encode("ascii"),
-                                                value, mavlink.MAV_PARAM_TYPE_REAL32)
+                                                wire, ptype)
         replies = self._exchange(msg)
         await self._intake.absorb(replies)
         echoes = [r for r in replies if r.get_type() == "PARAM_VALUE" and text_field(r.param_id) == name]
         if not echoes:
             raise CommandRefused(what, "TIMEOUT", vehicle=self.name, retryable=True,
                                  detail=f"no PARAM_VALUE for {name}")
-        if not math.isclose(echoes[-1].param_value, value, rel_tol=1e-6, abs_tol=1e-6):
+        got = param_value(echoes[-1])
+        if not math.isclose(got, value, rel_tol=1e-6, abs_tol=1e-6):
             raise CommandRefused(what, "PARAMETER_ERROR", vehicle=self.name,
-                                 detail=f"{name} stayed {echoes[-1].param_value:g}, asked {value:g}")
+                                 detail=f"{name} stayed {got:g}, asked {value:g}")
 
     async def _mission_reply(self, msg: Any, what: str) -> Any:
         replies = self._exchange(msg)

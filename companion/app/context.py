@@ -1,0 +1,103 @@
+"""What every pilot of one mission shares: the settings, the plan, the log, the fleet, a barrier.
+
+Split from :mod:`companion.app.pilot` so that its phases (take-off, steering) can live in their
+own modules and read the same context.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from companion.app.flight_log import FlightLog
+from companion.app.flight_plan import FlightPlan
+from companion.planning.obstacle_field import ObstacleField
+from companion.vehicle.port import Vehicle
+
+if TYPE_CHECKING:
+    from companion.app.pilot import Pilot
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """How the runner flies; every duration says whether it is sim or wall time."""
+
+    shared_clock: bool | None = None  # one sim clock for all vehicles; None: detect it at connect
+    connect_timeout_s: float = 15.0  # wall
+    ready_timeout_s: float = 30.0  # wall
+    command_attempts: int = 3
+    progress_every_s: float = 20.0  # sim
+    lookahead_s: float = 2.0  # sim, safety monitors
+    link_lost_after_s: float = 10.0  # sim, continuous silence before the flight is abandoned ...
+    link_lost_min_wall_s: float = 5.0  # ... and at least this long in wall time: PX4 SITL stretches its own
+    # loss timeouts by the speed factor, so at 20x a 3 s gap is a failsafe to resume from, not the end
+    keepalive_sim_s: float = 0.1  # sim, setpoint resend period (bounded to 10..100 ms wall)
+    max_offboard_reentries: int = 10  # within offboard_reentry_window_s: a link that keeps failing ends the flight
+    offboard_reentry_window_s: float = 60.0  # sim
+    offboard_resume_wait_s: float = 0.5  # sim: a grace for PX4's own re-entry (0.2-3 s) before asking for it
+    arm_retry_s: float = 15.0  # sim: PX4 refuses to arm for ~4.2 s after boot (TEMPORARILY_REJECTED)
+    yaw_align_tolerance_deg: float = 10.0
+    land: bool = True
+    failsafe_hold: bool = True  # set COM_OBL_RC_ACT 5 at connect: PX4's default RTL flies straight home,
+    # through the obstacles only the companion knows about
+    safe_state_timeout_s: float = 5.0  # wall
+
+
+@dataclass
+class PilotOutcome:
+    """What happened to one vehicle (mutable while it flies; read when it is done)."""
+
+    name: str
+    phase: str = "connected"  # connected, uploaded, arming, armed, takeoff, airborne, offboard, arrived, landed, held, ...
+    t_depart_sim_s: float | None = None
+    arrival_t_mission_s: float | None = None
+    landed: bool = False
+    planner_ms: list[float] = field(default_factory=list)
+    interventions: Counter = field(default_factory=Counter)  # why a tick hovered instead
+    offboard_reentries: int = 0
+    arm_attempts: int = 0
+    ticks: int = 0
+    error: str | None = None
+
+
+class FlightContext:
+    """What the pilots share: the plan, the settings, the log, the fleet, one barrier."""
+
+    def __init__(self, plan: FlightPlan, settings: RunSettings, log: FlightLog,
+                 vehicles: Mapping[str, Vehicle], report: Callable[[str], None], shared_clock: bool = True):
+        self.plan = plan
+        self.mission = plan.mission
+        self.settings = settings
+        self.shared_clock = shared_clock  # decided at connect (readiness.detect_shared_clock)
+        self.log = log
+        self.vehicles = dict(vehicles)
+        self.report = report
+        self.field = ObstacleField.from_world(plan.mission.world)
+        self.barrier = asyncio.Barrier(len(self.vehicles))
+        self.arrived: set[str] = set()  # vehicles parked at their station: others drop the sightline term
+        self.rank = {v.name: i for i, v in enumerate(plan.mission.by_priority)}
+        # ADS-B callsigns hold 8 characters: match them to the mission's moving obstacles.
+        moving = [o.id for o in plan.mission.world.moving_obstacles]
+        self._callsigns = {oid[:8]: oid for oid in moving}
+        self._callsigns.update({oid: oid for oid in moving})
+
+    def obstacle_id(self, callsign: str) -> str:
+        """The mission obstacle an ADS-B callsign stands for (unknown ones keep their callsign)."""
+        return self._callsigns.get(callsign, callsign)
+
+    def track_time(self, pilot: "Pilot", t_sim_s: float) -> float:
+        """The time base of the flown tracks: the shared sim clock (which also drives the moving
+        obstacles' truth), or per-vehicle mission time when the vehicles' clocks are unrelated."""
+        if self.shared_clock:
+            return t_sim_s
+        return t_sim_s - (pilot.outcome.t_depart_sim_s or 0.0)
+
+
+def wall_for_sim(vehicle: Vehicle, sim_s: float, slack_s: float = 5.0) -> float:
+    """A wall-clock bound for something that takes ``sim_s`` of the vehicle's sim time."""
+    rate = vehicle.sim_rate()
+    rate = rate if rate is not None and rate > 0.05 else 1.0
+    return sim_s / rate + slack_s

@@ -1,0 +1,128 @@
+"""One pilot's way into the air, as PX4 wants it. Mixed into :class:`companion.app.pilot.Pilot`.
+
+    (LAND/RTL on the ground: HOLD first) -> arm, retried while PX4 refuses it during boot
+    -> (all armed) -> re-arm if COM_DISARM_PRFLT disarmed it meanwhile -> take off, confirm armed
+    -> (airborne) ... OFFBOARD -> yaw in place to the mission's initial heading
+
+PX4 refuses to arm for ~4.2 s after boot (TEMPORARILY_REJECTED, which MAVSDK reports as
+COMMAND_DENIED), disarms 10 s after an arm without take-off, refuses to arm in LAND after a
+landing on the stub, and spawns facing north: see ../shared/px4-sih/README.md.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from typing import TYPE_CHECKING
+
+from uav_model import frames
+from companion.app.context import wall_for_sim
+from companion.errors import CommandRefused, MissionAborted, TelemetryLost
+from companion.vehicle.port import HOVER, FlightMode, LandedState, VelocityYawRateSetpoint
+
+if TYPE_CHECKING:
+    from uav_model.mission import VehicleSpec
+    from companion.app.context import FlightContext, PilotOutcome
+    from companion.vehicle.port import Vehicle
+
+# Arm refusals worth another try: the autopilot may accept once its estimator has settled.
+ARM_RETRY_RESULTS = frozenset({"COMMAND_DENIED", "TEMPORARILY_REJECTED", "BUSY", "TIMEOUT", "UNKNOWN"})
+REARM_MODES = frozenset({FlightMode.LAND, FlightMode.RETURN_TO_LAUNCH, FlightMode.TAKEOFF})
+MIN_ALIGN_RATE_RAD_S = math.radians(30.0)  # PX4 yaws in place at 86-90 deg/s; the stub at v/r
+
+
+class Departure:
+    ctx: FlightContext
+    spec: VehicleSpec
+    name: str
+    vehicle: Vehicle
+    outcome: PilotOutcome
+    setpoint: VelocityYawRateSetpoint
+
+    def _climb_sim_s(self) -> float:
+        return self.spec.cruise_alt_m / 0.5 + 30.0  # PX4 climbs at >= 0.5 m/s (MPC_TKO_SPEED)
+
+    async def _take_off(self) -> None:
+        self.outcome.phase = "arming"  # from here on the vehicle may be armed, even if we are cancelled
+        await self._leave_landing_mode()
+        await self._arm()
+        self.outcome.phase = "armed"
+        # Nobody leaves the ground unless everybody could arm: a refusal then only disarms.
+        await self._barrier("all vehicles armed", wall_for_sim(self.vehicle, self.ctx.settings.arm_retry_s, 30.0))
+        if not self.vehicle.status().armed:  # COM_DISARM_PRFLT ran out while the others armed
+            self.ctx.report(f"{self.name}: disarmed while waiting for the others (auto preflight disarm); arming again")
+            await self._arm()
+        alt = self.spec.cruise_alt_m
+        await self._retry("takeoff", lambda: self.vehicle.takeoff(alt))
+        self.outcome.phase = "takeoff"
+        target = alt - 1.0  # PX4 ends TAKEOFF within a few decimetres of MIS_TAKEOFF_ALT
+        await self.vehicle.wait_until(lambda s, p: not s.armed or (p is not None and p.alt_rel_m >= target),
+                                      wall_for_sim(self.vehicle, self._climb_sim_s()), f"take-off to {alt:g} m")
+        if not self.vehicle.status().armed:
+            raise MissionAborted("disarmed", "disarmed during take-off", vehicle=self.name)
+        self.outcome.phase = "airborne"
+        self.ctx.report(f"{self.name}: airborne at {alt:g} m")
+
+    async def _leave_landing_mode(self) -> None:
+        """After a landing the vehicle may sit in LAND (or RTL): switch to HOLD before arming."""
+        st = self.vehicle.status()
+        if st.mode in REARM_MODES and not st.armed and st.landed in (LandedState.ON_GROUND, LandedState.UNKNOWN):
+            self.ctx.report(f"{self.name}: on the ground in {st.mode.value}; switching to HOLD to arm again")
+            await self._retry("hold", lambda: self.vehicle.set_mode(FlightMode.HOLD, "hold"))
+            await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.HOLD,
+                                          wall_for_sim(self.vehicle, 5.0), "HOLD before arming")
+
+    async def _arm(self) -> None:
+        """Arm, retried with backoff while the refusal may pass (bounded in sim time); then
+        confirm it from the heartbeat, as an ack alone does not prove it."""
+        budget_wall = wall_for_sim(self.vehicle, self.ctx.settings.arm_retry_s, 1.0)
+        give_up = time.monotonic() + budget_wall
+        delay_sim = 0.25
+        while True:
+            self.outcome.arm_attempts += 1
+            try:
+                await self.vehicle.arm()
+                break
+            except CommandRefused as exc:
+                wait_wall = wall_for_sim(self.vehicle, delay_sim, 0.0)
+                if exc.result not in ARM_RETRY_RESULTS or time.monotonic() + wait_wall > give_up:
+                    raise
+                if self.outcome.arm_attempts == 1:
+                    self.ctx.report(f"{self.name}: arm refused ({exc.result}); retrying for up to "
+                                    f"{self.ctx.settings.arm_retry_s:g} s")
+                await asyncio.sleep(wait_wall)
+                delay_sim = min(2.0 * delay_sim, 2.0)
+        await self.vehicle.wait_until(lambda s, p: s.armed, wall_for_sim(self.vehicle, 3.0), "armed")
+        if self.outcome.arm_attempts > 1:
+            self.ctx.report(f"{self.name}: armed after {self.outcome.arm_attempts} attempts")
+
+    async def _align_heading(self) -> None:
+        """Yaw in place (in OFFBOARD, hovering) to the mission's initial heading: PX4 spawns facing
+        north, and the planner assumes the mission's heading at departure."""
+        tol = math.radians(self.ctx.settings.yaw_align_tolerance_deg)
+        goal = self.spec.initial_heading_rad
+        rate_max = max(self.spec.max_yaw_rate_rad_s, MIN_ALIGN_RATE_RAD_S)
+        pose = self.vehicle.latest_pose()
+        assert pose is not None
+        error = frames.wrap_pi(goal - pose.heading_enu_rad)
+        if abs(error) <= tol:
+            return
+        self.ctx.report(f"{self.name}: yawing {math.degrees(error):+.0f} deg to the mission heading "
+                        f"{self.spec.initial_heading_deg:g} deg before departure")
+        bound_wall = wall_for_sim(self.vehicle, abs(error) / rate_max + 20.0)
+        deadline = time.monotonic() + bound_wall
+        seq = pose.seq
+        try:
+            while abs(error) > tol / 2:
+                rate = max(-rate_max, min(rate_max, 1.5 * error))
+                self.setpoint = VelocityYawRateSetpoint(0.0, rate, 0.0)
+                await self.vehicle.send_setpoint(self.setpoint)
+                pose = await self.vehicle.next_pose(seq, max(0.1, deadline - time.monotonic()))
+                seq = pose.seq
+                error = frames.wrap_pi(goal - pose.heading_enu_rad)
+        except TelemetryLost:
+            raise MissionAborted("timeout", f"could not yaw to {self.spec.initial_heading_deg:g} deg "
+                                 f"within {bound_wall:.0f} s wall", vehicle=self.name) from None
+        finally:
+            self.setpoint = HOVER

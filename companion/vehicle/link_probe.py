@@ -1,0 +1,87 @@
+"""Who is sending to a ``udpin://`` port before MAVSDK opens it: one autopilot, or two answering
+as the same system id (another SITL or stub already on the companion's port).
+
+MAVSDK merges every sender with one system id into one system, silently: two autopilots on one
+port become one vehicle whose telemetry jumps between them. So the port is listened to for a
+moment first, and each MAVLink datagram's sender address is recorded per system id.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import socket
+from collections import defaultdict
+from urllib.parse import urlparse
+
+from companion.errors import LinkConflict
+
+PROBE_S = 0.6  # wall; PX4 streams ATTITUDE at 100 Hz and the stub at 20 Hz: plenty of datagrams
+MAVLINK_V1, MAVLINK_V2 = 0xFE, 0xFD
+
+
+def sender_system_id(datagram: bytes) -> int | None:
+    """The system id in the first MAVLink header of a datagram (v1 or v2), or None."""
+    if len(datagram) >= 6 and datagram[0] == MAVLINK_V2:
+        return datagram[5] if len(datagram) >= 10 else None
+    if len(datagram) >= 4 and datagram[0] == MAVLINK_V1:
+        return datagram[3]
+    return None
+
+
+def udpin_port(url: str) -> tuple[str, int] | None:
+    parsed = urlparse(url)
+    if parsed.scheme != "udpin" or parsed.port is None:
+        return None
+    return parsed.hostname or "0.0.0.0", parsed.port
+
+
+class _Collector(asyncio.DatagramProtocol):
+    def __init__(self) -> None:
+        self.senders: dict[int, set[tuple[str, int]]] = defaultdict(set)
+
+    def datagram_received(self, data: bytes, addr) -> None:
+        sysid = sender_system_id(data)
+        if sysid is not None:
+            self.senders[sysid].add((str(addr[0]), int(addr[1])))
+
+
+async def listen(host: str, port: int, seconds: float = PROBE_S) -> dict[int, set[tuple[str, int]]]:
+    """Sender addresses per system id heard on a UDP port for ``seconds``; OSError if it is taken."""
+    loop = asyncio.get_running_loop()
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind((host, port))
+    except OSError:
+        sock.close()
+        raise
+    transport, proto = await loop.create_datagram_endpoint(_Collector, sock=sock)
+    try:
+        await asyncio.sleep(seconds)
+    finally:
+        transport.close()
+        for _ in range(10):  # the transport closes its socket on a later loop turn: free the port now
+            if sock.fileno() == -1:
+                break
+            await asyncio.sleep(0)
+    return dict(proto.senders)
+
+
+async def probe_udpin(url: str, system_id: int, vehicle: str, seconds: float = PROBE_S) -> None:
+    """Refuse (LinkConflict) when two senders answer as ``system_id`` on a udpin URL, or the
+    port is held by another program. Other URLs (udpout, tcp, serial) are not probed."""
+    where = udpin_port(url)
+    if where is None:
+        return
+    try:
+        senders = await listen(*where, seconds)
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            raise LinkConflict(f"UDP port {where[1]} ({url}) is already taken by another program "
+                               "(another companion or ground station?)", vehicle=vehicle) from None
+        raise LinkConflict(f"cannot listen on {url}: {exc.strerror}", vehicle=vehicle) from None
+    same = sorted(senders.get(system_id, ()))
+    if len(same) > 1:
+        addrs = ", ".join(f"{h}:{p}" for h, p in same)
+        raise LinkConflict(f"{len(same)} autopilots answer as system {system_id} on {url} (from {addrs}); "
+                           "stop the other one or give each its own port", vehicle=vehicle)

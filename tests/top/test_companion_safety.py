@@ -1,0 +1,277 @@
+"""Issue 12 over real UDP against the stub: what the companion refuses before anything arms, and
+what it survives that PX4 does (../shared/px4-sih/README.md).
+
+Small missions at 20x (tests/data/small_swap.yaml: the reference scaled by 0.2), so that each
+flight takes seconds of wall time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import select
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from sim_bridge.testing import free_udp_port_block
+
+ROOT = Path(__file__).resolve().parents[2]
+SMALL = ROOT / "tests" / "data" / "small_swap.yaml"
+MOVING = ROOT / "missions" / "moving_obstacles.yaml"
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+
+
+def _stub_has_param(name: str) -> bool:
+    from companion.sitl.inprocess import InProcessFleet
+    from uav_model.mission import load_mission
+    fleet = InProcessFleet(load_mission(SMALL))
+    return asyncio.run(fleet.vehicle("a").get_param(name)) is not None
+
+
+# PX4's offboard-loss action and its timing (COM_OF_LOSS_T x the speed factor) come with the
+# PX4-faithful stub (branch simcore); the stub before it always holds, after 1 s of sim time.
+needs_px4_failsafe = pytest.mark.skipif(not _stub_has_param("COM_OBL_RC_ACT"),
+                                        reason="the stub has no COM_OBL_RC_ACT (PX4-faithful stub not merged)")
+
+
+def _swapped_back(tmp_path: Path) -> Path:
+    """small_swap flown back: a from B to A, b from A to B (where the first flight left them)."""
+    text = SMALL.read_text()
+    text = text.replace("name: small_swap", "name: small_swap_back")
+    a_to_b, b_to_a = "    start: A\n    goal: B", "    start: B\n    goal: A"
+    text = text.replace(a_to_b, "@").replace(b_to_a, a_to_b).replace("@", b_to_a)
+    ne, sw = "initial_heading_deg: 45.0", "initial_heading_deg: -135.0"
+    text = text.replace(ne, "@").replace(sw, ne).replace("@", sw)
+    path = tmp_path / "small_swap_back.yaml"
+    path.write_text(text)
+    return path
+
+
+def _run(companion, mission: Path, stub, out: Path, *args: str, timeout_s: float = 120.0):
+    """``companion run`` over --connect exactly as a user types it (no --shared-clock)."""
+    return companion.cli("run", mission, *stub.connect_args(), "--out", out, *args, timeout_s=timeout_s)
+
+
+def _nothing_armed(stub) -> None:
+    for v in stub.mission.vehicles:
+        assert not any(stub.vehicle(v.name).armed_history), v.name
+
+
+def _foreign_stub(mission: Path, port_base: int, tmp_path: Path) -> subprocess.Popen:
+    """A second sim-bridge sending to ``port_base``: another autopilot already on the companion's port."""
+    log = open(tmp_path / f"foreign_{port_base}.log", "wb")
+    proc = subprocess.Popen([sys.executable, "-m", "sim_bridge", str(mission), "--speedup", "20", "--no-gcs",
+                             "--api-port-base", str(port_base)], stdout=log, stderr=subprocess.STDOUT)
+    log.close()
+    path = tmp_path / f"foreign_{port_base}.log"
+    deadline = time.monotonic() + 20.0
+    while b"running at" not in path.read_bytes():  # then it streams (it needs no answer to send)
+        assert proc.poll() is None and time.monotonic() < deadline, path.read_text()
+        time.sleep(0.1)
+    return proc
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    proc.terminate()
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(10)
+
+
+def test_a_vehicle_away_from_its_station_is_refused_and_nothing_arms(sitl, companion, tmp_path):
+    stub = sitl(SMALL, speedup=20)
+    moved = tmp_path / "moved.yaml"  # the mission puts A 300 m east of where vehicle a stands
+    moved.write_text(SMALL.read_text().replace("  A: [0.0, 0.0]", "  A: [300.0, 0.0]"))
+    result = _run(companion, moved, stub, tmp_path / "out")
+    assert result.returncode == 2, result.stdout + result.stderr
+    err = result.stderr.strip().splitlines()
+    assert len(err) == 1 and "300 m from station A" in err[0] and "--plan-from-current" in err[0], err
+    assert "nothing was armed" in err[0]
+    time.sleep(0.5)  # a stray arm would show on the GCS link by now
+    _nothing_armed(stub)
+
+
+def test_plan_from_current_flies_from_where_the_vehicle_is(sitl, companion, tmp_path):
+    stub = sitl(SMALL, speedup=20)
+    moved = tmp_path / "moved.yaml"
+    moved.write_text(SMALL.read_text().replace("  A: [0.0, 0.0]", "  A: [300.0, 0.0]"))
+    result = _run(companion, moved, stub, tmp_path / "out", "--plan-from-current")
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    assert "planning from (0, 0) m, 300 m from station A" in result.stdout
+    track = stub.track("a", since_mode="OFFBOARD")
+    assert abs(track.x_m[0]) < 20.0 and abs(track.y_m[0]) < 20.0  # it left from where it stood
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["success"] and summary["vehicles"]["b"]["arrived"]  # b's goal is the moved A
+    assert stub.track("b").x_m[-1] == pytest.approx(300.0, abs=25.0)
+
+
+def test_a_second_autopilot_on_the_port_is_refused_and_nothing_arms(sitl, companion, tmp_path):
+    stub = sitl(SMALL, speedup=20)
+    foreign = _foreign_stub(SMALL, stub.api_port_base, tmp_path)  # also system 1 -> port base
+    try:
+        result = _run(companion, SMALL, stub, tmp_path / "out", timeout_s=60)
+    finally:
+        _stop(foreign)
+    assert result.returncode == 2, result.stdout + result.stderr
+    err = result.stderr.strip()
+    assert "2 autopilots answer as system 1" in err and str(stub.api_port_base) in err, err  # a comes first
+    _nothing_armed(stub)
+
+
+def test_the_embedded_stub_refuses_a_port_another_autopilot_sends_to(companion, tmp_path):
+    base = free_udp_port_block(2)
+    foreign = _foreign_stub(SMALL, base, tmp_path)
+    try:
+        result = companion.cli("run", SMALL, "--speedup", "20", "--port-base", base, "--no-land",
+                               "--out", tmp_path / "out", timeout_s=60)
+    finally:
+        _stop(foreign)
+    assert result.returncode == 2, result.stdout + result.stderr
+    err = result.stderr.strip()
+    assert f"UDP port {base}: another autopilot is already sending to it (system 1" in err, err
+    assert "--port-base" in err and "starting the embedded sim_bridge" not in result.stdout
+
+
+def test_two_runs_in_a_row_against_one_stub(sitl, companion, tmp_path):
+    # After the first flight both vehicles sit landed at the other station, in LAND on the stub:
+    # the second run (the way back) switches them to HOLD to arm, as PX4 users do.
+    stub = sitl(SMALL, speedup=20)
+    first = _run(companion, SMALL, stub, tmp_path / "first")
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr
+    second = _run(companion, _swapped_back(tmp_path), stub, tmp_path / "second")
+    assert second.returncode == 0, second.stdout[-3000:] + second.stderr
+    assert "switching to HOLD to arm again" in second.stdout
+    for name in ("a", "b"):
+        assert stub.vehicle(name).armed_history.count(True) >= 2
+
+
+def test_moving_obstacles_over_connect_need_no_clock_flag(sitl, companion, tmp_path):
+    # The README's command: an external sim-bridge, --connect per vehicle, no --shared-clock. The
+    # companion finds that both vehicles stamp with the stub's clock (which moves the obstacles),
+    # so tracks and the obstacles' truth share a time base: no false collision.
+    # On the unicycle, as the reference: this test is about the clock, not the multicopter's approach.
+    mission = tmp_path / "moving_unicycle.yaml"
+    text = MOVING.read_text()
+    assert "plant:" not in text
+    mission.write_text(text.replace("\nvehicles:", "\nplant: unicycle\nvehicles:", 1))
+    stub = sitl(mission, speedup=20)
+    stub.wait_for_clock(60.0)  # the stub has run a while: mission time and the stub's clock differ
+    result = _run(companion, mission, stub, tmp_path / "out", timeout_s=180)
+    assert "clock: one sim clock for all vehicles (detected)" in result.stdout
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    stub.assert_success()
+
+
+class UplinkCut:
+    """A UDP relay between the stub's vehicle links and the companion that can drop the uplink
+    (companion -> vehicle) for a while: PX4's offboard loss without touching the downlink, as in
+    companion-runs/px4_1x_uplinkdrop. Vehicle i's datagrams arrive on ``stub_port + i`` and go on
+    to ``companion_port + i``; the companion's answers go back to where the vehicle sent from."""
+
+    def __init__(self, stub_ports: list[int], companion_ports: list[int]):
+        self.cut_until = 0.0
+        self._stop = threading.Event()
+        self._pairs = []
+        for sp, cp in zip(stub_ports, companion_ports):
+            down = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            down.bind(("127.0.0.1", sp))
+            up = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            up.bind(("127.0.0.1", 0))
+            self._pairs.append((down, up, ("127.0.0.1", cp)))
+        self._vehicle_addr: dict[int, tuple] = {}
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def cut(self, seconds: float) -> None:
+        self.cut_until = time.monotonic() + seconds
+
+    def _run(self) -> None:
+        socks = {s: (i, kind) for i, (down, up, _) in enumerate(self._pairs)
+                 for s, kind in ((down, "down"), (up, "up"))}
+        while not self._stop.is_set():
+            ready, _, _ = select.select(list(socks), [], [], 0.1)
+            for s in ready:
+                data, addr = s.recvfrom(65535)
+                i, kind = socks[s]
+                down, up, companion_addr = self._pairs[i]
+                if kind == "down":
+                    self._vehicle_addr[i] = addr
+                    up.sendto(data, companion_addr)
+                elif time.monotonic() >= self.cut_until and i in self._vehicle_addr:
+                    down.sendto(data, self._vehicle_addr[i])
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        for down, up, _ in self._pairs:
+            down.close()
+            up.close()
+
+
+def _fly_with_uplink_cut(sitl, companion, *args: str, cut_after_s: float, cut_s: float):
+    """Fly SMALL through an UplinkCut relay; cut both uplinks ``cut_after_s`` sim seconds after
+    departure for ``cut_s`` seconds of wall time. Returns (stub, run)."""
+    stub = sitl(SMALL, speedup=20, extra=("--param", "COM_OBL_RC_ACT=0"))  # PX4's default, not the harness's
+    companion_base = free_udp_port_block(2)
+    relay = UplinkCut([stub.api_port_base, stub.api_port_base + 1], [companion_base, companion_base + 1])
+    try:
+        live = companion.start(SMALL, "--connect", f"a=udpin://127.0.0.1:{companion_base}",
+                               "--connect", f"b=udpin://127.0.0.1:{companion_base + 1}", *args, speedup=20)
+        for name in ("a", "b"):
+            stub.wait_for_mode(name, "OFFBOARD", timeout_s=90)
+        t_depart = max(stub.mode_times(name, "OFFBOARD")[0] for name in ("a", "b"))
+        stub.wait_for_clock(t_depart + cut_after_s, timeout_s=60)
+        relay.cut(cut_s)
+        run = live.wait(150)
+    finally:
+        relay.close()
+    return stub, run
+
+
+def _failsafe_then_offboard(stub, failsafe_mode: str) -> None:
+    for name in ("a", "b"):
+        modes = stub.modes(name)
+        i = modes.index("OFFBOARD")
+        assert failsafe_mode in modes[i:], modes  # the failsafe happened ...
+        j = modes.index(failsafe_mode, i)
+        assert "OFFBOARD" in modes[j:], modes  # ... and OFFBOARD came back
+        assert any("Failsafe activated" in t for t in stub.vehicle(name).statustext)
+
+
+@needs_px4_failsafe
+def test_px4_default_failsafe_and_a_3_s_uplink_blackout_the_mission_succeeds(sitl, companion):
+    # The stub boots with PX4's default COM_OBL_RC_ACT 0 (offboard loss -> Return), as in
+    # companion-runs/px4_1x_uplinkdrop, where the companion stood down and the mission failed.
+    # The companion sets 5 (Hold) at connect: a Return flies straight home across the fire zone.
+    # Both uplinks are cut for 3 s of wall time mid-flight; the loss timeout (COM_OF_LOSS_T x
+    # the speed factor, ~1 s wall) runs out, the vehicles hold, and OFFBOARD resumes.
+    stub, run = _fly_with_uplink_cut(sitl, companion, cut_after_s=20.0, cut_s=3.0)
+    assert run.exit_code == 0, run.tail
+    assert run.summary["success"], run.summary["reason"]
+    assert "COM_OBL_RC_ACT 0 (Position mode (without RC: Return)) -> 5 (Hold)" in run.stdout
+    _failsafe_then_offboard(stub, "HOLD")
+    assert "fell back to HOLD (offboard loss)" in run.stdout, run.stdout[-3000:]
+    assert "stands down" not in run.stdout
+
+
+@needs_px4_failsafe
+def test_kept_rtl_failsafe_is_resumed_not_stood_down(sitl, companion):
+    # --keep-failsafe leaves PX4's default: the vehicles go to RTL after the loss; the companion
+    # treats that as an offboard loss (not an operator's override), keeps streaming, and the
+    # vehicles are back in OFFBOARD. Cut late and briefly, so that RTL's straight line home
+    # stays clear of the fire zone.
+    stub, run = _fly_with_uplink_cut(sitl, companion, "--keep-failsafe", cut_after_s=50.0, cut_s=1.5)
+    assert run.exit_code == 0, run.tail
+    assert run.summary["success"], run.summary["reason"]
+    _failsafe_then_offboard(stub, "RTL")
+    assert "fell back to RTL (offboard loss)" in run.stdout, run.stdout[-3000:]
+    assert "stands down" not in run.stdout
