@@ -129,8 +129,10 @@ class MavsdkVehicle(BoardReaders):
     async def wait_ready(self, timeout_s: float) -> None:
         """Health all OK (gyro/accel/mag, local + global position, home) and a first pose."""
         try:
-            await self._board.wait_until(lambda s, p: s.health_ok and p is not None, timeout_s,
-                                         "healthy status (MAVSDK health_all_ok) and position")
+            # health_all_ok includes the home position, but its own flag arrives on another
+            # subscription: wait for both, or the pre-flight check reads "no home" in a race.
+            await self._board.wait_until(lambda s, p: s.health_ok and s.home_ok and p is not None, timeout_s,
+                                         "healthy status (MAVSDK health_all_ok), home position and position")
         except LinkError:
             detail = ""
             try:
