@@ -24,7 +24,7 @@ import numpy as np
 from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.metrics import TruthGeometry, summarize
 from companion.planning.routes import Route, plan_routes
-from companion.planning.runner import RunResult, first_violation, start_states, tracks_from_rows
+from companion.planning.runner import RunResult, SafetyWatch, start_states, tracks_from_rows
 from uav_model.frames import enu_to_ned, ned_to_enu
 from uav_model.mission import Mission
 from uav_model.plant import HOVER, VelocityCommand, VelocityFrame, step_for
@@ -108,7 +108,7 @@ def simulate_orca(mission: Mission, *, routes: dict[str, Route] | None = None,
     rows = [[_xy(states[n]) for n in names]]
     last_row: dict[str, int | None] = {n: None for n in names}
     active = list(names)
-    checked, bad = 0, None
+    watch, bad = SafetyWatch(mission, truth, dt), None
     for k in range(int(math.floor(mission.safety.time_limit_s / dt + 1e-9))):
         t = k * dt
         for o, a in zip(moving, movers):
@@ -142,13 +142,11 @@ def simulate_orca(mission: Mission, *, routes: dict[str, Route] | None = None,
             command = VelocityCommand(VelocityFrame.LOCAL_NED, vn, ve, 0.0, 0.0) if math.isfinite(vx + vy) else HOVER
             states[name] = step(states[name], command, limits[name], dt)
         rows.append([_xy(states[n]) for n in names])
-        if len(rows) - 1 - checked >= 32 or k == 0:
-            bad = first_violation(mission, truth, rows, checked, dt)
-            if bad is not None:
-                break
-            checked = len(rows) - 1
-    if bad is None and len(rows) - 1 > checked:
-        bad = first_violation(mission, truth, rows, checked, dt)
+        bad = watch.poll(rows, force=k == 0)
+        if bad is not None:
+            break
+    if bad is None:
+        bad = watch.finish(rows)
     if bad is not None:
         del rows[bad + 2:]
     tracks = tracks_from_rows(names, rows, last_row, dt)

@@ -146,7 +146,7 @@ def simulate(mission: Mission, variant: str | None = None, *,
     last_row = {n: None for n in names}  # the row of arrival
     ticks: dict[str, list[TickResult]] = {n: [] for n in names}
     active = list(names)
-    checked = 0  # rows[0..checked] are known to be safe
+    watch = SafetyWatch(mission, truth, dt)
     bad = None
 
     snapshots = field.at_times(dt * np.arange(n_ticks))
@@ -177,13 +177,11 @@ def simulate(mission: Mission, variant: str | None = None, *,
         for name, command in commands.items():
             states[name] = step(states[name], command, limits[name], dt)
         rows.append([_xy(states[n]) for n in names])
-        if len(rows) - 1 - checked >= _CHECK_EVERY_TICKS:
-            bad = first_violation(mission, truth, rows, checked, dt)
-            if bad is not None:
-                break
-            checked = len(rows) - 1
-    if bad is None and len(rows) - 1 > checked:
-        bad = first_violation(mission, truth, rows, checked, dt)
+        bad = watch.poll(rows)
+        if bad is not None:
+            break
+    if bad is None:
+        bad = watch.finish(rows)
     if bad is not None:  # stop at the step that broke a rule: drop what was flown after it
         del rows[bad + 2:]
         for name in names:
@@ -209,6 +207,29 @@ def tracks_from_rows(names: list[str], rows: list, last_row: dict[str, int | Non
         end = len(xy) - 1 if last_row[name] is None else min(last_row[name], len(xy) - 1)
         tracks[name] = Track(dt * np.arange(end + 1), xy[:end + 1, i, 0], xy[:end + 1, i, 1])
     return tracks
+
+
+class SafetyWatch:
+    """The safety rules, checked over the flown rows in batches (``first_violation``) as they grow."""
+
+    def __init__(self, mission: Mission, truth: TruthGeometry, dt: float, every: int = _CHECK_EVERY_TICKS):
+        self.mission, self.truth, self.dt, self.every = mission, truth, dt, every
+        self.checked = 0  # rows[0..checked] are known to be safe
+
+    def poll(self, rows: list, force: bool = False) -> int | None:
+        """The first unsafe step once ``every`` new rows have come (or now, if forced)."""
+        if not force and len(rows) - 1 - self.checked < self.every:
+            return None
+        bad = first_violation(self.mission, self.truth, rows, self.checked, self.dt)
+        if bad is None:
+            self.checked = len(rows) - 1
+        return bad
+
+    def finish(self, rows: list) -> int | None:
+        """The first unsafe step among the rows not checked yet."""
+        if len(rows) - 1 <= self.checked:
+            return None
+        return first_violation(self.mission, self.truth, rows, self.checked, self.dt)
 
 
 def first_violation(mission: Mission, truth: TruthGeometry, rows: list, first: int, dt: float) -> int | None:
