@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uav_model.plant.unicycle import body_rollouts
 from uav_model.world import World
 
 
@@ -39,12 +40,13 @@ FLY = Verdict(False)
 
 def unicycle_points(start: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float,
                     horizon_s: float, step_s: float) -> np.ndarray:
-    """(N, 2) positions of a constant (v, omega) command, the planner's own rollout model."""
+    """(N, 2) positions of a constant (v, omega) command, the planner's own rollout model (the one
+    unicycle integration, uav_model.plant.unicycle.body_rollouts, turned to the start heading)."""
     n = max(1, int(math.ceil(horizon_s / step_s)))
-    theta = start.heading_rad + yaw_rate_rad_s * step_s * np.arange(1, n + 1)
-    x = start.x_m + np.cumsum(forward_m_s * np.cos(theta) * step_s)
-    y = start.y_m + np.cumsum(forward_m_s * np.sin(theta) * step_s)
-    return np.column_stack([x, y])
+    body, _ = body_rollouts(forward_m_s, np.array([yaw_rate_rad_s]), step_s, n)
+    bx, by = body[0, 1:, 0], body[0, 1:, 1]
+    c, s = math.cos(start.heading_rad), math.sin(start.heading_rad)
+    return np.column_stack([start.x_m + c * bx - s * by, start.y_m + s * bx + c * by])
 
 
 def constant_velocity_points(start: Kinematic2D, horizon_s: float, step_s: float) -> np.ndarray:
