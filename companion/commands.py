@@ -108,6 +108,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--progress-every", type=_positive, default=20.0, metavar="S",
                    help="a progress line per vehicle every S sim seconds (default 20)")
     p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
+    p.add_argument("--no-fence", action="store_true", help=NO_FENCE_HELP)
     p.add_argument("--shared-clock", action="store_true", default=None,
                    help="with --connect: assert that every vehicle stamps telemetry with one sim clock (an external "
                         "sim-bridge). Not needed: the companion detects it when the vehicles' clocks agree")
@@ -136,15 +137,20 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="write routes.json and trajectory.png here")
     p.set_defaults(func=cmd_plan)
 
-    p = sub.add_parser("upload", help="plan, upload the routes as MAVLink missions, read them back")
+    p = sub.add_parser("upload", help="plan, upload the routes as MAVLink missions and the geofence, read them back")
     p.add_argument("mission", type=Path)
     p.add_argument("--connect", type=_connect, action="append", default=[], metavar="NAME=URL", required=True)
     add_variant_option(p)
     p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S")
+    p.add_argument("--no-fence", action="store_true", help=NO_FENCE_HELP)
     p.set_defaults(func=cmd_upload)
 
     p = sub.add_parser("schema", help="print the mission JSON Schema")
     p.set_defaults(func=cmd_schema)
+
+
+NO_FENCE_HELP = ("do not upload the geofence (area as inclusion, inflated static obstacles as exclusions) before "
+                 "arming: for autopilots without fence support")
 
 
 # -- shared steps -------------------------------------------------------------------------
@@ -154,6 +160,7 @@ def _planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callab
     def with_plan(args: argparse.Namespace) -> int:
         try:
             plan = prepare(load_mission(args.mission), args.variant)
+            plan = dataclasses.replace(plan, geofence=not getattr(args, "no_fence", False))
         except MissionError as exc:
             return bad_input(exc)
         return handler(args, plan)
@@ -282,6 +289,9 @@ def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
     _quiet_mavsdk(None)
     try:
         asyncio.run(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
+    except PreflightRefused as exc:  # the geofence refused or read back different
+        print(f"companion: refused: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except CompanionError as exc:
         print(f"companion: upload failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
@@ -289,6 +299,7 @@ def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
 
 
 async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, report) -> None:
+    from companion.app.fence import upload_and_verify_fence
     from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
     for v in plan.mission.vehicles:
         async with open_mavsdk_vehicle(v.name, v.system_id, conns[v.name], plan.mission.origin,
@@ -298,6 +309,7 @@ async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, rep
             got = await vehicle.download_route()
             verify_readback(v.name, waypoints, got)
             report(f"{v.name}: uploaded {len(waypoints)} waypoints to {conns[v.name]} and read them back")
+            await upload_and_verify_fence(vehicle, plan, report)
 
 
 @_planned
