@@ -30,8 +30,8 @@ from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
 from companion.app.runner import RunResult, run_mission, summary_table
 from companion.errors import CompanionError, PreflightRefused
-from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_variant_option, bad_input,
-                                  output_dir)
+from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_no_fence_option,
+                                  add_variant_option, bad_input, connections, output_dir)
 from uav_model.mission import MissionError, load_mission, mission_schema, shared_goals
 
 if TYPE_CHECKING:
@@ -108,7 +108,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--progress-every", type=_positive, default=20.0, metavar="S",
                    help="a progress line per vehicle every S sim seconds (default 20)")
     p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
-    p.add_argument("--no-fence", action="store_true", help=NO_FENCE_HELP)
+    add_no_fence_option(p)
     p.add_argument("--shared-clock", action="store_true", default=None,
                    help="with --connect: assert that every vehicle stamps telemetry with one sim clock (an external "
                         "sim-bridge). Not needed: the companion detects it when the vehicles' clocks agree")
@@ -142,15 +142,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--connect", type=_connect, action="append", default=[], metavar="NAME=URL", required=True)
     add_variant_option(p)
     p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S")
-    p.add_argument("--no-fence", action="store_true", help=NO_FENCE_HELP)
+    add_no_fence_option(p)
     p.set_defaults(func=cmd_upload)
 
     p = sub.add_parser("schema", help="print the mission JSON Schema")
     p.set_defaults(func=cmd_schema)
-
-
-NO_FENCE_HELP = ("do not upload the geofence (area as inclusion, inflated static obstacles as exclusions) before "
-                 "arming: for autopilots without fence support")
 
 
 # -- shared steps -------------------------------------------------------------------------
@@ -165,21 +161,6 @@ def _planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callab
             return bad_input(exc)
         return handler(args, plan)
     return with_plan
-
-
-def _connections(plan: FlightPlan, pairs: list[tuple[str, str]]) -> dict[str, str]:
-    names = [v.name for v in plan.mission.vehicles]
-    out: dict[str, str] = {}
-    for name, url in pairs:
-        if name not in names:
-            raise BadInput(f"--connect {name}=...: the mission has no vehicle {name!r} (vehicles: {', '.join(names)})")
-        if name in out:
-            raise BadInput(f"--connect {name}=... given twice")
-        out[name] = url
-    missing = [n for n in names if n not in out]
-    if missing:
-        raise BadInput(f"--connect missing for vehicle(s) {', '.join(missing)}: give one NAME=URL per vehicle")
-    return out
 
 
 def _quiet_mavsdk(out_dir: Path | None) -> None:
@@ -285,7 +266,7 @@ def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
 
 @_planned
 def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
-    conns = _connections(plan, args.connect)
+    conns = connections(plan, args.connect)
     _quiet_mavsdk(None)
     try:
         asyncio.run(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
@@ -314,7 +295,7 @@ async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, rep
 
 @_planned
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
-    conns = _connections(plan, args.connect) if args.connect else None
+    conns = connections(plan, args.connect) if args.connect else None
     inproc = _inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out)
     _quiet_mavsdk(out)

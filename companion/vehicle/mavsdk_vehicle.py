@@ -90,18 +90,6 @@ def items_to_waypoints(items: Sequence[MissionItem]) -> tuple[GeoWaypoint, ...]:
                  for it in items if it.command == MAV_CMD_NAV_WAYPOINT)
 
 
-def zones_to_items(zones: Sequence[GeoFenceZone]) -> list[MissionItem]:
-    """The geofence as MAVSDK raw mission items of mission_type FENCE."""
-    return [MissionItem(seq=i, frame=MAV_FRAME_GLOBAL, command=it.command, current=0, autocontinue=1,
-                        param1=it.param1, param2=0.0, param3=0.0, param4=0.0, x=it.lat_e7, y=it.lon_e7, z=0.0,
-                        mission_type=MAV_MISSION_TYPE_FENCE)
-            for i, it in enumerate(fence_items(zones))]
-
-
-def items_to_zones(items: Sequence[MissionItem]) -> tuple[GeoFenceZone, ...]:
-    return fence_zones([FenceItem(int(it.command), float(it.param1), int(it.x), int(it.y)) for it in items])
-
-
 def body_setpoint(sp: VelocityYawRateSetpoint) -> VelocityBodyYawspeed:
     """The port's setpoint as MAVSDK's BODY_NED velocity + PX4 (clockwise) yawspeed."""
     yawspeed = frames.enu_yaw_rate_to_ned(sp.yaw_rate_enu_rad_s)
@@ -228,14 +216,14 @@ class MavsdkVehicle(BoardReaders):
         return items_to_waypoints(items)
 
     async def upload_fence(self, zones: Sequence[GeoFenceZone]) -> None:
-        items = zones_to_items(zones)
-        await self._command("geofence upload", lambda: self._mission.upload_geofence(items),
-                            MISSION_TRANSFER_TIMEOUT_S)
+        items = [MissionItem(seq=i, frame=MAV_FRAME_GLOBAL, command=it.command, current=0, autocontinue=1,
+                             param1=it.param1, param2=0.0, param3=0.0, param4=0.0, x=it.lat_e7, y=it.lon_e7, z=0.0,
+                             mission_type=MAV_MISSION_TYPE_FENCE) for i, it in enumerate(fence_items(zones))]
+        await self._command("geofence upload", lambda: self._mission.upload_geofence(items), MISSION_TRANSFER_TIMEOUT_S)
 
     async def download_fence(self) -> tuple[GeoFenceZone, ...]:
-        items = await self._command("geofence download", self._mission.download_geofence,
-                                    MISSION_TRANSFER_TIMEOUT_S)
-        return items_to_zones(items)
+        items = await self._command("geofence download", self._mission.download_geofence, MISSION_TRANSFER_TIMEOUT_S)
+        return fence_zones([FenceItem(int(it.command), float(it.param1), int(it.x), int(it.y)) for it in items])
 
     async def arm(self) -> None:
         await self._command("arm", self._action.arm)
