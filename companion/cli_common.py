@@ -13,8 +13,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from uav_model.mission import VARIANTS, MissionError
+
+if TYPE_CHECKING:
+    from companion.app.flight_plan import FlightPlan
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -40,3 +44,25 @@ def output_dir(path: Path) -> Path:
 
 def add_variant_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variant", choices=VARIANTS, default=None, help="planner variant (default: the mission's)")
+
+
+def add_no_fence_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--no-fence", action="store_true",
+                        help="do not upload the geofence (area as inclusion, inflated static obstacles as exclusions) "
+                             "before arming: for autopilots without fence support")
+
+
+def connections(plan: FlightPlan, pairs: list[tuple[str, str]]) -> dict[str, str]:
+    """``--connect NAME=URL`` pairs as one URL per mission vehicle; BadInput for unknown, repeated or missing names."""
+    names = [v.name for v in plan.mission.vehicles]
+    out: dict[str, str] = {}
+    for name, url in pairs:
+        if name not in names:
+            raise BadInput(f"--connect {name}=...: the mission has no vehicle {name!r} (vehicles: {', '.join(names)})")
+        if name in out:
+            raise BadInput(f"--connect {name}=... given twice")
+        out[name] = url
+    missing = [n for n in names if n not in out]
+    if missing:
+        raise BadInput(f"--connect missing for vehicle(s) {', '.join(missing)}: give one NAME=URL per vehicle")
+    return out

@@ -30,8 +30,8 @@ from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
 from companion.app.runner import RunResult, run_mission, summary_table
 from companion.errors import CompanionError, PreflightRefused
-from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_variant_option, bad_input,
-                                  output_dir)
+from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_no_fence_option,
+                                  add_variant_option, bad_input, connections, output_dir)
 from uav_model.mission import MissionError, load_mission, mission_schema, shared_goals
 
 if TYPE_CHECKING:
@@ -108,6 +108,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--progress-every", type=_positive, default=20.0, metavar="S",
                    help="a progress line per vehicle every S sim seconds (default 20)")
     p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
+    add_no_fence_option(p)
     p.add_argument("--shared-clock", action="store_true", default=None,
                    help="with --connect: assert that every vehicle stamps telemetry with one sim clock (an external "
                         "sim-bridge). Not needed: the companion detects it when the vehicles' clocks agree")
@@ -136,11 +137,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="write routes.json and trajectory.png here")
     p.set_defaults(func=cmd_plan)
 
-    p = sub.add_parser("upload", help="plan, upload the routes as MAVLink missions, read them back")
+    p = sub.add_parser("upload", help="plan, upload the routes as MAVLink missions and the geofence, read them back")
     p.add_argument("mission", type=Path)
     p.add_argument("--connect", type=_connect, action="append", default=[], metavar="NAME=URL", required=True)
     add_variant_option(p)
     p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S")
+    add_no_fence_option(p)
     p.set_defaults(func=cmd_upload)
 
     p = sub.add_parser("schema", help="print the mission JSON Schema")
@@ -154,25 +156,11 @@ def _planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callab
     def with_plan(args: argparse.Namespace) -> int:
         try:
             plan = prepare(load_mission(args.mission), args.variant)
+            plan = dataclasses.replace(plan, geofence=not getattr(args, "no_fence", False))
         except MissionError as exc:
             return bad_input(exc)
         return handler(args, plan)
     return with_plan
-
-
-def _connections(plan: FlightPlan, pairs: list[tuple[str, str]]) -> dict[str, str]:
-    names = [v.name for v in plan.mission.vehicles]
-    out: dict[str, str] = {}
-    for name, url in pairs:
-        if name not in names:
-            raise BadInput(f"--connect {name}=...: the mission has no vehicle {name!r} (vehicles: {', '.join(names)})")
-        if name in out:
-            raise BadInput(f"--connect {name}=... given twice")
-        out[name] = url
-    missing = [n for n in names if n not in out]
-    if missing:
-        raise BadInput(f"--connect missing for vehicle(s) {', '.join(missing)}: give one NAME=URL per vehicle")
-    return out
 
 
 def _quiet_mavsdk(out_dir: Path | None) -> None:
@@ -278,10 +266,13 @@ def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
 
 @_planned
 def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
-    conns = _connections(plan, args.connect)
+    conns = connections(plan, args.connect)
     _quiet_mavsdk(None)
     try:
         asyncio.run(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
+    except PreflightRefused as exc:  # the geofence refused or read back different
+        print(f"companion: refused: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except CompanionError as exc:
         print(f"companion: upload failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
@@ -289,6 +280,7 @@ def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
 
 
 async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, report) -> None:
+    from companion.app.fence import upload_and_verify_fence
     from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
     for v in plan.mission.vehicles:
         async with open_mavsdk_vehicle(v.name, v.system_id, conns[v.name], plan.mission.origin,
@@ -298,11 +290,12 @@ async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, rep
             got = await vehicle.download_route()
             verify_readback(v.name, waypoints, got)
             report(f"{v.name}: uploaded {len(waypoints)} waypoints to {conns[v.name]} and read them back")
+            await upload_and_verify_fence(vehicle, plan, report)
 
 
 @_planned
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
-    conns = _connections(plan, args.connect) if args.connect else None
+    conns = connections(plan, args.connect) if args.connect else None
     inproc = _inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out)
     _quiet_mavsdk(out)

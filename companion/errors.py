@@ -12,7 +12,9 @@ Raised, never printed; ``str()`` is one line that names the vehicle and says wha
      │                             carries ``vehicle``, ``command``, ``result`` and ``retryable``
      ├── MissionUploadError        upload or download failed, or the read-back differs
      ├── PreflightRefused          a pre-flight check failed before anything armed (CLI exit 2)
-     │    └── LinkConflict         two autopilots answer as one system on a link, or the port is taken
+     │    ├── LinkConflict         two autopilots answer as one system on a link, or the port is taken
+     │    └── GeofenceRefused      the geofence could not be uploaded or read back: the flight
+     │                             is refused before anything arms (CLI exit 2)
      └── MissionAborted            a safety monitor or the operator stopped the flight;
                                    carries the SPEC §2 failure ``reason`` (``link_lost``,
                                    ``interrupted``, ``geofence``, ``separation`` ...)
@@ -81,6 +83,10 @@ class PreflightRefused(CompanionError):
 
 class LinkConflict(PreflightRefused):
     """Two autopilots answer as one system id on one link, or the link's port is taken."""
+
+
+class GeofenceRefused(PreflightRefused):
+    """The autopilot's geofence could not be set (refused, lost, or read back different): nothing armed."""
 
 
 class MissionAborted(CompanionError):

@@ -1,4 +1,4 @@
-"""What the companion decides before anything connects: routes, planners, the uploaded missions.
+"""What the companion decides before anything connects: routes, planners, the uploaded missions and fence.
 
 :func:`prepare` is the last gate for bad input: an unreachable goal (the planner's ``NoPath``)
 becomes a :class:`uav_model.mission.MissionError` naming the vehicle's ``goal`` field, so the CLI
@@ -34,6 +34,7 @@ class FlightPlan:
     mission: Mission
     variant: str
     routes: dict[str, Route]  # empty for the station-goal variants (bdwa, dwa)
+    geofence: bool = True  # upload the autopilot geofence before arming (companion.app.fence); --no-fence
 
     @cached_property
     def certificate(self) -> OcclusionCertificate | None:

@@ -29,6 +29,7 @@ from collections.abc import Callable
 from companion.app import monitors
 from companion.app.context import FlightContext, PilotOutcome, RunSettings, wall_for_sim
 from companion.app.departure import Departure
+from companion.app.fence import upload_and_verify_fence
 from companion.app.flight_plan import verify_readback
 from companion.app.steering import Steering
 from companion.errors import (CommandRefused, CompanionError, MissionAborted, MissionUploadError, TelemetryLost,
@@ -67,6 +68,7 @@ class Pilot(Departure, Steering):
         try:
             await self.vehicle.wait_ready(self.ctx.settings.ready_timeout_s)
             await self.upload_and_verify()
+            await upload_and_verify_fence(self.vehicle, self.ctx.plan, self.ctx.report)  # a refusal: nothing armed
             self.outcome.phase = "uploaded"
             await self._barrier("all routes uploaded", self.ctx.settings.ready_timeout_s)
             await self._take_off()

@@ -10,6 +10,7 @@ raises :class:`~companion.errors.PreflightRefused` with the first refusal's line
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import statistics
 import time
 from collections.abc import Callable, Mapping
@@ -91,9 +92,10 @@ async def get_ready(plan: FlightPlan, vehicles: Mapping[str, Vehicle], settings:
         more = f" (and {len(result.refusals) - 1} more refusal(s) above)" if len(result.refusals) > 1 else ""
         raise PreflightRefused(f"pre-flight: {first.message}{more}", vehicle=first.vehicle)
     if result.replan:
-        flown = await asyncio.to_thread(prepare, result.mission, plan.variant)
+        flown = dataclasses.replace(await asyncio.to_thread(prepare, result.mission, plan.variant),
+                                    geofence=plan.geofence)
     else:
-        flown = FlightPlan(result.mission, plan.variant, plan.routes)
+        flown = FlightPlan(result.mission, plan.variant, plan.routes, geofence=plan.geofence)
     shared = settings.shared_clock if settings.shared_clock is not None else await detect_shared_clock(vehicles)
     report(f"clock: {'one sim clock for all vehicles' if shared else 'one clock per vehicle'}"
            + (" (detected)" if settings.shared_clock is None else ""))

@@ -3,7 +3,8 @@
 Export (:func:`plan_document`): one ``.plan`` per vehicle. Its ``mission`` holds the route the
 companion uploads (NAV_WAYPOINTs at cruise altitude above home, exactly ``FlightPlan.waypoints``);
 its ``geoFence`` holds the area plus the geofence margin as an inclusion polygon and every static
-obstacle, *inflated*, as an exclusion circle or polygon: what the autopilot must never enter.
+obstacle, *inflated*, as an exclusion circle or polygon: what the autopilot must never enter. These
+are the zones :func:`companion.app.fence.mission_fence` gives, the ones ``companion run`` uploads.
 MAVSDK's importer is stricter than QGC's documentation, so the file always has top-level
 ``version`` 1, ``mission.version`` 2, and ``geoFence`` and ``rallyPoints`` blocks of ``version`` 2.
 
@@ -19,9 +20,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from shapely.geometry import Polygon
-
+from companion.app.fence import mission_fence
 from companion.app.flight_plan import FlightPlan
+from companion.vehicle.port import GeoFenceZone
 from uav_model import frames
 from uav_model.mission import VehicleSpec
 from uav_model.world import Obstacle
@@ -30,7 +31,6 @@ MAV_CMD_NAV_WAYPOINT = 16
 MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
 QGC_FIRMWARE_PX4 = 12
 QGC_VEHICLE_MULTIROTOR = 2
-FENCE_VERTEX_SPACING_M = 25.0  # a curved inflated corner becomes straight runs about this long
 EXTRA_KEY = "astar_bdwa"
 
 
@@ -40,13 +40,11 @@ class PlanFormatError(ValueError):
 
 def _latlon(origin: frames.GeoOrigin, x: float, y: float) -> list[float]:
     lat, lon, _ = frames.local_to_geodetic(origin, x, y)
-    return [round(lat, 9), round(lon, 9)]
+    return _deg((lat, lon))
 
 
-def _ring(origin: frames.GeoOrigin, poly: Polygon) -> list[list[float]]:
-    """A polygon's exterior in lat/lon, without the closing repeat, densified no further than needed."""
-    simple = poly.simplify(0.05, preserve_topology=True)
-    return [_latlon(origin, x, y) for x, y in list(simple.exterior.coords)[:-1]]
+def _deg(latlon: tuple[float, float]) -> list[float]:
+    return [round(latlon[0], 9), round(latlon[1], 9)]
 
 
 def _true_shape(origin: frames.GeoOrigin, o: Obstacle) -> dict[str, Any]:
@@ -55,13 +53,13 @@ def _true_shape(origin: frames.GeoOrigin, o: Obstacle) -> dict[str, Any]:
     return {"id": o.id, "shape": "polygon", "vertices": [_latlon(origin, x, y) for x, y in o.vertices()]}
 
 
-def _exclusion(origin: frames.GeoOrigin, o: Obstacle) -> tuple[str, dict[str, Any]]:
+def _exclusion(origin: frames.GeoOrigin, o: Obstacle, zone: GeoFenceZone) -> tuple[str, dict[str, Any]]:
     extra = {EXTRA_KEY: _true_shape(origin, o)}
-    if o.is_circle:
-        return "circles", {"circle": {"center": _latlon(origin, *o.center), "radius": o.inflated_radius_m},
+    if zone.is_circle:
+        assert zone.center_deg is not None
+        return "circles", {"circle": {"center": _deg(zone.center_deg), "radius": zone.radius_m},
                            "inclusion": False, "version": 1, **extra}
-    inflated = o.footprint.buffer(o.margin_m, quad_segs=max(2, int(o.margin_m / FENCE_VERTEX_SPACING_M)))
-    return "polygons", {"inclusion": False, "polygon": _ring(origin, inflated), "version": 1, **extra}
+    return "polygons", {"inclusion": False, "polygon": [_deg(v) for v in zone.vertices_deg], "version": 1, **extra}
 
 
 def _mission_items(plan: FlightPlan, vehicle: VehicleSpec) -> list[dict[str, Any]]:
@@ -82,10 +80,11 @@ def plan_document(plan: FlightPlan, vehicle: VehicleSpec) -> dict[str, Any]:
     sw, ne = _latlon(origin, w.x_min_m, w.y_min_m), _latlon(origin, w.x_max_m, w.y_max_m)
     area = {"area": {"south_west": {"lat_deg": sw[0], "lon_deg": sw[1]},
                      "north_east": {"lat_deg": ne[0], "lon_deg": ne[1]}, "geofence_margin_m": w.geofence_margin_m}}
-    fence = {"circles": [], "polygons": [{"inclusion": True, "polygon": _ring(origin, w.geofence),
+    inclusion, *exclusions = mission_fence(mission)  # exactly what the companion uploads before arming
+    fence = {"circles": [], "polygons": [{"inclusion": True, "polygon": [_deg(v) for v in inclusion.vertices_deg],
                                           "version": 1, EXTRA_KEY: area}], "version": 2}
-    for o in mission.world.static_obstacles:
-        kind, item = _exclusion(origin, o)
+    for o, zone in zip(mission.world.static_obstacles, exclusions, strict=True):
+        kind, item = _exclusion(origin, o, zone)
         fence[kind].append(item)
     return {
         "fileType": "Plan",

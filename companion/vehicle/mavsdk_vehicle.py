@@ -37,10 +37,12 @@ from mavsdk.exceptions import MavsdkError
 from uav_model import frames
 from companion.errors import CommandRefused, ConnectTimeout, LinkError, MissionUploadError, VehicleNotReady
 from companion.vehicle.board import BoardReaders, VehicleBoard
-from companion.vehicle.convert import traffic_velocity_enu  # shared with the in-process adapter
+from companion.vehicle.convert import (  # shared with the in-process adapter
+    MAV_FRAME_GLOBAL, FenceItem, fence_items, fence_zones, traffic_velocity_enu)
 from companion.vehicle.link_probe import probe_udpin
 from companion.vehicle.port import (
     FlightMode,
+    GeoFenceZone,
     GeoWaypoint,
     LandedState,
     TrafficReport,
@@ -54,6 +56,7 @@ T = TypeVar("T")
 MAV_CMD_NAV_WAYPOINT = 16
 MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
 MAV_MISSION_TYPE_MISSION = 0
+MAV_MISSION_TYPE_FENCE = 1
 COMMAND_TIMEOUT_S = 5.0  # wall; MAVSDK itself retries a COMMAND_LONG for ~0.5 s x 3
 PARAM_LIST_TIMEOUT_S = 60.0  # wall; PX4 SITL sends its ~1000 parameters in about a second
 MISSION_TRANSFER_TIMEOUT_S = 30.0  # wall; the protocol has its own per-item timeouts
@@ -211,6 +214,16 @@ class MavsdkVehicle(BoardReaders):
         items = await self._command("mission download", self._mission.download_mission,
                                     MISSION_TRANSFER_TIMEOUT_S)
         return items_to_waypoints(items)
+
+    async def upload_fence(self, zones: Sequence[GeoFenceZone]) -> None:
+        items = [MissionItem(seq=i, frame=MAV_FRAME_GLOBAL, command=it.command, current=0, autocontinue=1,
+                             param1=it.param1, param2=0.0, param3=0.0, param4=0.0, x=it.lat_e7, y=it.lon_e7, z=0.0,
+                             mission_type=MAV_MISSION_TYPE_FENCE) for i, it in enumerate(fence_items(zones))]
+        await self._command("geofence upload", lambda: self._mission.upload_geofence(items), MISSION_TRANSFER_TIMEOUT_S)
+
+    async def download_fence(self) -> tuple[GeoFenceZone, ...]:
+        items = await self._command("geofence download", self._mission.download_geofence, MISSION_TRANSFER_TIMEOUT_S)
+        return fence_zones([FenceItem(int(it.command), float(it.param1), int(it.x), int(it.y)) for it in items])
 
     async def arm(self) -> None:
         await self._command("arm", self._action.arm)

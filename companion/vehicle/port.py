@@ -116,6 +116,24 @@ class GeoWaypoint:
     alt_rel_m: float
 
 
+@dataclass(frozen=True, slots=True)
+class GeoFenceZone:
+    """One geofence zone as the autopilot stores it (mission_type FENCE): a circle or a polygon.
+
+    ``inclusion``: the vehicle must stay inside (else outside). A polygon has ``vertices_deg``
+    ((lat, lon) pairs, no closing repeat); a circle has ``center_deg`` and ``radius_m``.
+    """
+
+    inclusion: bool
+    vertices_deg: tuple[tuple[float, float], ...] = ()
+    center_deg: tuple[float, float] | None = None
+    radius_m: float = 0.0
+
+    @property
+    def is_circle(self) -> bool:
+        return self.center_deg is not None
+
+
 @runtime_checkable
 class Vehicle(Protocol):
     """One connected autopilot. Adapters are opened as async context managers and closed by them.
@@ -172,6 +190,14 @@ class Vehicle(Protocol):
     async def upload_route(self, waypoints: Sequence[GeoWaypoint], acceptance_radius_m: float) -> None: ...
 
     async def download_route(self) -> tuple[GeoWaypoint, ...]: ...
+
+    async def upload_fence(self, zones: Sequence[GeoFenceZone]) -> None:
+        """Replace the autopilot's geofence (MAVLink mission protocol, mission_type FENCE)."""
+        ...
+
+    async def download_fence(self) -> tuple[GeoFenceZone, ...]:
+        """The geofence the autopilot stores, read back with the mission protocol."""
+        ...
 
     async def arm(self) -> None: ...
 

@@ -16,7 +16,8 @@ from companion.sitl.inprocess.link import (BODY_VELOCITY_YAW_RATE_MASK, COMMAND_
                                            mission_result, param_value, text_field)
 from companion.sitl.inprocess.telemetry import TelemetryIntake
 from companion.vehicle.board import BoardReaders, VehicleBoard
-from companion.vehicle.port import FlightMode, GeoWaypoint, VelocityYawRateSetpoint
+from companion.vehicle.convert import MAV_FRAME_GLOBAL, FenceItem, fence_items, fence_zones
+from companion.vehicle.port import FlightMode, GeoFenceZone, GeoWaypoint, VelocityYawRateSetpoint
 from sim_bridge.vehicle import Emit, SimVehicle
 
 if TYPE_CHECKING:
@@ -130,39 +131,60 @@ class InProcessVehicle(BoardReaders):
             mavlink.MAV_CMD_NAV_WAYPOINT, 1 if i == 0 else 0, 1, 0.0, float(acceptance_radius_m), 0.0, math.nan,
             int(round(w.lat_deg * 1e7)), int(round(w.lon_deg * 1e7)), float(w.alt_rel_m),
             mavlink.MAV_MISSION_TYPE_MISSION) for i, w in enumerate(waypoints)]
+        await self._upload(items, mavlink.MAV_MISSION_TYPE_MISSION, "mission upload")
+
+    async def download_route(self) -> tuple[GeoWaypoint, ...]:
+        items = await self._download(mavlink.MAV_MISSION_TYPE_MISSION, "mission download")
+        return tuple(GeoWaypoint(lat_deg=it.x / 1e7, lon_deg=it.y / 1e7, alt_rel_m=float(it.z))
+                     for it in items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
+
+    async def upload_fence(self, zones: Sequence[GeoFenceZone]) -> None:
+        """The geofence as a FENCE plan, through the same mission protocol as the route."""
+        f = self._up.factory
+        mtype = mavlink.MAV_MISSION_TYPE_FENCE
+        items = [f.mission_item_int_encode(self.system_id, self._sim.component_id, i, MAV_FRAME_GLOBAL, it.command,
+                                           0, 1, it.param1, 0.0, 0.0, 0.0, it.lat_e7, it.lon_e7, 0.0, mtype)
+                 for i, it in enumerate(fence_items(zones))]
+        await self._upload(items, mtype, "geofence upload")
+
+    async def download_fence(self) -> tuple[GeoFenceZone, ...]:
+        items = await self._download(mavlink.MAV_MISSION_TYPE_FENCE, "geofence download")
+        return fence_zones([FenceItem(int(it.command), float(it.param1), int(it.x), int(it.y)) for it in items])
+
+    async def _upload(self, items: Sequence[Any], mtype: int, what: str) -> None:
+        """The mission protocol's upload of one plan (mission or fence): COUNT, one item per request, the ACK."""
+        f = self._up.factory
         reply = await self._mission_reply(f.mission_count_encode(self.system_id, self._sim.component_id, len(items),
-                                                                 mavlink.MAV_MISSION_TYPE_MISSION), "mission upload")
+                                                                 mtype), what)
         for _ in range(len(items) + 1):  # one request per item, then the ACK: anything more is a bug
             kind = reply.get_type()
             if kind == "MISSION_ACK":
                 if reply.type != mavlink.MAV_MISSION_ACCEPTED:
-                    raise MissionUploadError(f"mission upload: {mission_result(reply.type)}", vehicle=self.name)
+                    raise MissionUploadError(f"{what}: {mission_result(reply.type)}", vehicle=self.name)
                 return
             if kind not in ("MISSION_REQUEST_INT", "MISSION_REQUEST") or not 0 <= reply.seq < len(items):
                 break
-            reply = await self._mission_reply(items[reply.seq], "mission upload")
+            reply = await self._mission_reply(items[reply.seq], what)
         # End the vehicle's side of the transfer, as a GCS cancels one (MISSION_ACK with an error).
         await self._intake.absorb(self._exchange(f.mission_ack_encode(
-            self.system_id, self._sim.component_id, mavlink.MAV_MISSION_OPERATION_CANCELLED,
-            mavlink.MAV_MISSION_TYPE_MISSION)))
-        raise MissionUploadError(f"mission upload: unexpected {reply.get_type()}", vehicle=self.name)
+            self.system_id, self._sim.component_id, mavlink.MAV_MISSION_OPERATION_CANCELLED, mtype)))
+        raise MissionUploadError(f"{what}: unexpected {reply.get_type()}", vehicle=self.name)
 
-    async def download_route(self) -> tuple[GeoWaypoint, ...]:
+    async def _download(self, mtype: int, what: str) -> list[Any]:
+        """The mission protocol's download of one plan: REQUEST_LIST, one REQUEST_INT per item, the ACK."""
         f = self._up.factory
         target = (self.system_id, self._sim.component_id)
-        mtype = mavlink.MAV_MISSION_TYPE_MISSION
-        count = await self._mission_reply(f.mission_request_list_encode(*target, mtype), "mission download")
+        count = await self._mission_reply(f.mission_request_list_encode(*target, mtype), what)
         if count.get_type() != "MISSION_COUNT":
-            raise MissionUploadError(f"mission download: {describe(count)}", vehicle=self.name)
-        out: list[GeoWaypoint] = []
+            raise MissionUploadError(f"{what}: {describe(count)}", vehicle=self.name)
+        out: list[Any] = []
         for seq in range(count.count):
-            item = await self._mission_reply(f.mission_request_int_encode(*target, seq, mtype), "mission download")
+            item = await self._mission_reply(f.mission_request_int_encode(*target, seq, mtype), what)
             if item.get_type() != "MISSION_ITEM_INT" or item.seq != seq:
-                raise MissionUploadError(f"mission download: {describe(item)} for item {seq}", vehicle=self.name)
-            if item.command == mavlink.MAV_CMD_NAV_WAYPOINT:
-                out.append(GeoWaypoint(lat_deg=item.x / 1e7, lon_deg=item.y / 1e7, alt_rel_m=float(item.z)))
+                raise MissionUploadError(f"{what}: {describe(item)} for item {seq}", vehicle=self.name)
+            out.append(item)
         await self._intake.absorb(self._exchange(f.mission_ack_encode(*target, mavlink.MAV_MISSION_ACCEPTED, mtype)))
-        return tuple(out)
+        return out
 
     # -- the link -------------------------------------------------------------------------
     def _time_boot_ms(self) -> int:

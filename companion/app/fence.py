@@ -1,0 +1,122 @@
+"""The autopilot's own geofence: what the companion uploads before arming, and its read-back check.
+
+    mission_fence(mission) -> (GeoFenceZone, ...)   the area + margin as the inclusion polygon, then
+                                                    every static obstacle, inflated, as an exclusion
+    upload_and_verify_fence(vehicle, plan, report)  upload (mission_type FENCE), download, compare
+
+One source of truth: the QGroundControl ``.plan`` export (:mod:`companion.formats.qgc_plan`) writes
+exactly these zones. A circle stays a circle of the inflated radius; a polygon is its true shape
+buffered by the inflation margin with round joins of about ``FENCE_VERTEX_SPACING_M`` per vertex:
+the chords lie inside the planner's inflated shape, so the planner's keep-out never crosses them.
+Moving obstacles are not fenced (a fence cannot move).
+
+If the autopilot refuses the fence, or reads back something else, the flight is refused
+(:class:`~companion.errors.GeofenceRefused`) before anything is armed; ``companion run --no-fence``
+skips the step for autopilots without fence support.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
+from shapely.geometry import Polygon
+
+from uav_model import frames
+from uav_model.mission import Mission
+from uav_model.world import Obstacle
+from companion.errors import CommandRefused, GeofenceRefused, MissionUploadError
+from companion.vehicle.port import GeoFenceZone, Vehicle
+
+if TYPE_CHECKING:
+    from companion.app.flight_plan import FlightPlan
+
+FENCE_VERTEX_SPACING_M = 25.0  # a curved inflated corner becomes straight runs about this long
+SIMPLIFY_M = 0.05  # vertices closer than this to a straight run are dropped
+LATLON_TOLERANCE_DEG = 2e-7  # MISSION_ITEM_INT stores 1e-7 degrees: one rounding step each way
+RADIUS_TOLERANCE_M = 0.01  # param1 is a float32
+UPLOAD_ATTEMPTS = 3
+
+
+def _ring(origin: frames.GeoOrigin, poly: Polygon) -> tuple[tuple[float, float], ...]:
+    """A polygon's exterior in (lat, lon), without the closing repeat."""
+    simple = poly.simplify(SIMPLIFY_M, preserve_topology=True)
+    return tuple(frames.local_to_geodetic(origin, x, y)[:2] for x, y in list(simple.exterior.coords)[:-1])
+
+
+def exclusion_zone(origin: frames.GeoOrigin, o: Obstacle) -> GeoFenceZone:
+    """One static obstacle, inflated, as an exclusion circle or polygon."""
+    if o.is_circle:
+        lat, lon, _ = frames.local_to_geodetic(origin, *o.center)
+        return GeoFenceZone(inclusion=False, center_deg=(lat, lon), radius_m=o.inflated_radius_m)
+    inflated = o.footprint.buffer(o.margin_m, quad_segs=max(2, int(o.margin_m / FENCE_VERTEX_SPACING_M)))
+    return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, inflated))
+
+
+def mission_fence(mission: Mission) -> tuple[GeoFenceZone, ...]:
+    """The inclusion zone (area + geofence margin) first, then one exclusion per static obstacle,
+    in ``mission.world.static_obstacles`` order."""
+    origin, world = mission.origin, mission.world
+    area = GeoFenceZone(inclusion=True, vertices_deg=_ring(origin, world.geofence))
+    return (area,) + tuple(exclusion_zone(origin, o) for o in world.static_obstacles)
+
+
+def _kind(z: GeoFenceZone) -> str:
+    return ("inclusion " if z.inclusion else "exclusion ") + ("circle" if z.is_circle else "polygon")
+
+
+def _zone_differs(a: GeoFenceZone, b: GeoFenceZone) -> str | None:
+    if a.inclusion != b.inclusion or a.is_circle != b.is_circle:
+        return f"an {_kind(b)}, uploaded an {_kind(a)}"
+    if a.is_circle:
+        assert a.center_deg is not None and b.center_deg is not None
+        if (max(abs(p - q) for p, q in zip(a.center_deg, b.center_deg)) > LATLON_TOLERANCE_DEG
+                or abs(a.radius_m - b.radius_m) > RADIUS_TOLERANCE_M):
+            return (f"a circle at ({b.center_deg[0]:.7f}, {b.center_deg[1]:.7f}) of {b.radius_m:g} m, uploaded "
+                    f"({a.center_deg[0]:.7f}, {a.center_deg[1]:.7f}) of {a.radius_m:g} m")
+        return None
+    if len(a.vertices_deg) != len(b.vertices_deg):
+        return f"{len(b.vertices_deg)} vertices, uploaded {len(a.vertices_deg)}"
+    for k, (p, q) in enumerate(zip(a.vertices_deg, b.vertices_deg)):
+        if max(abs(p[0] - q[0]), abs(p[1] - q[1])) > LATLON_TOLERANCE_DEG:
+            return f"vertex {k} at ({q[0]:.7f}, {q[1]:.7f}), uploaded ({p[0]:.7f}, {p[1]:.7f})"
+    return None
+
+
+def verify_fence_readback(vehicle: str, sent: Sequence[GeoFenceZone], got: Sequence[GeoFenceZone]) -> None:
+    """Raise GeofenceRefused unless the downloaded fence is the uploaded one."""
+    if len(sent) != len(got):
+        raise GeofenceRefused(f"the geofence read back has {len(got)} zones, uploaded {len(sent)}", vehicle=vehicle)
+    for i, (a, b) in enumerate(zip(sent, got)):
+        why = _zone_differs(a, b)
+        if why is not None:
+            raise GeofenceRefused(f"geofence zone {i} read back as {why}", vehicle=vehicle)
+
+
+async def upload_and_verify_fence(vehicle: Vehicle, plan: "FlightPlan", report: Callable[[str], None]) -> None:
+    """Upload the plan's geofence and read it back (nothing to do with ``plan.geofence`` off).
+
+    A transfer that fails is tried again (a lossy link); one that keeps failing, or a read-back
+    that differs, raises GeofenceRefused: the flight must not start.
+    """
+    if not plan.geofence:
+        return
+    zones = mission_fence(plan.mission)
+    for attempt in range(1, UPLOAD_ATTEMPTS + 1):
+        try:
+            await vehicle.upload_fence(zones)
+            got = await vehicle.download_fence()
+            break
+        except (MissionUploadError, CommandRefused) as exc:  # CommandRefused: MAVSDK timed out
+            if attempt == UPLOAD_ATTEMPTS or (isinstance(exc, CommandRefused) and not exc.retryable):
+                raise GeofenceRefused(f"{exc.message} (is the geofence supported? --no-fence skips it)",
+                                      vehicle=vehicle.name) from None
+            report(f"{vehicle.name}: geofence transfer failed ({exc.message}), retry {attempt}/{UPLOAD_ATTEMPTS - 1}")
+            await asyncio.sleep(0.5 * attempt)
+    verify_fence_readback(vehicle.name, zones, got)
+    items = sum(1 if z.is_circle else len(z.vertices_deg) for z in zones)
+    n = len(zones) - 1
+    report(f"{vehicle.name}: geofence uploaded and read back (the area and {n} obstacle{'s' * (n != 1)}, "
+           f"{items} items)")
+

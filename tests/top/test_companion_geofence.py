@@ -1,0 +1,170 @@
+"""The companion uploads the autopilot geofence and reads it back before anything arms.
+
+Mostly in process: the vehicles are the stub's own (``companion.sitl.inprocess``), whose mission
+protocol stores the FENCE plan and whose geofence enforces it, so these tests judge the upload by
+what the autopilot holds, and the order by a recorder around the real adapter. One test does the
+same through the MAVSDK adapter over real UDP.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.app.fence import mission_fence, upload_and_verify_fence, verify_fence_readback
+from companion.app.flight_plan import prepare
+from companion.app.pilot import RunSettings
+from companion.app.runner import run_mission
+from companion.cli import main
+from companion.errors import GeofenceRefused
+from companion.sitl.inprocess import open_inprocess_fleet
+from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
+from companion.vehicle.port import GeoFenceZone
+from uav_model.mission import parse_mission
+from sim_bridge.bridge import SimOptions
+from sim_bridge.mission_protocol import FENCE
+from sim_bridge.testing import sim_connection_url, stub_on_free_ports
+
+pytestmark = pytest.mark.timeout(120)
+
+MISSION_YAML = """
+name: fenced
+origin: {lat_deg: 47.397742, lon_deg: 8.545594, alt_m: 488.0}
+area: {x_min_m: 0, y_min_m: 0, x_max_m: 400, y_max_m: 400, geofence_margin_m: 50}
+stations: {A: [50, 50], B: [350, 350]}
+obstacles:
+  - {id: hill, shape: circle, center: [200, 200], radius_m: 40}
+  - {id: barn, shape: rectangle, center: [300, 120], width_m: 40, height_m: 30}
+vehicles:
+  - {name: a, start: A, goal: B, speed_m_s: 10, turn_radius_m: 20, cruise_alt_m: 10}
+  - {name: b, start: B, goal: A, speed_m_s: 10, turn_radius_m: 20, cruise_alt_m: 20}
+"""
+# 25 small sheds: each inflated rectangle is a 12-vertex fence polygon, 300 items in all, more
+# than the autopilot stores (the stub's FENCE capacity is 256 items).
+SHEDS = "\n".join(f"  - {{id: shed{i}{j}, shape: rectangle, center: [{260 + 16 * i}, {20 + 16 * j}], "
+                  f"width_m: 8, height_m: 8}}" for i in range(5) for j in range(5))
+TOO_BIG_YAML = MISSION_YAML.replace("vehicles:\n", SHEDS + "\nvehicles:\n")
+
+
+class Recorder:
+    """The real in-process adapter, with the order of the port calls written down."""
+
+    def __init__(self, inner, calls: list[str]):
+        self._inner = inner
+        self._calls = calls
+
+    def __getattr__(self, name):
+        attr = getattr(self._inner, name)
+        if name in ("upload_fence", "download_fence", "upload_route", "arm", "takeoff"):
+            async def call(*args, **kwargs):
+                self._calls.append(f"{self._inner.name}:{name}")
+                return await attr(*args, **kwargs)
+            return call
+        return attr
+
+
+def _run(yaml_text: str, geofence: bool = True):
+    mission = parse_mission(yaml_text, "fenced.yaml")
+    plan = prepare(mission)
+    plan = type(plan)(plan.mission, plan.variant, plan.routes, geofence=geofence)
+    calls: list[str] = []
+    lines: list[str] = []
+
+    async def go():
+        async with open_inprocess_fleet(mission) as fleet:
+            @contextlib.asynccontextmanager
+            async def opener(spec, url):
+                async with fleet.open_vehicle(spec, url) as v:
+                    yield Recorder(v, calls)
+            try:
+                result = await run_mission(plan, fleet.connections(), RunSettings(), None, lines.append,
+                                           open_vehicle=opener)
+            except GeofenceRefused as exc:
+                result = exc
+            return result, {v.name: v.sim for v in fleet.vehicles}
+    result, sims = asyncio.run(go())
+    return mission, result, sims, calls, lines
+
+
+def test_the_fence_is_uploaded_and_read_back_before_arming_and_the_flight_stays_inside():
+    mission, result, sims, calls, lines = _run(MISSION_YAML)
+    assert result.success, (result.reason, result.message)
+    for name, sim in sims.items():
+        order = [c.split(":")[1] for c in calls if c.startswith(name + ":")]
+        assert order.index("upload_fence") < order.index("download_fence") < order.index("arm"), order
+        stored = sim.missions.plan(FENCE)
+        commands = [it.command for it in stored]
+        assert commands[:4] == [mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION] * 4  # the area + margin
+        assert commands[4] == mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION and stored[4].param1 == pytest.approx(48.0)
+        assert set(commands[5:]) == {mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION}  # the barn, inflated
+        assert not sim.geofence.breaches  # the flight never entered an inflated obstacle
+        assert any(f"{name}: geofence uploaded and read back (the area and 2 obstacles, " in line for line in lines)
+    # The autopilot's zones are the .plan's: the geometry in the stub is the mission's inflated obstacles.
+    fence = sims["a"].geofence.fence
+    (circle,) = fence.exclusion_circles
+    assert (circle.x_east_m, circle.y_north_m) == pytest.approx((200.0, 200.0), abs=0.02)
+    (ring,) = fence.exclusion_polygons
+    barn = ring.polygon
+    inflated = mission.world.obstacles[1].inflated
+    assert barn.within(inflated.buffer(0.05)) and barn.area > 0.97 * inflated.area
+
+
+def test_no_fence_uploads_nothing():
+    _, result, sims, calls, _ = _run(MISSION_YAML, geofence=False)
+    assert result.success
+    assert not any("fence" in c for c in calls)
+    assert all(sim.missions.plan(FENCE) == () for sim in sims.values())
+
+
+def test_a_fence_the_autopilot_cannot_store_refuses_the_flight_and_nothing_arms(caplog):
+    caplog.set_level(logging.INFO, logger="companion")
+    _, result, sims, calls, _ = _run(TOO_BIG_YAML)
+    assert isinstance(result, GeofenceRefused), result
+    assert "MAV_MISSION_NO_SPACE" in str(result) and "--no-fence" in str(result)
+    assert not any(c.endswith(":arm") for c in calls), calls
+    assert all(not sim.armed and sim.modes.armed_t is None for sim in sims.values())
+    assert "Armed by" not in caplog.text
+
+
+def test_cli_refuses_in_one_line_with_exit_2(tmp_path: Path, capsys, companion_logger):
+    path = tmp_path / "too_big.yaml"
+    path.write_text(TOO_BIG_YAML)
+    assert main(["run", str(path), "--in-process"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("companion: refused: vehicle ") and "nothing was armed" in err[0]
+
+
+def test_a_read_back_that_differs_is_refused():
+    mission = parse_mission(MISSION_YAML, "fenced.yaml")
+    sent = mission_fence(mission)
+    verify_fence_readback("a", sent, sent)
+    moved = GeoFenceZone(inclusion=False, center_deg=(sent[1].center_deg[0] + 1e-6, sent[1].center_deg[1]),
+                         radius_m=sent[1].radius_m)
+    with pytest.raises(GeofenceRefused, match="zone 1 read back as a circle at"):
+        verify_fence_readback("a", sent, (sent[0], moved, sent[2]))
+    with pytest.raises(GeofenceRefused, match="read back has 2 zones, uploaded 3"):
+        verify_fence_readback("a", sent, sent[:2])
+
+
+def test_the_mavsdk_adapter_uploads_and_reads_back_the_same_fence_over_udp():
+    mission = parse_mission(MISSION_YAML, "fenced.yaml")
+    plan = prepare(mission)
+    lines: list[str] = []
+
+    async def go():
+        async with stub_on_free_ports(mission, SimOptions(speedup=20.0), gcs=False) as sim:
+            spec = mission.vehicles[0]
+            async with open_mavsdk_vehicle(spec.name, spec.system_id, sim_connection_url(sim, 0), mission.origin,
+                                           connect_timeout_s=10.0) as v:
+                await upload_and_verify_fence(v, plan, lines.append)
+                got = await v.download_fence()
+            return sim.vehicle(0).missions.plan(FENCE), got
+    stored, got = asyncio.run(asyncio.wait_for(go(), 60.0))
+    verify_fence_readback("a", mission_fence(mission), got)
+    assert len(stored) == sum(1 if z.is_circle else len(z.vertices_deg) for z in got)
+    assert lines and "geofence uploaded and read back" in lines[-1]
