@@ -313,6 +313,9 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     elif conns is not None and (args.speedup not in (None, 1.0) or args.loss or args.latency_ms or args.blackout):
         print("companion: note: --speedup/--loss/--latency-ms/--blackout only apply to the embedded stub; "
               "ignored with --connect", file=sys.stderr)
+    # The certificate is seconds of numpy: work it out before anything spins. Beside the in-process
+    # fleet's busy loop, a worker thread's GIL hand-offs stalled it (and the fleet) for minutes.
+    _ = plan.certificate
     try:
         result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks))
     except PreflightRefused as exc:
