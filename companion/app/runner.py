@@ -115,8 +115,9 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
 
         summary = _score(plan, log, outcomes, reason, shared_clock)
         doc = _summary_doc(plan, summary, outcomes, reason, message, time.monotonic() - started, extra)
-        # Seconds of pure work: in a worker thread, and only once the vehicles are done with.
-        doc["occlusion_certificate"] = await asyncio.to_thread(_certificate_doc, plan)
+        # Seconds of pure numpy, once the vehicles are done with. Not in a worker thread: beside the
+        # in-process fleet's busy loop, the GIL hand-offs of numpy calls stalled it for minutes.
+        doc["occlusion_certificate"] = _certificate_doc(plan)
         if out_dir is not None:
             (out_dir / "summary.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
             _plot(out_dir / "trajectory.png", plan, log)
