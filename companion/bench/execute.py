@@ -28,9 +28,10 @@ from typing import Any, TextIO
 from companion.bench.diagnose import diagnose, hold_ticks
 from companion.bench.orca import BASELINES, ROUTE_VARIANT, simulate_orca
 from companion.bench.executors import ExecutorError, ExecutorSpec, Pool, open_pool
-from companion.bench.table import run_row
+from companion.bench.table import certificate_columns, run_row
 from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
 from companion.bench.weights import Weights
+from companion.planning.certificate import certify
 from companion.planning.errors import NoPath
 from companion.planning.vehicle_planner import variant_needs_route
 from companion.planning.metrics import vehicle_lower_bound_s
@@ -81,12 +82,13 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
                                                   None, wall_s=0.0, reason="no_scenario", error=str(exc)), w)
                                 for v, w in task.runs()])
     rows, files = [], []
+    cert = _certificate(scenario)
     bounds = {v.name: vehicle_lower_bound_s(scenario.mission, v.name) for v in scenario.mission.vehicles}
     for k, (variant, weights) in enumerate(task.runs()):
         mission = scenario.mission if weights is None else weights.apply(scenario.mission)
         routes = scenario.routes if variant in BASELINES or variant_needs_route(variant) else {}
         row, result = _fly(task, scenario.doc["name"], mission, variant, routes, bounds)
-        rows.append(_weighted(row, weights))
+        rows.append(_weighted({**row, **cert}, weights))
         if not task.artefacts:
             continue
         if not row["success"]:
@@ -96,6 +98,17 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
         if task.example and k == 0 and result is not None:
             files.append((EXAMPLE_NAME, _png(result, f"{scenario.doc['name']} - {variant}")))
     return ScenarioOutcome(rows, tuple(files))
+
+
+def _certificate(scenario: Any) -> dict[str, Any]:
+    """The scenario's occlusion certificate as row columns, worked out once for all its runs."""
+    if len(scenario.mission.vehicles) < 2:
+        return {}
+    try:
+        return certificate_columns(certify(scenario.mission, scenario.routes))
+    except Exception as exc:  # a certificate bug must not sink the scenario's flights
+        print(f"certificate of {scenario.doc['name']} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return {}
 
 
 def _weighted(row: dict[str, Any], weights: Weights | None) -> dict[str, Any]:

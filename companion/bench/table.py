@@ -12,9 +12,13 @@ import math
 import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from enum import Enum
+from typing import TYPE_CHECKING, Any
 
 from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
+
+if TYPE_CHECKING:
+    from companion.planning.certificate import OcclusionCertificate
 
 UNSAFE_REASONS = ("collision", "separation", "geofence")
 
@@ -25,6 +29,10 @@ RUN_COLUMNS: tuple[tuple[str, type], ...] = (
     ("crossing_occluded", bool), ("planner_ms_per_tick", float), ("wall_s", float), ("error", str),
     ("hold_ticks", int), ("escape_ticks", int), ("replans", int), ("failed_vehicles", str), ("hit_obstacle", str), ("hit_moving", bool),
     ("hit_from_behind", bool),
+    # The scenario's occlusion certificate under its mission's rule (the same in every run of it):
+    # feasible / needs-hold / infeasible, and the least departure hold of the first vehicle.
+    ("cert_whole_flight", str), ("cert_whole_flight_hold_s", float),
+    ("cert_closest_approach", str), ("cert_closest_approach_hold_s", float),
 )
 VEHICLE_COLUMNS: tuple[tuple[str, type], ...] = (
     ("arrived", bool), ("flight_time_s", float), ("path_length_m", float), ("lower_bound_s", float),
@@ -53,6 +61,29 @@ def run_row(seed: int, index: int, scenario: str, variant: str, summary: Mapping
         for key, _ in VEHICLE_COLUMNS:
             row[f"{name}_{key}"] = metrics.get(key)
     return row
+
+
+class CertVerdict(str, Enum):
+    """A certificate question's answer under the mission's rule (how runs.csv spells it)."""
+
+    FEASIBLE = "feasible"
+    NEEDS_HOLD = "needs-hold"  # feasible only after a departure hold the rule does not allow
+    INFEASIBLE = "infeasible"  # no hold within the time limit helps
+
+
+def certificate_columns(cert: "OcclusionCertificate | None") -> dict[str, Any]:
+    """The ``cert_*`` columns of a scenario's certificate (empty without one: a single vehicle)."""
+    if cert is None:
+        return {}
+
+    def verdict(ok: bool, hold: float | None) -> str:
+        return (CertVerdict.FEASIBLE if ok else CertVerdict.INFEASIBLE if hold is None
+                else CertVerdict.NEEDS_HOLD).value
+
+    return {"cert_whole_flight": verdict(cert.whole_flight, cert.whole_flight_min_hold_s),
+            "cert_whole_flight_hold_s": cert.whole_flight_min_hold_s,
+            "cert_closest_approach": verdict(cert.closest_approach, cert.closest_approach_min_hold_s),
+            "cert_closest_approach_hold_s": cert.closest_approach_min_hold_s}
 
 
 def vehicle_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
@@ -172,8 +203,36 @@ def aggregate(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
             "min_separation_m": _stats([r["min_separation_m"] for r in ok if r.get("min_separation_m") is not None]),
             "planner_ms_per_tick": round(statistics.fmean(ms), 4) if ms else None,
             "wall_s": round(sum(r["wall_s"] for r in mine), 3),
+            **_certificate_summary(mine, names),
         }
     return out
+
+
+def _certificate_summary(mine: Sequence[Mapping[str, Any]], names: Sequence[str]) -> dict[str, Any]:
+    """Certificate counts of a variant's scenarios; strict successes among those whose
+    closest approach it calls feasible; ratios to the bound over successes needing no hold."""
+    counts = {q: {v.value: sum(1 for r in mine if r.get(f"cert_{q}") == v.value) for v in CertVerdict}
+              for q in ("whole_flight", "closest_approach")}
+    feasible = [r for r in mine if r.get("cert_closest_approach") == CertVerdict.FEASIBLE.value]
+    strict = sum(1 for r in feasible if r["success_strict"])
+    return {"certificate": counts,
+            "strict_where_feasible": {"scenarios": len(feasible), "strict": strict,
+                                      "rate": round(strict / len(feasible), 4) if feasible else None},
+            "ratio_to_bound_no_hold": {n: _stats([r[f"{n}_ratio"] for r in feasible if r["success"]
+                                                  and r.get(f"{n}_ratio") is not None]) for n in names}}
+
+
+def certificate_text(s: Mapping[str, Any]) -> str:
+    """A variant's certificate counts as one short phrase (feasible / needs hold / infeasible)."""
+    def part(q: str) -> str:
+        c = s["certificate"][q]
+        return f"{c['feasible']} / {c['needs-hold']} / {c['infeasible']}"
+    return f"closest approach {part('closest_approach')}, whole flight {part('whole_flight')}"
+
+
+def _strict_feasible_text(s: Mapping[str, Any]) -> str:
+    w = s["strict_where_feasible"]
+    return "-" if not w["scenarios"] else f"{w['strict']}/{w['scenarios']} ({100 * w['rate']:.1f} %)"
 
 
 def format_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
@@ -199,6 +258,12 @@ def format_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
     for variant, s in summary.items():
         reasons = ", ".join(f"{k} {v}" for k, v in s["reasons"].items()) or "none"
         lines.append(f"failures {variant}: {reasons}")
+    if summary and any(sum(c.values()) for c in next(iter(summary.values()))["certificate"].values()):
+        lines.append("")
+        for variant, s in summary.items():
+            ratios = ", ".join(f"{n} {num(st['mean'], '.3f')}" for n, st in s["ratio_to_bound_no_hold"].items())
+            lines.append(f"certificate {variant} (feasible / needs hold / infeasible): {certificate_text(s)}; "
+                         f"strict where feasible {_strict_feasible_text(s)}; x bound where feasible: {ratios}")
     return "\n".join(lines)
 
 
@@ -223,6 +288,8 @@ def markdown_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
 
     head = ["variant", "paper success", "our success", "strict", "collisions", "failures"]
     head += [f"{n}: mean / median s (x bound)" for n in names] + ["paper mean a / b s"]
+    head += ["certificate: feasible / needs hold / infeasible", "strict where feasible",
+             "x bound where feasible (" + " / ".join(names) + ")"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for variant, s in summary.items():
         paper = PAPER_TABLE_IV.get(variant)
@@ -232,5 +299,8 @@ def markdown_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
         cells = [f"`{variant}`", p_ok, f"**{s['successes']}/{s['runs']} ({100 * s['success_rate']:.1f} %)**",
                  f"{s['strict_successes']}/{s['runs']} ({100 * s['strict_rate']:.1f} %)", str(s["collisions"]), fails]
         cells += [ft(s, n) for n in names] + [p_t]
+        no_hold = s["ratio_to_bound_no_hold"]
+        cells += [certificate_text(s), _strict_feasible_text(s),
+                  " / ".join("-" if no_hold[n]["mean"] is None else f"{no_hold[n]['mean']:.3f}" for n in names)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
