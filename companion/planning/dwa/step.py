@@ -67,7 +67,8 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
         ok_by_rule[Rule.GEOFENCE] = fence_ok(px, py, config.fence_m, fence_here)
 
     legal = legal_rollouts(ok_by_rule, config)
-    heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single)
+    heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single,
+                                soonest_deg=_SOONEST_DEG if config.count > config.samples else 0.0)
     if not np.count_nonzero(legal):
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear)
     legal = commit_turn(pose, goals, legal, config)
@@ -81,6 +82,11 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     best = int(total.argmax())
     return command_for(config, best, heading, distance, sightline, float(total[best]), n_legal)
 
+
+
+# With a speed window, an arriving rollout loses up to this much heading score for arriving late
+# (the paper's constant-speed window keeps its ties).
+_SOONEST_DEG = 5.0
 
 
 def _placed(place: np.ndarray, config: DwaConfig,
