@@ -1,7 +1,8 @@
 """One pilot's way into the air, as PX4 wants it. Mixed into :class:`companion.app.pilot.Pilot`.
 
     (LAND/RTL on the ground: HOLD first) -> arm, retried while PX4 refuses it during boot
-    -> (all armed) -> re-arm if COM_DISARM_PRFLT disarmed it meanwhile -> take off, confirm armed
+    -> (all armed) -> arm again if COM_DISARM_PRFLT ran out (or nearly) meanwhile -> take off,
+    confirm armed (disarmed on the ground before lifting: arm and take off once more)
     -> (airborne) ... OFFBOARD -> yaw in place to the mission's initial heading
 
 PX4 refuses to arm for ~4.2 s after boot (TEMPORARILY_REJECTED, which MAVSDK reports as
@@ -29,6 +30,9 @@ if TYPE_CHECKING:
 # Arm refusals worth another try: the autopilot may accept once its estimator has settled.
 ARM_RETRY_RESULTS = frozenset({"COMMAND_DENIED", "TEMPORARILY_REJECTED", "BUSY", "TIMEOUT", "UNKNOWN"})
 REARM_MODES = frozenset({FlightMode.LAND, FlightMode.RETURN_TO_LAUNCH, FlightMode.TAKEOFF})
+TAKEOFF_ATTEMPTS = 2  # a take-off the preflight disarm beat on the ground is tried once more
+ON_GROUND_ALT_M = 1.0  # disarmed below this: it never lifted, arming again is safe
+PRFLT_MARGIN_SIM_S = 5.0  # take off at least this long before COM_DISARM_PRFLT runs out (PX4 detects take-off ~1.6 s after the command)
 MIN_ALIGN_RATE_RAD_S = math.radians(30.0)  # PX4 yaws in place at 86-90 deg/s; the stub at v/r
 
 
@@ -39,6 +43,7 @@ class Departure:
     vehicle: Vehicle
     outcome: PilotOutcome
     setpoint: VelocityYawRateSetpoint
+    _armed_at_sim_s: float | None = None  # the vehicle's clock when the last arm was confirmed
 
     def _climb_sim_s(self) -> float:
         return self.spec.cruise_alt_m / 0.5 + 30.0  # PX4 climbs at >= 0.5 m/s (MPC_TKO_SPEED)
@@ -46,23 +51,48 @@ class Departure:
     async def _take_off(self) -> None:
         self.outcome.phase = "arming"  # from here on the vehicle may be armed, even if we are cancelled
         await self._leave_landing_mode()
+        prflt = await self.vehicle.get_param("COM_DISARM_PRFLT")  # read before arming: nothing between arm and take-off
         await self._arm()
         self.outcome.phase = "armed"
         # Nobody leaves the ground unless everybody could arm: a refusal then only disarms.
         await self._barrier("all vehicles armed", wall_for_sim(self.vehicle, self.ctx.settings.arm_retry_s, 30.0))
-        if not self.vehicle.status().armed:  # COM_DISARM_PRFLT ran out while the others armed
-            self.ctx.report(f"{self.name}: disarmed while waiting for the others (auto preflight disarm); arming again")
-            await self._arm()
+        await self._keep_armed_for_takeoff(prflt)
         alt = self.spec.cruise_alt_m
-        await self._retry("takeoff", lambda: self.vehicle.takeoff(alt))
-        self.outcome.phase = "takeoff"
-        target = alt - 1.0  # PX4 ends TAKEOFF within a few decimetres of MIS_TAKEOFF_ALT
-        await self.vehicle.wait_until(lambda s, p: not s.armed or (p is not None and p.alt_rel_m >= target),
-                                      wall_for_sim(self.vehicle, self._climb_sim_s()), f"take-off to {alt:g} m")
-        if not self.vehicle.status().armed:
-            raise MissionAborted("disarmed", "disarmed during take-off", vehicle=self.name)
+        for attempt in range(1, TAKEOFF_ATTEMPTS + 1):
+            await self._retry("takeoff", lambda: self.vehicle.takeoff(alt))
+            self.outcome.phase = "takeoff"
+            target = alt - 1.0  # PX4 ends TAKEOFF within a few decimetres of MIS_TAKEOFF_ALT
+            await self.vehicle.wait_until(lambda s, p: not s.armed or (p is not None and p.alt_rel_m >= target),
+                                          wall_for_sim(self.vehicle, self._climb_sim_s()), f"take-off to {alt:g} m")
+            if self.vehicle.status().armed:
+                break
+            pose = self.vehicle.latest_pose()
+            if attempt == TAKEOFF_ATTEMPTS or pose is None or pose.alt_rel_m > ON_GROUND_ALT_M:
+                raise MissionAborted("disarmed", "disarmed during take-off", vehicle=self.name)
+            # Disarmed before it lifted (COM_DISARM_PRFLT raced the take-off command): arm, go again.
+            self.ctx.report(f"{self.name}: disarmed on the ground before take-off; arming again")
+            self.outcome.phase = "arming"
+            await self._arm()
         self.outcome.phase = "airborne"
         self.ctx.report(f"{self.name}: airborne at {alt:g} m")
+
+    async def _keep_armed_for_takeoff(self, prflt_s: float | None) -> None:
+        """PX4 disarms COM_DISARM_PRFLT (sim) after an arm without take-off. If the wait for the
+        others has used up most of it, disarm and arm again now, just before the take-off command,
+        rather than let the autopilot disarm it in the middle of the take-off."""
+        st = self.vehicle.status()
+        now, armed_at = self.vehicle.clock_s(), self._armed_at_sim_s
+        if st.armed and prflt_s is not None and prflt_s >= 0 and now is not None and armed_at is not None \
+                and now - armed_at > prflt_s - PRFLT_MARGIN_SIM_S:
+            self.ctx.report(f"{self.name}: armed {now - armed_at:.1f} s ago, COM_DISARM_PRFLT {prflt_s:g} s: "
+                            "arming again just before take-off")
+            await self._retry("disarm", self.vehicle.disarm)
+            await self.vehicle.wait_until(lambda s, p: not s.armed, wall_for_sim(self.vehicle, 3.0), "disarmed")
+        elif not st.armed:  # COM_DISARM_PRFLT ran out while the others armed (a clock we could not read)
+            self.ctx.report(f"{self.name}: disarmed while waiting for the others (auto preflight disarm); arming again")
+        else:
+            return
+        await self._arm()
 
     async def _leave_landing_mode(self) -> None:
         """After a landing the vehicle may sit in LAND (or RTL): switch to HOLD before arming."""
@@ -94,6 +124,7 @@ class Departure:
                 await asyncio.sleep(wait_wall)
                 delay_sim = min(2.0 * delay_sim, 2.0)
         await self.vehicle.wait_until(lambda s, p: s.armed, wall_for_sim(self.vehicle, 3.0), "armed")
+        self._armed_at_sim_s = self.vehicle.clock_s()
         if self.outcome.arm_attempts > 1:
             self.ctx.report(f"{self.name}: armed after {self.outcome.arm_attempts} attempts")
 

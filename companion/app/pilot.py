@@ -29,6 +29,7 @@ from collections.abc import Callable
 from companion.app import monitors
 from companion.app.context import FlightContext, PilotOutcome, RunSettings, wall_for_sim
 from companion.app.departure import Departure
+from companion.app.failsafe import OVERRIDE_GRACE_MIN_WALL_S, OVERRIDE_GRACE_SIM_S, FailsafeWatch, ModeVerdict
 from companion.app.fence import upload_and_verify_fence
 from companion.app.flight_plan import verify_readback
 from companion.app.steering import Steering
@@ -41,7 +42,6 @@ from companion.vehicle.port import HOVER, FlightMode, LandedState, PoseSample, V
 
 __all__ = ["FlightContext", "Pilot", "PilotOutcome", "RunSettings", "wall_for_sim"]
 
-RECOVERABLE_MODES = frozenset({FlightMode.HOLD, FlightMode.RETURN_TO_LAUNCH})
 STALE_EXCUSES_S = 10.0  # wall: RTL this soon after our own telemetry gap is taken as the link-loss failsafe
 
 
@@ -58,10 +58,9 @@ class Pilot(Departure, Steering):
         self._offboard_live = False  # the keep-alive resends only while this is set
         self._next_progress_s = 0.0
         self._snapshot = ctx.field.from_tracks(())  # the obstacles as last seen by a tick
-        self._offboard_notices = 0  # failsafe notices heard up to the last OFFBOARD confirmation
+        self._failsafes = FailsafeWatch(self.vehicle.status())  # set again once OFFBOARD is confirmed
         self._stale_ended_wall: float | None = None
         self._reentries: deque[float] = deque()  # sim times of recent offboard re-entries
-        self._mode_changes = 0  # mode changes heard up to the last mode check
 
     # -- the whole flight ------------------------------------------------------------------
     async def fly(self) -> PilotOutcome:
@@ -131,8 +130,7 @@ class Pilot(Departure, Steering):
         await self._retry("offboard start", lambda: self.vehicle.start_offboard(self.setpoint))
         await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.OFFBOARD,
                                       wall_for_sim(self.vehicle, 5.0), "OFFBOARD mode")
-        self._offboard_notices = self.vehicle.status().failsafe_notices
-        self._mode_changes = self.vehicle.status().mode_changes
+        self._failsafes = FailsafeWatch(self.vehicle.status())
         await self._align_heading()
         await self._barrier("all vehicles at their initial heading", wall_for_sim(self.vehicle, 60.0, 10.0))
         # Mission time starts when the companion sends its first planned command (the headless
@@ -258,43 +256,34 @@ class Pilot(Departure, Steering):
             raise MissionAborted("link_identity", f"{why}: another system answers with this vehicle's id; "
                                  "holding", vehicle=self.name)
 
-    def _is_offboard_loss(self, mode: FlightMode | None) -> bool:
-        """HOLD (the stub's failsafe), or RTL/HOLD after a failsafe notice or our own telemetry
-        gap (PX4's default COM_OBL_RC_ACT 0: "Failsafe activated", then RTL)."""
-        if mode is FlightMode.HOLD:
-            return True
-        if mode not in RECOVERABLE_MODES:
-            return False
-        noticed = self.vehicle.status().failsafe_notices > self._offboard_notices
-        recent_gap = self._stale_ended_wall is not None and time.monotonic() - self._stale_ended_wall < STALE_EXCUSES_S
-        return noticed or recent_gap
-
     async def _check_mode(self) -> None:
+        """OFFBOARD, or the autopilot's offboard-loss failsafe to recover from (bounded), or an
+        operator's mode change to stand down for (companion.app.failsafe tells them apart)."""
         st = self.vehicle.status()
-        mode = st.mode
-        if mode is FlightMode.OFFBOARD:
-            if st.mode_changes != self._mode_changes and self._is_offboard_loss(st.last_other_mode):
-                # A failsafe that is already over: PX4 re-entered OFFBOARD by itself once setpoints flowed.
-                self.outcome.offboard_reentries += 1
-                self.ctx.report(f"{self.name}: autopilot fell back to {st.last_other_mode.value} (offboard loss) "
-                                "and re-entered OFFBOARD by itself")
-            self._mode_changes = st.mode_changes
-            self._offboard_notices = st.failsafe_notices
-            return
-        s = self.ctx.settings
-        if not self._is_offboard_loss(mode):
+        recent_gap = self._stale_ended_wall is not None and time.monotonic() - self._stale_ended_wall < STALE_EXCUSES_S
+        grace_wall = max(wall_for_sim(self.vehicle, OVERRIDE_GRACE_SIM_S, 0.0), OVERRIDE_GRACE_MIN_WALL_S)
+        verdict = self._failsafes.judge(st, self.vehicle.clock_s(), time.monotonic(), grace_wall, recent_gap)
+        if verdict is ModeVerdict.RESUMED:
+            # A failsafe that is already over: PX4 re-entered OFFBOARD by itself once setpoints flowed.
+            self.outcome.offboard_reentries += 1
+            self.ctx.report(f"{self.name}: autopilot fell back to {st.last_other_mode.value} (offboard loss) "
+                            "and re-entered OFFBOARD by itself")
+        if verdict is ModeVerdict.OVERRIDE:
             # Someone else (a pilot, another failsafe) chose another mode: stop commanding, do not fight it.
             self.outcome.phase = "override"
-            raise MissionAborted("override", f"mode changed to {mode.value} by someone else; companion stands down",
-                                 vehicle=self.name)
+            raise MissionAborted("override", f"mode changed to {st.mode.value} by someone else (no failsafe); "
+                                 "companion stands down", vehicle=self.name)
+        if verdict is not ModeVerdict.RECOVER:
+            return
+        s = self.ctx.settings
         now = self.vehicle.clock_s() or 0.0
         while self._reentries and self._reentries[0] < now - s.offboard_reentry_window_s:
             self._reentries.popleft()
         if len(self._reentries) >= s.max_offboard_reentries:
             raise MissionAborted("link_lost", f"offboard lost {len(self._reentries)} times in "
-                                 f"{s.offboard_reentry_window_s:g} s; left in {mode.value}", vehicle=self.name)
+                                 f"{s.offboard_reentry_window_s:g} s; left in {st.mode.value}", vehicle=self.name)
         self._reentries.append(now)
-        await self._resume_offboard(mode)
+        await self._resume_offboard(st.mode)
 
     async def _resume_offboard(self, mode: FlightMode) -> None:
         """The autopilot's offboard-loss failsafe: setpoints were late. Keep streaming (a hover:
@@ -317,8 +306,7 @@ class Pilot(Departure, Steering):
                 # sample's mode check makes another attempt, within the bound.
                 self.ctx.report(f"{self.name}: OFFBOARD not resumed yet ({exc.message})")
                 return
-        self._offboard_notices = self.vehicle.status().failsafe_notices
-        self._mode_changes = self.vehicle.status().mode_changes
+        self._failsafes.offboard_confirmed(self.vehicle.status())
 
     async def _finish(self) -> None:
         """Hold at the station, then land. The flight has succeeded by now (SPEC §2 asks for the

@@ -25,11 +25,6 @@ from companion.vehicle.link_probe import listen
 from uav_model.mission import Mission
 
 READY_MARK = b"running at"
-# PX4 defaults the companion does not survive yet, overridden at the stub's boot until it does:
-# offboard loss -> Hold (PX4: Return; the companion stands down on RTL), and no auto-disarm before
-# take-off (PX4: 11 s of sim time after arming, 0.55 s of wall time at 20x, less than the
-# companion's arm -> all armed -> take-off sequence over a lossy link).
-COMPANION_COMPAT_PARAMS = ("COM_OBL_RC_ACT=5", "COM_DISARM_PRFLT=-1")
 DEFAULT_PORT_BASE = 14540
 PORT_PROBE_S = 0.3  # wall: an autopilot streams telemetry many times a second
 PORT_BASE_STEP = 20  # the next candidate block (14540, 14560, ...), clear of PX4's GCS port 14550
@@ -47,7 +42,7 @@ class StubOptions:
     blackouts: tuple[str, ...] = ()  # START:DURATION in sim seconds, as sim-bridge --blackout takes them
     tlog_dir: Path | None = None
     log_path: Path | None = None  # the child's output; None: discarded
-    params: tuple[str, ...] = COMPANION_COMPAT_PARAMS  # autopilot parameters at boot (NAME=VALUE)
+    params: tuple[str, ...] = ()  # autopilot parameters at boot (NAME=VALUE); none: PX4's defaults
 
     def argv(self, mission_path: Path) -> list[str]:
         out = [sys.executable, "-m", "companion.sitl.stub_child", str(mission_path), "--speedup", f"{self.speedup:g}",

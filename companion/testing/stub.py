@@ -13,7 +13,6 @@ from pathlib import Path
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import Mission, load_mission
-from companion.sitl.embedded import COMPANION_COMPAT_PARAMS
 from companion.testing.processes import Processes
 from companion.testing.telemetry import BackgroundRecorder, Telemetry
 from sim_bridge.testing import bind_udp_port_block
@@ -94,8 +93,6 @@ class SitlFactory:
             log_path = self._tmp / f"sim_bridge{len(self._running)}.log"
             cmd = [sys.executable, "-m", "sim_bridge", str(mission_path), "--speedup", f"{speedup:g}",
                    "--gcs-port", str(recorder.port), "--api-port-base", str(api_base), "--seed", str(seed)]
-            for param in COMPANION_COMPAT_PARAMS:  # until the companion survives PX4's defaults
-                cmd += ["--param", param]
             if loss:
                 cmd += ["--loss", f"{loss:g}"]
             if latency_ms:

@@ -135,7 +135,8 @@ class VehicleBoard:
         text = text.strip()
         self.texts.append((time.monotonic(), text))
         if is_failsafe_text(text):
-            await self.put_status(failsafe_notices=self._status.failsafe_notices + 1)
+            clock = self.latest_clock_s if self.latest_clock_s is not None else float("-inf")
+            await self.put_status(failsafe_notices=self._status.failsafe_notices + 1, last_failsafe_t_sim_s=clock)
 
     async def put_pose(self, **fields: float) -> PoseSample:
         if self._pose is not None and self._status.link_anomaly is None:

@@ -232,8 +232,10 @@ class MavsdkVehicle(BoardReaders):
         await self._command("disarm", self._action.disarm)
 
     async def takeoff(self, alt_rel_m: float) -> None:
-        # PX4 takes off to MIS_TAKEOFF_ALT; MAVSDK sets it through the param protocol.
-        await self._command("set takeoff altitude", lambda: self._action.set_takeoff_altitude(float(alt_rel_m)))
+        # PX4 takes off to MIS_TAKEOFF_ALT; MAVSDK sets it through the param protocol. Skipped when
+        # it was set already (before arming): COM_DISARM_PRFLT counts from the arm to the take-off.
+        if self._params is None or self._params.get("MIS_TAKEOFF_ALT") != float(alt_rel_m):
+            await self._command("set takeoff altitude", lambda: self._action.set_takeoff_altitude(float(alt_rel_m)))
         await self._command("takeoff", self._action.takeoff)
 
     async def start_offboard(self, first: VelocityYawRateSetpoint) -> None:

@@ -153,6 +153,32 @@ def test_two_runs_in_a_row_against_one_stub(sitl, companion, tmp_path):
     assert "Arming denied" not in second.stdout and "refused" not in second.stdout
     for name in ("a", "b"):
         assert stub.vehicle(name).armed_history.count(True) >= 2
+        # PX4's COM_DISARM_PRFLT (10 s) stays at its default and never beat a take-off.
+        assert not [t for t in stub.vehicle(name).statustext if "preflight disarming" in t], name
+
+
+def test_a_companion_listening_before_the_autopilot_boots_flies(companion, tmp_path):
+    # PX4 reports no sensors for its first seconds and refuses to arm (TEMPORARILY_REJECTED,
+    # MAVSDK: COMMAND_DENIED) until ~4.2 s of sim time after boot. Here the companion listens
+    # first and the stub boots after it, with PX4's defaults, so the companion sees the boot from
+    # the first datagram: it waits for the health, retries an arm that came too early, and flies.
+    base = free_udp_port_block(2)
+    live = companion.start(SMALL, "--connect", f"a=udpin://127.0.0.1:{base}",
+                           "--connect", f"b=udpin://127.0.0.1:{base + 1}", speedup=20)
+    time.sleep(1.0)  # the companion's ports are open before the autopilot's first datagram
+    log_path = tmp_path / "booting_stub.log"
+    with open(log_path, "wb") as log:
+        stub = subprocess.Popen([sys.executable, "-m", "sim_bridge", str(SMALL), "--speedup", "20", "--no-gcs",
+                                 "--api-port-base", str(base)], stdout=log, stderr=subprocess.STDOUT)
+    try:
+        run = live.wait(150)
+    finally:
+        _stop(stub)
+    assert run.exit_code == 0, run.tail
+    assert run.summary["success"], run.summary["reason"]
+    for name in ("a", "b"):
+        refused = f"{name}: arm refused" in run.stdout
+        assert not refused or f"{name}: armed after" in run.stdout, run.stdout[-3000:]
 
 
 def test_moving_obstacles_over_connect_need_no_clock_flag(sitl, companion, tmp_path):
@@ -221,7 +247,7 @@ class UplinkCut:
 def _fly_with_uplink_cut(sitl, companion, *args: str, cut_after_s: float, cut_s: float):
     """Fly SMALL through an UplinkCut relay; cut both uplinks ``cut_after_s`` sim seconds after
     departure for ``cut_s`` seconds of wall time. Returns (stub, run)."""
-    stub = sitl(SMALL, speedup=20, extra=("--param", "COM_OBL_RC_ACT=0"))  # PX4's default, not the harness's
+    stub = sitl(SMALL, speedup=20)  # PX4's defaults: COM_OBL_RC_ACT 0 (offboard loss -> Return)
     companion_base = free_udp_port_block(2)
     relay = UplinkCut([stub.api_port_base, stub.api_port_base + 1], [companion_base, companion_base + 1])
     try:
@@ -261,4 +287,18 @@ def test_px4_default_failsafe_and_a_3_s_uplink_blackout_the_mission_succeeds(sit
     assert "COM_OBL_RC_ACT 0 (Position mode (without RC: Return)) -> 5 (Hold)" in run.stdout
     _failsafe_then_offboard(stub, "HOLD")
     assert "fell back to HOLD (offboard loss)" in run.stdout, run.stdout[-3000:]
+    assert "stands down" not in run.stdout
+
+
+@needs_px4_failsafe
+def test_kept_rtl_failsafe_is_resumed_not_stood_down(sitl, companion):
+    # --keep-failsafe leaves PX4's default: the vehicles go to RTL after the loss; the companion
+    # treats that as an offboard loss (not an operator's override), keeps streaming, and the
+    # vehicles are back in OFFBOARD. Cut late and briefly, so that RTL's straight line home
+    # stays clear of the fire zone.
+    stub, run = _fly_with_uplink_cut(sitl, companion, "--keep-failsafe", cut_after_s=50.0, cut_s=1.5)
+    assert run.exit_code == 0, run.tail
+    assert run.summary["success"], run.summary["reason"]
+    _failsafe_then_offboard(stub, "RTL")
+    assert "fell back to RTL (offboard loss)" in run.stdout, run.stdout[-3000:]
     assert "stands down" not in run.stdout

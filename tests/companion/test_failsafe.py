@@ -1,0 +1,85 @@
+"""companion.app.failsafe: PX4's offboard-loss failsafe (a notice, then RTL or Hold) against an
+operator's mode change (no notice), in the orders PX4 and MAVSDK deliver them."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from companion.app.failsafe import FailsafeWatch, ModeVerdict
+from companion.vehicle.port import FlightMode, VehicleStatus
+
+GRACE_WALL_S = 1.0
+OFFBOARD = VehicleStatus(armed=True, mode=FlightMode.OFFBOARD, mode_changes=3)
+
+
+def _to(st: VehicleStatus, mode: FlightMode) -> VehicleStatus:
+    other = mode if mode is not FlightMode.OFFBOARD else st.last_other_mode
+    return dataclasses.replace(st, mode=mode, mode_changes=st.mode_changes + 1, last_other_mode=other)
+
+
+def _notice(st: VehicleStatus, clock_s: float) -> VehicleStatus:
+    return dataclasses.replace(st, failsafe_notices=st.failsafe_notices + 1, last_failsafe_t_sim_s=clock_s)
+
+
+def test_the_failsafe_text_heard_in_offboard_before_the_rtl_heartbeat_is_a_failsafe():
+    # PX4: "Failsafe activated" at once, the mode at the next 1 Hz heartbeat; samples still in OFFBOARD between.
+    watch = FailsafeWatch(OFFBOARD)
+    st = _notice(OFFBOARD, 100.0)
+    assert watch.judge(st, 100.2, 0.0, GRACE_WALL_S, False) is ModeVerdict.FLYING
+    st = _to(st, FlightMode.RETURN_TO_LAUNCH)
+    assert watch.judge(st, 101.5, 0.1, GRACE_WALL_S, False) is ModeVerdict.RECOVER
+    # Still in RTL while the uplink is down: the same failsafe, not a new override.
+    assert watch.judge(st, 103.0, 5.0, GRACE_WALL_S, False) is ModeVerdict.RECOVER
+    st = _to(st, FlightMode.OFFBOARD)  # PX4 re-entered OFFBOARD: counted once, by the recovery
+    assert watch.judge(st, 104.0, 6.0, GRACE_WALL_S, False) is ModeVerdict.FLYING
+
+
+def test_a_text_that_comes_after_the_mode_within_the_grace_is_a_failsafe():
+    watch = FailsafeWatch(OFFBOARD)
+    st = _to(OFFBOARD, FlightMode.HOLD)
+    assert watch.judge(st, 50.0, 10.0, GRACE_WALL_S, False) is ModeVerdict.WAIT
+    st = _notice(st, 50.0)
+    assert watch.judge(st, 50.1, 10.3, GRACE_WALL_S, False) is ModeVerdict.RECOVER
+
+
+def test_hold_or_rtl_without_any_failsafe_evidence_is_an_operator_override():
+    for mode in (FlightMode.HOLD, FlightMode.RETURN_TO_LAUNCH):
+        watch = FailsafeWatch(OFFBOARD)
+        st = _to(OFFBOARD, mode)
+        assert watch.judge(st, 50.0, 10.0, GRACE_WALL_S, False) is ModeVerdict.WAIT
+        assert watch.judge(st, 50.1, 10.0 + GRACE_WALL_S, GRACE_WALL_S, False) is ModeVerdict.OVERRIDE
+
+
+def test_other_modes_are_an_override_at_once():
+    watch = FailsafeWatch(OFFBOARD)
+    st = _notice(_to(OFFBOARD, FlightMode.LAND), 50.0)  # COM_OBL_RC_ACT 4: not recoverable either
+    assert watch.judge(st, 50.0, 0.0, GRACE_WALL_S, False) is ModeVerdict.OVERRIDE
+
+
+def test_a_notice_is_used_once_and_goes_stale():
+    watch = FailsafeWatch(OFFBOARD)
+    st = _to(_notice(OFFBOARD, 10.0), FlightMode.HOLD)
+    assert watch.judge(st, 10.5, 0.0, GRACE_WALL_S, False) is ModeVerdict.RECOVER
+    st = _to(st, FlightMode.OFFBOARD)
+    assert watch.judge(st, 12.0, 1.0, GRACE_WALL_S, False) is ModeVerdict.FLYING
+    # Later an operator switches to Hold: the old notice does not excuse it.
+    st = _to(st, FlightMode.HOLD)
+    assert watch.judge(st, 13.0, 2.0, GRACE_WALL_S, False) is ModeVerdict.WAIT
+    assert watch.judge(st, 13.0, 2.0 + GRACE_WALL_S, GRACE_WALL_S, False) is ModeVerdict.OVERRIDE
+    # A notice from before OFFBOARD was entered, or too old, does not count either.
+    old = _to(_notice(OFFBOARD, 5.0), FlightMode.HOLD)
+    assert FailsafeWatch(_notice(OFFBOARD, 5.0)).judge(old, 6.0, 0.0, GRACE_WALL_S, False) is ModeVerdict.WAIT
+    assert FailsafeWatch(OFFBOARD).judge(old, 60.0, 0.0, GRACE_WALL_S, False) is ModeVerdict.WAIT
+
+
+def test_our_own_telemetry_gap_explains_the_failsafe():
+    watch = FailsafeWatch(OFFBOARD)
+    st = _to(OFFBOARD, FlightMode.RETURN_TO_LAUNCH)
+    assert watch.judge(st, 50.0, 0.0, GRACE_WALL_S, True) is ModeVerdict.RECOVER
+
+
+def test_back_in_offboard_by_itself_is_a_failsafe_that_is_over():
+    watch = FailsafeWatch(OFFBOARD)
+    st = _to(_to(OFFBOARD, FlightMode.RETURN_TO_LAUNCH), FlightMode.OFFBOARD)  # both between two samples
+    assert watch.judge(st, 50.0, 0.0, GRACE_WALL_S, False) is ModeVerdict.RESUMED
+    assert watch.judge(st, 50.1, 0.1, GRACE_WALL_S, False) is ModeVerdict.FLYING
