@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 # Arm refusals worth another try: the autopilot may accept once its estimator has settled.
 ARM_RETRY_RESULTS = frozenset({"COMMAND_DENIED", "TEMPORARILY_REJECTED", "BUSY", "TIMEOUT", "UNKNOWN"})
 REARM_MODES = frozenset({FlightMode.LAND, FlightMode.RETURN_TO_LAUNCH, FlightMode.TAKEOFF})
-TAKEOFF_ATTEMPTS = 2  # a take-off the preflight disarm beat on the ground is tried once more
+TAKEOFF_ATTEMPTS = 3  # a take-off the preflight disarm beat on the ground (a lost command) is tried again
 ON_GROUND_ALT_M = 1.0  # disarmed below this: it never lifted, arming again is safe
 PRFLT_MARGIN_SIM_S = 5.0  # take off at least this long before COM_DISARM_PRFLT runs out (PX4 detects take-off ~1.6 s after the command)
 MIN_ALIGN_RATE_RAD_S = math.radians(30.0)  # PX4 yaws in place at 86-90 deg/s; the stub at v/r
@@ -72,6 +72,7 @@ class Departure:
             # Disarmed before it lifted (COM_DISARM_PRFLT raced the take-off command): arm, go again.
             self.ctx.report(f"{self.name}: disarmed on the ground before take-off; arming again")
             self.outcome.phase = "arming"
+            await self._leave_landing_mode()  # PX4 may sit in TAKEOFF, disarmed: HOLD first
             await self._arm()
         self.outcome.phase = "airborne"
         self.ctx.report(f"{self.name}: airborne at {alt:g} m")

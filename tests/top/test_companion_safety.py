@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 from sim_bridge.testing import free_udp_port_block
 
@@ -302,3 +303,24 @@ def test_kept_rtl_failsafe_is_resumed_not_stood_down(sitl, companion):
     _failsafe_then_offboard(stub, "RTL")
     assert "fell back to RTL (offboard loss)" in run.stdout, run.stdout[-3000:]
     assert "stands down" not in run.stdout
+
+
+def test_an_operator_switching_to_hold_is_obeyed_not_resumed(sitl, companion):
+    # A pilot on the vehicle's link switches a to Hold mid-flight: no "Failsafe activated", no gap
+    # in our telemetry. That is an override: the companion stands down (after its 2 s grace for a
+    # late failsafe text) and does not put a back into OFFBOARD.
+    stub = sitl(SMALL, speedup=20)
+    live = companion.start(stub)
+    stub.wait_for_mode("a", "OFFBOARD", timeout_s=90)
+    stub.wait_for_clock(stub.mode_times("a", "OFFBOARD")[0] + 15.0, timeout_s=60)
+    hold = stub.telemetry.call(stub.recorder.command_via_tap(
+        stub.mission.vehicle("a").system_id, mavlink.MAV_CMD_DO_SET_MODE,
+        mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 3))  # PX4 AUTO.LOITER: Hold
+    assert hold == mavlink.MAV_RESULT_ACCEPTED
+    run = live.wait(120)
+    assert run.exit_code != 0, run.tail
+    assert "a: " in run.stdout and "mode changed to HOLD by someone else (no failsafe)" in run.stdout, run.stdout[-3000:]
+    assert "fell back to HOLD" not in run.stdout
+    modes = stub.modes("a")
+    assert "OFFBOARD" not in modes[modes.index("HOLD", modes.index("OFFBOARD")):], modes
+    assert not [t for t in stub.vehicle("a").statustext if "Failsafe activated" in t]
