@@ -43,6 +43,9 @@ from companion.vehicle.port import HOVER, FlightMode, LandedState, PoseSample, V
 __all__ = ["FlightContext", "Pilot", "PilotOutcome", "RunSettings", "wall_for_sim"]
 
 STALE_EXCUSES_S = 10.0  # wall: RTL this soon after our own telemetry gap is taken as the link-loss failsafe
+# A telemetry gap this long (wall) may have been the link failing both ways; shorter ones are a busy
+# machine. PX4 SITL counts COM_OF_LOSS_T (1 s) in wall time at any speed factor, as the stub does.
+LINK_GAP_MIN_WALL_S = 0.5
 
 
 class Pilot(Departure, Steering):
@@ -185,9 +188,11 @@ class Pilot(Departure, Steering):
                 await self._on_stale(exc, first, time.monotonic() - stale_since)
                 continue
             if stale_since is not None:
-                self.ctx.report(f"{self.name}: telemetry fresh again after {time.monotonic() - stale_since:.2f} s wall")
+                gap_wall = time.monotonic() - stale_since
+                self.ctx.report(f"{self.name}: telemetry fresh again after {gap_wall:.2f} s wall")
                 stale_since = None
-                self._stale_ended_wall = time.monotonic()
+                if gap_wall >= LINK_GAP_MIN_WALL_S:  # long enough to be the link, not a busy machine
+                    self._stale_ended_wall = time.monotonic()
             pose = fresh
             self._record(pose)
             self._check_link_identity()

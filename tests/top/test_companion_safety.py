@@ -318,8 +318,8 @@ def test_an_operator_switching_to_hold_is_obeyed_not_resumed(sitl, companion):
         mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 3))  # PX4 AUTO.LOITER: Hold
     assert hold == mavlink.MAV_RESULT_ACCEPTED
     run = live.wait(120)
-    assert run.exit_code != 0, run.tail
-    assert "a: " in run.stdout and "mode changed to HOLD by someone else (no failsafe)" in run.stdout, run.stdout[-3000:]
+    assert run.exit_code != 0, (stub.modes("a"), stub.vehicle("a").statustext, run.tail)
+    assert "mode changed to HOLD by someone else (no failsafe)" in run.stdout, run.stdout[-3000:]
     assert "fell back to HOLD" not in run.stdout
     modes = stub.modes("a")
     assert "OFFBOARD" not in modes[modes.index("HOLD", modes.index("OFFBOARD")):], modes

@@ -46,7 +46,7 @@ def test_five_percent_loss_and_100_ms_latency(sitl, companion):
 def test_link_blackout_mid_flight_holds_then_resumes(companion):
     # 15 s (sim) of silence on both API links, mid-flight, on the companion's embedded stub: no
     # setpoint reaches the vehicles, so after COM_OF_LOSS_T (1 s, times the speed factor: 10 s of
-    # sim time at 10x) they fail safe to HOLD (the embedded stub's COM_OBL_RC_ACT); when the link
+    # sim time at 10x) they fail safe to HOLD (COM_OBL_RC_ACT 5, set by the companion); when the link
     # is back OFFBOARD resumes (PX4 re-enters it by itself when setpoints come again).
     start_s, duration_s = 150.0, 15.0  # departure ~80-130 s at 10x (pre-flight checks take a few s)
     live = companion.start(REFERENCE, "--blackout", f"{start_s:g}:{duration_s:g}", speedup=10)
