@@ -158,15 +158,33 @@ def test_two_runs_in_a_row_against_one_stub(sitl, companion, tmp_path):
         assert not [t for t in stub.vehicle(name).statustext if "preflight disarming" in t], name
 
 
+def _udp_bound(port: int) -> bool:
+    """Some process (in this network namespace) has a UDP socket bound to ``port``."""
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            rows = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        if any(int(row.split()[1].rsplit(":", 1)[1], 16) == port for row in rows):
+            return True
+    return False
+
+
 def test_a_companion_listening_before_the_autopilot_boots_flies(companion, tmp_path):
     # PX4 reports no sensors for its first seconds and refuses to arm (TEMPORARILY_REJECTED,
     # MAVSDK: COMMAND_DENIED) until ~4.2 s of sim time after boot. Here the companion listens
-    # first and the stub boots after it, with PX4's defaults, so the companion sees the boot from
-    # the first datagram: it waits for the health, retries an arm that came too early, and flies.
+    # first and the stub boots after it, with PX4's defaults, so the companion hears it from its
+    # first datagram: it waits for the health, retries an arm that came too early, and flies.
+    # (At 20x the boot is 0.2 s of wall time, mostly over during the companion's 0.6 s link
+    # probe, so the arm is rarely early here; tests/top/test_inprocess_px4_start.py flies from
+    # the stub's first step.)
     base = free_udp_port_block(2)
     live = companion.start(SMALL, "--connect", f"a=udpin://127.0.0.1:{base}",
                            "--connect", f"b=udpin://127.0.0.1:{base + 1}", speedup=20)
-    time.sleep(1.0)  # the companion's ports are open before the autopilot's first datagram
+    deadline = time.monotonic() + 60.0  # a's port is open before the autopilot's first datagram (b's opens next)
+    while not _udp_bound(base):
+        assert time.monotonic() < deadline and live.process.poll() is None, "the companion never listened"
+        time.sleep(0.05)
     log_path = tmp_path / "booting_stub.log"
     with open(log_path, "wb") as log:
         stub = subprocess.Popen([sys.executable, "-m", "sim_bridge", str(SMALL), "--speedup", "20", "--no-gcs",
