@@ -29,7 +29,8 @@ from collections.abc import Callable
 from companion.app import monitors
 from companion.app.context import FlightContext, PilotOutcome, RunSettings, wall_for_sim
 from companion.app.departure import Departure
-from companion.app.failsafe import OVERRIDE_GRACE_MIN_WALL_S, OVERRIDE_GRACE_SIM_S, FailsafeWatch, ModeVerdict
+from companion.app.failsafe import (OVERRIDE_GRACE_MIN_WALL_S, OVERRIDE_GRACE_SIM_S, RECOVERABLE_MODES, FailsafeWatch,
+                                    ModeVerdict)
 from companion.app.fence import upload_and_verify_fence
 from companion.app.flight_plan import verify_readback
 from companion.app.steering import Steering
@@ -276,8 +277,9 @@ class Pilot(Departure, Steering):
         if verdict is ModeVerdict.OVERRIDE:
             # Someone else (a pilot, another failsafe) chose another mode: stop commanding, do not fight it.
             self.outcome.phase = "override"
-            raise MissionAborted("override", f"mode changed to {st.mode.value} by someone else (no failsafe); "
-                                 "companion stands down", vehicle=self.name)
+            why = "by someone else (no failsafe)" if st.mode in RECOVERABLE_MODES else "by someone else or a failsafe"
+            raise MissionAborted("override", f"mode changed to {st.mode.value} {why}; companion stands down",
+                                 vehicle=self.name)
         if verdict is not ModeVerdict.RECOVER:
             return
         s = self.ctx.settings
