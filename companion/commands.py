@@ -316,6 +316,9 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     # The certificate is seconds of numpy: work it out before anything spins. Beside the in-process
     # fleet's busy loop, a worker thread's GIL hand-offs stalled it (and the fleet) for minutes.
     _ = plan.certificate
+    if plan.coordinated is not None:  # the timed variant's schedule, for the same reason
+        print(f"schedule: departure hold of {plan.mission.by_priority[0].name} {plan.coordinated.hold_s:.1f} s; "
+              + ", ".join(f"{n} {b.value}" for n, b in plan.coordinated.blocking.items()), flush=True)
     try:
         result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks))
     except PreflightRefused as exc:

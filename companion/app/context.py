@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan
 from companion.planning.obstacle_field import ObstacleField
-from companion.vehicle.port import Vehicle
+from companion.planning.timed import ScheduleClock
+from companion.vehicle.port import PoseSample, Vehicle
 
 if TYPE_CHECKING:
     from companion.app.pilot import Pilot
@@ -78,6 +79,9 @@ class FlightContext:
         self.field = ObstacleField.from_world(plan.mission.world)
         self.barrier = asyncio.Barrier(len(self.vehicles))
         self.arrived: set[str] = set()  # vehicles parked at their station: others drop the sightline term
+        self.departure_sim_s: float | None = None  # the common departure (t = 0 of the schedule), set by the first pilot
+        coordinated = plan.coordinated  # computed before the flight (companion run, readiness)
+        self.schedule = None if coordinated is None or not shared_clock else ScheduleClock(coordinated.timed)
         self.rank = {v.name: i for i, v in enumerate(plan.mission.by_priority)}
         # ADS-B callsigns hold 8 characters: match them to the mission's moving obstacles.
         moving = [o.id for o in plan.mission.world.moving_obstacles]
@@ -94,6 +98,22 @@ class FlightContext:
         if self.shared_clock:
             return t_sim_s
         return t_sim_s - (pilot.outcome.t_depart_sim_s or 0.0)
+
+
+    def schedule_time(self, pilot: "Pilot", pose: PoseSample) -> float:
+        """The planner's clock. On the shared sim clock (the one the obstacles and the other
+        vehicles live in): seconds since the common departure, as the timed routes are planned,
+        held back while a vehicle lags its timed route (:class:`ScheduleClock`). Per vehicle since
+        its own departure when the vehicles' clocks are unrelated."""
+        if not (self.shared_clock and self.departure_sim_s is not None):
+            return pose.t_sim_s - (pilot.outcome.t_depart_sim_s or pose.t_sim_s)
+        t = pose.t_sim_s - self.departure_sim_s
+        if self.schedule is None:
+            return t
+        for name in self.arrived:
+            self.schedule.done(name)
+        self.schedule.observe(pilot.name, (pose.x_east_m, pose.y_north_m), t)
+        return self.schedule.now(t)
 
 
 def wall_for_sim(vehicle: Vehicle, sim_s: float, slack_s: float = 5.0) -> float:

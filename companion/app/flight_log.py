@@ -18,7 +18,7 @@ from typing import IO
 FLIGHT_COLUMNS = (
     "t_mission_s", "t_sim_s", "vehicle", "phase", "mode", "x_m", "y_m", "alt_m", "heading_deg",
     "speed_m_s", "cmd_forward_m_s", "cmd_yaw_rate_deg_s", "action", "goal_index", "dist_to_goal_m",
-    "clearance_m", "separation_m", "planner_ms", "note",
+    "clearance_m", "separation_m", "planner_ms", "t_plan_s", "note",
 )
 TRAFFIC_COLUMNS = ("t_sim_s", "callsign", "via", "x_m", "y_m", "vx_m_s", "vy_m_s")
 

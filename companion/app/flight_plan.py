@@ -17,8 +17,10 @@ from uav_model import frames
 from companion.errors import MissionUploadError
 from uav_model.mission import Mission, VehicleSpec, mission_error
 from companion.planning.certificate import OcclusionCertificate, mission_certificate
+from companion.planning.coordination import CoordinatedPlan, plan_coordinated
 from companion.planning.errors import NoPath
-from companion.planning.vehicle_planner import variant_needs_route, variant_nodes
+from companion.planning.timed import TimedRoute
+from companion.planning.vehicle_planner import VARIANTS, variant_needs_route, variant_nodes
 from companion.vehicle.port import GeoWaypoint
 
 from companion.planning.routes import Route, plan_routes
@@ -40,6 +42,21 @@ class FlightPlan:
     def certificate(self) -> OcclusionCertificate | None:
         """The occlusion certificate (seconds of pure work; computed on first use)."""
         return mission_certificate(self.mission, self.routes)
+
+    @cached_property
+    def coordinated(self) -> CoordinatedPlan | None:
+        """The space-time plan a timed variant flies (routes with arrival times, t = 0 at the
+        common departure; the first vehicle's departure hold within ``coordination.hold_s_max``),
+        or None for the other variants. Seconds of pure work on first use: the caller computes it
+        before the flight (``companion run`` before its event loop), never in a worker thread
+        beside the in-process fleet, whose loop it would stall."""
+        if not VARIANTS[self.variant].timed or not self.routes:
+            return None
+        return plan_coordinated(self.mission, self.routes)
+
+    def timed_route(self, name: str) -> TimedRoute | None:
+        """The vehicle's route with arrival times (timed variants only)."""
+        return None if self.coordinated is None else self.coordinated.timed.get(name)
 
     def nodes_enu_m(self, vehicle: VehicleSpec) -> np.ndarray:
         """The local goals the vehicle's planner follows, start first (what gets uploaded)."""

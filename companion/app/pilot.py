@@ -56,7 +56,8 @@ class Pilot(Departure, Steering):
         self.name = spec.name
         self.vehicle = ctx.vehicles[spec.name]
         self.planner = VehiclePlanner.build(ctx.mission, spec, ctx.plan.routes.get(spec.name), ctx.plan.variant,
-                                            earlier=higher_routes(ctx.mission, ctx.plan.routes, spec.name))
+                                            earlier=higher_routes(ctx.mission, ctx.plan.routes, spec.name),
+                                            timed_route=ctx.plan.timed_route(spec.name))
         self.outcome = PilotOutcome(spec.name)
         self.setpoint: VelocityYawRateSetpoint = HOVER
         self._offboard_live = False  # the keep-alive resends only while this is set
@@ -143,6 +144,8 @@ class Pilot(Departure, Steering):
         assert depart is not None
         self.outcome.phase = "offboard"
         self.outcome.t_depart_sim_s = depart.t_sim_s
+        if self.ctx.departure_sim_s is None:  # the first to depart starts the schedule's clock for all
+            self.ctx.departure_sim_s = depart.t_sim_s
         result = self._tick(depart)
         self.setpoint = self._setpoint(depart, result)[0]
         await self.vehicle.send_setpoint(self.setpoint)
@@ -222,9 +225,9 @@ class Pilot(Departure, Steering):
                 self.outcome.interventions[f"setpoint not sent: {exc.result}"] += 1
             self._log_tick(pose, t_mission, result, setpoint, action)
             if self.planner.replan_due:
-                await self._replan(pose, t_mission)
+                await self._replan(pose)
 
-    async def _replan(self, pose: PoseSample, t_mission: float) -> None:
+    async def _replan(self, pose: PoseSample) -> None:
         """No progress for a while: plan a new route from here in a worker thread (A* must not
         stall the other vehicle's loop), flying the setpoint just sent meanwhile."""
         x, y = pose.x_east_m, pose.y_north_m
@@ -232,7 +235,7 @@ class Pilot(Departure, Steering):
             nodes = self.planner.plan_detour(x, y)
         else:
             nodes = await asyncio.to_thread(self.planner.plan_detour, x, y)
-        if self.planner.adopt_detour(nodes, x, y, t_mission):
+        if self.planner.adopt_detour(nodes, x, y, self.ctx.schedule_time(self, pose)):
             self.outcome.interventions["planner: re-planned"] += 1
             self.ctx.report(f"{self.name}: no progress for {self.planner.replanning.after_s:g} s: "
                             f"new route from ({x:.0f}, {y:.0f}), {len(nodes)} nodes")

@@ -23,6 +23,7 @@ from companion.app.flight_plan import FlightPlan, prepare
 from companion.app.preflight import (LIMIT_PARAMS, OBL_ACTIONS, OBL_HOLD, PreflightReport, PreflightSettings, Severity,
                                      VehicleFacts, preflight)
 from companion.errors import PreflightRefused
+from companion.planning.vehicle_planner import VARIANTS
 from companion.vehicle.port import LandedState, Vehicle
 
 SHARED_CLOCK_TOLERANCE_S = 0.5  # sim: two clocks this close are one (an external sim-bridge)
@@ -94,8 +95,15 @@ async def get_ready(plan: FlightPlan, vehicles: Mapping[str, Vehicle], settings:
     if result.replan:
         flown = dataclasses.replace(await asyncio.to_thread(prepare, result.mission, plan.variant),
                                     geofence=plan.geofence)
+    elif all(a is b for a, b in zip(result.mission.vehicles, plan.mission.vehicles)):
+        flown = plan  # nothing derated: keep the plan, and the space-time plan computed before the flight
     else:
         flown = FlightPlan(result.mission, plan.variant, plan.routes, geofence=plan.geofence)
+    if flown is not plan and flown.routes and VARIANTS[flown.variant].timed:
+        # Derated or re-stationed: the schedule changes with the speeds. Seconds of pure work,
+        # inline (nothing is armed yet; a worker thread would stall the in-process fleet).
+        coordinated = flown.coordinated
+        report(f"schedule re-planned for the flown mission: departure hold {coordinated.hold_s:.1f} s")
     shared = settings.shared_clock if settings.shared_clock is not None else await detect_shared_clock(vehicles)
     report(f"clock: {'one sim clock for all vehicles' if shared else 'one clock per vehicle'}"
            + (" (detected)" if settings.shared_clock is None else ""))

@@ -145,3 +145,58 @@ def forecast_from(vehicle: str, route_enu_m: np.ndarray, xy_enu_m: tuple[float, 
     i = int(np.argmin(np.hypot(*(foot - here).T)))
     rest = np.vstack([here, foot[i], p[i + 1:]])
     return forecast(vehicle, rest, speed_m_s, start_s=t_s)
+
+
+class ScheduleClock:
+    """The schedule's time for a fleet flying timed routes together: time since the common
+    departure, held back while a vehicle lags its plan, so that the others wait for it.
+
+    The plans keep the vehicles apart and their sight lines blocked at every planned instant
+    (static obstacles only). Re-timing every plan by one common, monotone clock keeps every
+    vehicle where the plan had it relative to the others; a vehicle that lost time (a telemetry
+    gap it hovered through, ticks the companion could not keep up with) would otherwise arrive
+    late at the place the plan timed against the others. Each vehicle's *reach* is the latest
+    plan time its position is consistent with (the end of a wait it sits in, its closest planned
+    point along the route); the clock runs at most ``slack_s`` ahead of the least reach of the
+    vehicles still flying, and never more than ``max_lag_s`` behind sim time (a vehicle that far
+    off its plan has left it: waiting for it would stop everybody).
+
+        clock = ScheduleClock(plan.timed)
+        clock.observe("b", (x, y), t)   # each tick, before asking the time
+        tau = clock.now(t)              # the time to track the plans at
+    """
+
+    def __init__(self, routes: "dict[str, TimedRoute]", *, slack_s: float = 2.0, max_lag_s: float = 120.0,
+                 window_s: float = 60.0, step_s: float = 0.5, tolerance_m: float = 1.0):
+        self.routes = dict(routes)
+        self.slack_s, self.max_lag_s, self.tolerance_m = slack_s, max_lag_s, tolerance_m
+        self._offsets = np.arange(0.0, window_s + step_s / 2, step_s)
+        self._reach = {name: 0.0 for name in self.routes}
+        self._done: set[str] = set()
+        self._tau = 0.0
+        self.worst_lag_s = 0.0  # how far behind sim time the schedule fell, at most
+
+    def observe(self, name: str, xy_enu_m, t_s: float) -> None:
+        """Vehicle ``name`` is at ``xy_enu_m`` at sim time ``t_s`` (since the common departure)."""
+        route = self.routes.get(name)
+        if route is None:
+            return
+        times = self._reach[name] + self._offsets
+        d = np.hypot(*(route.planned_position_at(times) - np.asarray(xy_enu_m, dtype=float)).T)
+        latest = times[np.flatnonzero(d <= d.min() + self.tolerance_m)[-1]]
+        self._reach[name] = max(self._reach[name], float(latest))
+
+    def done(self, name: str) -> None:
+        """The vehicle has arrived: it no longer holds the clock back."""
+        self._done.add(name)
+
+    def lag_s(self, t_s: float) -> float:
+        """How far the schedule is behind sim time now."""
+        return t_s - self.now(t_s)
+
+    def now(self, t_s: float) -> float:
+        flying = [r for n, r in self._reach.items() if n not in self._done]
+        limit = min(flying, default=np.inf) + self.slack_s
+        self._tau = max(self._tau, min(t_s, max(limit, t_s - self.max_lag_s)))
+        self.worst_lag_s = max(self.worst_lag_s, t_s - self._tau)
+        return self._tau

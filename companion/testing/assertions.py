@@ -2,7 +2,8 @@
 
 Each reads the whole recording, take-off and landing included, and fails with a message that
 names the vehicle, the time and the place: arrival, separation, clearance to the mission's TRUE
-obstacles, geofence, the mode sequence, and the mission stored on each vehicle.
+obstacles, geofence, the mode sequence, the mission stored on each vehicle, and an approach to
+the station without circling it.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 import shapely
 
 from companion.planning.metrics import TruthGeometry, arrival, inside_fence, pair_min_distance
+from companion.testing.approach import Approach, default_region_m, station_approach
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
@@ -72,6 +74,22 @@ class TelemetryAssertions:
             if departures and t_arrive - departures[0] > self.mission.safety.time_limit_s:
                 raise AssertionError(f"vehicle {name!r} arrived {t_arrive - departures[0]:.1f} s after departure, "
                                      f"beyond the time limit {self.mission.safety.time_limit_s:g} s")
+
+    def approach(self, name: str, region_m: float | None = None) -> Approach:
+        """How vehicle ``name`` flew its final approach since departure (:mod:`.approach`)."""
+        spec = self.mission.vehicle(name)
+        radius = self.mission.safety.arrival_radius_m
+        region = region_m if region_m is not None else default_region_m(spec.turn_radius_m, radius)
+        return station_approach(self.track(name, "OFFBOARD"), spec.goal_enu_m, region, radius)
+
+    def assert_no_circling(self, *names: str, region_m: float | None = None) -> None:
+        """Each vehicle (default: all) flew into its arrival radius without circling its station:
+        its course turned less than a full circle, and it flew less than twice the straight way,
+        within ``region_m`` of the station (default: one turning diameter beyond the radius)."""
+        for name in names or [v.name for v in self.mission.vehicles]:
+            a = self.approach(name, region_m)
+            if a.circling or not a.arrived:
+                raise AssertionError(f"vehicle {name!r} near station {self.mission.vehicle(name).goal!r}: {a.describe()}")
 
     def assert_separation(self, min_m: float | None = None) -> None:
         """No two vehicles ever closer than ``min_m`` (default: the mission's), between samples too."""
