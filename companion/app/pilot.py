@@ -235,7 +235,8 @@ class Pilot(Departure, Steering):
             nodes = self.planner.plan_detour(x, y)
         else:
             nodes = await asyncio.to_thread(self.planner.plan_detour, x, y)
-        if self.planner.adopt_detour(nodes, x, y, self.ctx.schedule_time(self, pose)):
+        t_mission = pose.t_sim_s - (self.outcome.t_depart_sim_s or pose.t_sim_s)  # the watchdog's clock, as in tick
+        if self.planner.adopt_detour(nodes, x, y, t_mission):
             self.outcome.interventions["planner: re-planned"] += 1
             self.ctx.report(f"{self.name}: no progress for {self.planner.replanning.after_s:g} s: "
                             f"new route from ({x:.0f}, {y:.0f}), {len(nodes)} nodes")

@@ -34,6 +34,7 @@ class Steering:
     planner: VehiclePlanner
     outcome: PilotOutcome
     _next_progress_s: float
+    _t_plan: float  # the schedule time of the last tick (the timed route is read at it)
 
     def _at_station(self, pose: PoseSample) -> bool:
         sx, sy = self.planner.station_xy
@@ -42,7 +43,9 @@ class Steering:
     def _tick(self, pose: PoseSample) -> TickResult:
         own = Pose(pose.x_east_m, pose.y_north_m, pose.heading_enu_rad)
         self._snapshot = self.ctx.field.from_tracks(self._obstacle_tracks(pose))
-        result = self.planner.tick(own, self._other(pose), self._snapshot, self.ctx.schedule_time(self, pose))
+        t_mission = pose.t_sim_s - (self.outcome.t_depart_sim_s or pose.t_sim_s)
+        self._t_plan = self.ctx.schedule_time(self, pose)
+        result = self.planner.tick(own, self._other(pose), self._snapshot, t_mission, self._t_plan)
         self.outcome.ticks += 1
         if not result.arrived:
             self.outcome.planner_ms.append(result.planner_ms)
@@ -166,7 +169,7 @@ class Steering:
                          heading_deg=math.degrees(pose.heading_enu_rad), speed_m_s=pose.ground_speed_m_s,
                          cmd_forward_m_s=setpoint.forward_m_s, cmd_yaw_rate_deg_s=math.degrees(setpoint.yaw_rate_enu_rad_s),
                          action=action, goal_index=result.goal_index, dist_to_goal_m=to_go, clearance_m=clear_m,
-                         separation_m=sep_m, planner_ms=result.planner_ms, t_plan_s=result.t_s)
+                         separation_m=sep_m, planner_ms=result.planner_ms, t_plan_s=self._t_plan)
         if t_mission >= self._next_progress_s:
             self._next_progress_s = t_mission + self.ctx.settings.progress_every_s
             self.ctx.report(f"t={t_mission:7.1f} s  {self.name:>3} {mode:<8} to go {to_go:7.0f} m  "

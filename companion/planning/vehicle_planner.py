@@ -249,8 +249,11 @@ class VehiclePlanner:
     def station_xy(self) -> tuple[float, float]:
         return self._station_xy
 
-    def tick(self, own: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, t_s: float) -> TickResult:
+    def tick(self, own: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, t_s: float,
+             schedule_t_s: float | None = None) -> TickResult:
         """Decide this tick's command from the current own pose, other UAV and obstacles.
+        ``schedule_t_s``: the time to read the timed route at, when it is not ``t_s`` (the live
+        companion's schedule clock, which may pause and jump; the progress watchdog keeps ``t_s``).
 
         Once inside the arrival radius the vehicle has arrived for good and holds.
         """
@@ -261,7 +264,7 @@ class VehiclePlanner:
             return TickResult(t_s, None, (sx, sy), self.tracker.index, True,
                               (time.perf_counter() - started) * 1e3, "arrived")
         goal = self.tracker.update(own.x_m, own.y_m)
-        scheduled, held = self._schedule(own, t_s)
+        scheduled, held = self._schedule(own, t_s if schedule_t_s is None else schedule_t_s)
         if self.replanning is not None and not self.replan_due:
             self._watch_progress(own.x_m, own.y_m, t_s, held)
         reach = self.config.reach_m + self.tracker.acceptance_radius_m

@@ -69,7 +69,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     legal = legal_rollouts(ok_by_rule, config)
     heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single,
                                 soonest_deg=_SOONEST_DEG if config.count > config.samples else 0.0)
-    if not np.count_nonzero(legal):
+    if not np.count_nonzero(legal) or _only_hover(legal, config, scheduled_speed_m_s):
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear)
     legal = commit_turn(pose, goals, legal, config)
 
@@ -87,6 +87,19 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
 # With a speed window, an arriving rollout loses up to this much heading score for arriving late
 # (the paper's constant-speed window keeps its ties).
 _SOONEST_DEG = 5.0
+
+
+def _only_hover(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_s: float | None) -> bool:
+    """With a speed window, a hover is legal wherever the vehicle already is (it never gets
+    deeper into an inflated obstacle), so a vehicle that drifted into one would hover there for
+    ever with every moving rollout illegal (small_reference over MAVLink: b for 500 s). Unless
+    its timed route holds it still, that is no legal rollout: recover as the paper's window does."""
+    moving = config.speeds_m_s > 0.0
+    if moving.all():
+        return False
+    if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * float(config.speeds_m_s[moving].min()):
+        return False  # the plan asks for a wait here
+    return not np.count_nonzero(legal & moving)
 
 
 def _placed(place: np.ndarray, config: DwaConfig,
