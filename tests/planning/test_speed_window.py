@@ -131,3 +131,37 @@ def test_the_timed_variant_wires_its_window_and_the_paper_variants_do_not():
     paper = VehiclePlanner.build(mission, mission.by_priority[1], routes["b"], "astar-bdwa").config
     assert (paper.count, paper.speed_samples, paper.sightline_slope, paper.fixed_scale) == (31, 1, False, False)
     assert paper.w_s == mission.planner.weight_sightline
+
+
+SMALL = Path(__file__).resolve().parents[2] / "missions" / "small_reference.yaml"
+
+
+def test_on_the_multicopter_plant_the_timed_variant_arrives_instead_of_circling_its_station():
+    # small_reference (PX4 circled station B there): the gentlest rollout grazing the 20 m circle
+    # missed it by 2.7 m on the lagging plant, and a circled B at 22.7 m until the time limit.
+    from companion.planning.runner import simulate
+    mission = load_mission(SMALL)
+    run = simulate(mission, "astar-bdwa-timed")
+    assert run.success, run.summary.reason
+    for name, v in run.summary.vehicles.items():
+        assert v.flight_time_s < 1.15 * v.lower_bound_s, (name, v.flight_time_s, v.lower_bound_s)
+
+
+def test_inside_an_inflated_zone_the_window_recovers_instead_of_hovering_unless_a_wait_is_planned():
+    # b over MAVLink on small_reference: 1.2 m inside the fire's inflation, every moving rollout
+    # deeper, hovering legal; it hovered facing its goal for 500 s. Now it yaws in place out of it.
+    mission = load_mission(SMALL)
+    routes = plan_routes(mission)
+    b = mission.vehicle("b")
+    snapshot = next(ObstacleField.from_world(mission.world).at_times(np.zeros(1)))
+    pose = Pose(122.56, 258.66, math.radians(-157.8))
+    planner = VehiclePlanner.build(mission, b, routes["b"], "astar-bdwa-timed")
+    planner.tracker.update(149.0, 276.0)  # where it came from: its local goal is the next node on
+    result = planner.tick(pose, None, snapshot, 100.0)
+    assert result.recovery_reason is not None and result.speed_m_s == 0.0 and result.yaw_rate_rad_s != 0.0, result
+    # A timed route that holds it right here: the wait is flown, not recovered from.
+    held = forecast("b", np.array([[pose.x_m, pose.y_m], [0.0, 0.0]]), V, hold_s=500.0)
+    waiting = VehiclePlanner.build(mission, b, routes["b"], "astar-bdwa-timed", timed_route=held)
+    waiting.tracker.update(149.0, 276.0)
+    result = waiting.tick(pose, None, snapshot, 100.0)
+    assert result.command is not None and result.recovery_reason is None and result.speed_m_s == 0.0, result
