@@ -99,7 +99,6 @@ class FlightContext:
             return t_sim_s
         return t_sim_s - (pilot.outcome.t_depart_sim_s or 0.0)
 
-
     def schedule_time(self, pilot: "Pilot", pose: PoseSample) -> float:
         """The planner's clock. On the shared sim clock (the one the obstacles and the other
         vehicles live in): seconds since the common departure, as the timed routes are planned,

@@ -206,7 +206,7 @@ class Pilot(Departure, Steering):
             next_tick += dt
             if next_tick <= pose.t_sim_s:  # samples came late: skip the ticks we missed
                 next_tick = pose.t_sim_s + dt
-            t_mission = pose.t_sim_s - (self.outcome.t_depart_sim_s or pose.t_sim_s)
+            t_mission = self._mission_time(pose)
             if t_mission > self.ctx.mission.safety.time_limit_s:
                 raise MissionAborted("timeout", f"time limit {self.ctx.mission.safety.time_limit_s:g} s reached",
                                      vehicle=self.name)
@@ -235,8 +235,7 @@ class Pilot(Departure, Steering):
             nodes = self.planner.plan_detour(x, y)
         else:
             nodes = await asyncio.to_thread(self.planner.plan_detour, x, y)
-        t_mission = pose.t_sim_s - (self.outcome.t_depart_sim_s or pose.t_sim_s)  # the watchdog's clock, as in tick
-        if self.planner.adopt_detour(nodes, x, y, t_mission):
+        if self.planner.adopt_detour(nodes, x, y, self._mission_time(pose)):
             self.outcome.interventions["planner: re-planned"] += 1
             self.ctx.report(f"{self.name}: no progress for {self.planner.replanning.after_s:g} s: "
                             f"new route from ({x:.0f}, {y:.0f}), {len(nodes)} nodes")

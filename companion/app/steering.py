@@ -40,12 +40,15 @@ class Steering:
         sx, sy = self.planner.station_xy
         return math.hypot(pose.x_east_m - sx, pose.y_north_m - sy) <= self.planner.arrival_radius_m
 
+    def _mission_time(self, pose: PoseSample) -> float:
+        """Sim seconds since this vehicle's own departure (the time limit's and the watchdog's clock)."""
+        return pose.t_sim_s - (self.outcome.t_depart_sim_s or pose.t_sim_s)
+
     def _tick(self, pose: PoseSample) -> TickResult:
         own = Pose(pose.x_east_m, pose.y_north_m, pose.heading_enu_rad)
         self._snapshot = self.ctx.field.from_tracks(self._obstacle_tracks(pose))
-        t_mission = pose.t_sim_s - (self.outcome.t_depart_sim_s or pose.t_sim_s)
         self._t_plan = self.ctx.schedule_time(self, pose)
-        result = self.planner.tick(own, self._other(pose), self._snapshot, t_mission, self._t_plan)
+        result = self.planner.tick(own, self._other(pose), self._snapshot, self._mission_time(pose), self._t_plan)
         self.outcome.ticks += 1
         if not result.arrived:
             self.outcome.planner_ms.append(result.planner_ms)
