@@ -36,7 +36,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import enu_heading_to_ned_yaw
 from uav_model.mission import Mission, VehicleSpec
-from uav_model.plant import KinematicState, PlantLimits, step_for
+from uav_model.plant import KinematicState, Plant, PlantLimits, step_for
 from sim_bridge.energy import EnergyModel
 from sim_bridge.mission_protocol import MissionProtocol
 from sim_bridge.px4 import FlightMode, default_params
@@ -78,8 +78,9 @@ class SimVehicle:
         self.counters: Counter[str] = Counter()
         self._wall_t = 0.0  # last wall time the I/O layer reported (mission transfer timing)
 
+        # The unicycle flies the mission's limits (an airframe tuned for it); the multicopter PX4's defaults.
         defs = default_params(self.system_id, spec.speed_m_s * speed_headroom, spec.max_yaw_rate_rad_s,
-                              spec.max_accel_m_s2, spec.cruise_alt_m)
+                              spec.max_accel_m_s2, spec.cruise_alt_m, mission_tuned=mission.plant is Plant.UNICYCLE)
         self.plant = mission.plant
         self.plant_step = step_for(mission.plant)  # the one pure step the vehicle flies (uav_model.plant)
         self.params = ParamStore(self, defs, max_alt_m=max(500.0, 2.0 * spec.cruise_alt_m), plant=mission.plant)

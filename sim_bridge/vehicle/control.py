@@ -10,7 +10,10 @@ from uav_model.frames import wrap_pi
 from uav_model.plant import HOVER, VelocityCommand, VelocityFrame
 from sim_bridge.px4 import FlightMode
 from sim_bridge.vehicle.orbit import orbit_command
-from sim_bridge.vehicle.types import KP_ALTITUDE_1_S, KP_POSITION_1_S, TAKEOFF_APPROACH_KP_1_S, TOUCHDOWN_ALT_M, clip
+from sim_bridge.vehicle.types import (
+    KP_ALTITUDE_1_S, KP_POSITION_1_S, TAKEOFF_APPROACH_KP_1_S, TAKEOFF_FAST_FRACTION, TAKEOFF_RAMP, TAKEOFF_SPOOLUP_S,
+    TOUCHDOWN_ALT_M, clip,
+)
 
 if TYPE_CHECKING:
     from sim_bridge.vehicle import SimVehicle
@@ -25,11 +28,14 @@ class Controller:
         self._v = v
 
     def yawspeed_toward(self, yaw_target: float, dt_s: float) -> float:
-        """Auto-mode yaw: P on the angle (dead-beat on the unicycle), within MPC_YAWRAUTO_MAX."""
+        """Auto-mode yaw: P on the angle (dead-beat on the unicycle), within MPC_YAWRAUTO_MAX. On a
+        lagging heading rate the angle the rate will still turn (rate x lag) counts as turned, so a
+        fast turn brakes in time instead of swinging past (PX4's yaw trajectory does the same)."""
         v = self._v
-        err = wrap_pi(yaw_target - v.state.yaw_rad)
+        lim = v.limits
+        err = wrap_pi(yaw_target - v.state.yaw_rad) - v.state.yawspeed_rad_s * lim.yaw_lag_s
         rate = math.radians(v.params["MPC_YAWRAUTO_MAX"])
-        return clip(err * min(1.0 / dt_s, v.limits.yaw_p_1_s), -rate, rate)
+        return clip(err * min(1.0 / dt_s, lim.yaw_p_1_s), -rate, rate)
 
     def goto(self, target: NED, speed_m_s: float, dt_s: float, *, stop: bool = True, yaw_rad: float | None = None,
              face_travel: bool = False, climb_m_s: float | None = None) -> VelocityCommand:
@@ -51,14 +57,19 @@ class Controller:
         return VelocityCommand(VelocityFrame.LOCAL_NED, vn, ve, vd, yawspeed)
 
     def takeoff_command(self, target: NED, speed_m_s: float, dt_s: float) -> VelocityCommand | None:
-        """PX4's take-off, as measured on SIH: on the ground through the spool-up, MPC_TKO_SPEED for the
-        lower half of the climb, then the position controller's slower approach (up to MPC_Z_VEL_MAX_UP)."""
+        """PX4's take-off, as measured on SIH: on the ground through the spool-up, a ramp up to
+        MPC_TKO_SPEED, that climb rate up to TAKEOFF_FAST_FRACTION of the altitude, then the position
+        controller's approach (up to MPC_Z_VEL_MAX_UP, slowing near the top)."""
         v = self._v
         if not v.in_air and v.modes.spooling_up():
             return None
         p = v.params
-        if -v.state.down_m < -0.5 * target[2]:
-            return self.goto(target, speed_m_s, dt_s, climb_m_s=p["MPC_TKO_SPEED"])
+        if -v.state.down_m < -TAKEOFF_FAST_FRACTION * target[2]:
+            start = v.modes.takeoff_start_t
+            first, ramp_s = TAKEOFF_RAMP
+            ramp = 1.0 if start is None else first + (1.0 - first) * (v.sim_time_s - start - TAKEOFF_SPOOLUP_S) / ramp_s
+            climb = p["MPC_TKO_SPEED"] * clip(ramp, first, 1.0)
+            return self.goto(target, speed_m_s, dt_s, climb_m_s=climb)
         cmd = self.goto(target, speed_m_s, dt_s)
         vd = clip(TAKEOFF_APPROACH_KP_1_S * (target[2] - v.state.down_m), -p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"])
         return replace(cmd, z_m_s=vd)

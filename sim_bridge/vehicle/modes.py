@@ -50,7 +50,12 @@ class Modes:
         return self._v.sim_time_s >= BOOT_HEALTHY_S
 
     def armable(self) -> bool:
-        return self.healthy() and self._v.battery_pct > 100.0 * self._v.params["BAT_CRIT_THR"]
+        """PX4's pre-arm verdict (SYS_STATUS's PREARM_CHECK bit): it includes the selected mode's
+        requirements, so OFFBOARD without a setpoint stream is not armable."""
+        v = self._v
+        if v.mode is FlightMode.OFFBOARD and not self.setpoints_fresh():
+            return False
+        return self.healthy() and v.battery_pct > 100.0 * v.params["BAT_CRIT_THR"]
 
     def _denied(self, text: str, result: int = mavlink.MAV_RESULT_DENIED) -> Result:
         return result, [Emit(self._v.tele.statustext(mavlink.MAV_SEVERITY_CRITICAL, text))]
@@ -139,8 +144,8 @@ class Modes:
         v = self._v
         nav = v.nav
         s = v.state
-        if mode is FlightMode.OFFBOARD and not self.setpoints_fresh():
-            return mavlink.MAV_RESULT_DENIED
+        if mode is FlightMode.OFFBOARD and v.armed and not self.setpoints_fresh():
+            return mavlink.MAV_RESULT_DENIED  # disarmed, PX4 selects any mode; its requirements gate arming
         if mode is FlightMode.MISSION and not v.missions.plan(MISSION):
             return mavlink.MAV_RESULT_DENIED
         if mode is FlightMode.RTL and not v.in_air:

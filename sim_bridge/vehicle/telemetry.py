@@ -8,11 +8,13 @@ from typing import TYPE_CHECKING, Any, Callable
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import local_to_geodetic
+from uav_model.plant import Plant
+from uav_model.plant.multicopter import attitude
 from sim_bridge.health import sensor_bits
 from sim_bridge.mission_protocol import MISSION
 from sim_bridge.px4 import PX4_FLIGHT_SW_VERSION, FlightMode
 from sim_bridge.streams import API_PROFILE, StreamProfile, StreamScheduler
-from sim_bridge.vehicle.types import GRAVITY_M_S2, Emit, clip
+from sim_bridge.vehicle.types import Emit, clip
 
 if TYPE_CHECKING:
     from sim_bridge.vehicle import SimVehicle
@@ -136,14 +138,12 @@ class Telemetry:
             int(round(-s.down_m * 1000.0)), _cm_s(s.vn_m_s), _cm_s(s.ve_m_s), _cm_s(s.vd_m_s), hdg)
 
     def attitude(self) -> Any:
-        s = self._v.state
-        an, ae = self._v.physics.accel_ned
-        c, sn = math.cos(s.yaw_rad), math.sin(s.yaw_rad)
-        a_fwd, a_right = c * an + sn * ae, -sn * an + c * ae
-        # A multicopter tilts into its acceleration: nose down to speed up, bank into a turn.
-        pitch = -math.atan2(a_fwd, GRAVITY_M_S2)
-        roll = math.atan2(a_right, GRAVITY_M_S2)
-        return self._mav.attitude_encode(self.time_boot_ms, roll, pitch, s.yaw_rad, 0.0, 0.0, s.yawspeed_rad_s)
+        """Tilt into the acceleration, and the body yaw rate (heading rate x cos tilt), as PX4 reports them."""
+        v = self._v
+        s = v.state
+        accel = None if v.plant is Plant.MULTICOPTER else v.physics.accel_ned  # the unicycle holds no thrust state
+        roll, pitch, yawspeed = attitude(s, accel)
+        return self._mav.attitude_encode(self.time_boot_ms, roll, pitch, s.yaw_rad, 0.0, 0.0, yawspeed)
 
     def gps_raw_int(self) -> Any:
         s = self._v.state

@@ -117,8 +117,8 @@ def test_mission_start_arms_a_disarmed_vehicle(mission, gcs, make_vehicle):
 # ---------------------------------------------------------------- take-off and landing ------
 def test_takeoff_spools_up_on_the_ground_reports_in_air_then_climbs_20_m_at_px4_pace(mission, gcs, make_vehicle):
     # PX4: MIS_TAKEOFF_ALT 2.5 by default; "Takeoff detected" and landed_state TAKEOFF ~1.6 s
-    # after the command, still on the ground; ~4 s on the ground; 19 m reached 16.7 s after the
-    # command in the trace (19.2 s in the step log, which lags by its 1 Hz heartbeat).
+    # after the command, still on the ground; ~4 s on the ground; then the climb below (the step
+    # log's 19.2 s is GLOBAL_POSITION_INT's relative altitude, which lagged the local z by ~1 m then).
     v = make_vehicle(mission)
     assert v.param("MIS_TAKEOFF_ALT") == 2.5
     set_param(v, gcs, "MIS_TAKEOFF_ALT", 20.0)
@@ -130,8 +130,13 @@ def test_takeoff_spools_up_on_the_ground_reports_in_air_then_climbs_20_m_at_px4_
     assert v.position_enu_m[2] == 0.0 and not v.in_air
     step_for(v, 60.0, until=lambda v: v.position_enu_m[2] > 0.05)
     assert v.sim_time_s - t0 == pytest.approx(4.1, abs=0.2)  # PX4: leaves the ground 4.0-4.4 s after
-    step_for(v, 60.0, until=lambda v: v.position_enu_m[2] >= 19.0)
-    assert 15.0 <= v.sim_time_s - t0 <= 19.5
+    climb = []
+    step_for(v, 60.0, until=lambda v: climb.append((v.sim_time_s - t0, v.state.vd_m_s)) or v.position_enu_m[2] >= 19.0)
+    # PX4 (z traces): 19 m above ground 17.1 s (1x) and 18.0 s (4x) after the command, MPC_TKO_SPEED 1.5 m/s
+    # through the lower ~11 m, a faster approach above it (2.7-2.8 m/s peak)
+    assert 17.1 * 0.97 <= v.sim_time_s - t0 <= 18.0 * 1.03
+    assert max(-vd for t, vd in climb if t < 10.0) == pytest.approx(1.5, abs=0.05)
+    assert 2.5 <= max(-vd for t, vd in climb) <= 3.0
 
 
 def test_offboard_with_zero_climb_right_after_takeoff_detected_does_not_lift_off(mission, gcs, make_vehicle):

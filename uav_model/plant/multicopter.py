@@ -94,6 +94,11 @@ class MulticopterLimits:
         return 1.0 / (2.0 * self.yaw_tau_s)
 
     @property
+    def yaw_lag_s(self) -> float:
+        """The heading rate's first-order lag: a yaw controller brakes this much early."""
+        return self.yaw_tau_s
+
+    @property
     def drag_1_s(self) -> float:
         return self.derived[0]
 
@@ -114,15 +119,17 @@ def trimmed(state: KinematicState, limits: MulticopterLimits) -> KinematicState:
                           state.vd_m_s, state.yaw_rad, state.yawspeed_rad_s, an, ae, an, ae)
 
 
-def attitude(state: KinematicState) -> tuple[float, float, float]:
+def attitude(state: KinematicState, accel_ne: tuple[float, float] | None = None) -> tuple[float, float, float]:
     """(roll, pitch, body yawspeed) in rad, rad, rad/s, as PX4's ATTITUDE reports them.
 
-    The thrust leans into the horizontal acceleration it produces; the body z rate of a vehicle
-    turning at heading rate psi' with that tilt is psi' cos(roll) cos(pitch).
+    The thrust leans into the horizontal acceleration it produces (the multicopter's state holds
+    it; ``accel_ne`` gives it for a plant that does not, e.g. the unicycle's velocity change); the
+    body z rate of a vehicle turning at heading rate psi' with that tilt is psi' cos(roll) cos(pitch).
     """
+    an, ae = (state.accel_n_m_s2, state.accel_e_m_s2) if accel_ne is None else accel_ne
     c, s = math.cos(state.yaw_rad), math.sin(state.yaw_rad)
-    a_fwd = c * state.accel_n_m_s2 + s * state.accel_e_m_s2
-    a_right = -s * state.accel_n_m_s2 + c * state.accel_e_m_s2
+    a_fwd = c * an + s * ae
+    a_right = -s * an + c * ae
     pitch = -math.atan2(a_fwd, GRAVITY_M_S2)
     roll = math.atan2(a_right * math.cos(pitch), GRAVITY_M_S2)
     return roll, pitch, state.yawspeed_rad_s * math.cos(roll) * math.cos(pitch)

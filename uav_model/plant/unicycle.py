@@ -31,6 +31,11 @@ class VehicleLimits:
         """Yaw-angle gain an autopilot can use: the unicycle turns at once, so any (dead-beat)."""
         return math.inf
 
+    @property
+    def yaw_lag_s(self) -> float:
+        """How long the heading rate takes to follow its setpoint: no time at all."""
+        return 0.0
+
 
 def _clip(value: float, limit: float) -> float:
     return max(-limit, min(limit, value))
