@@ -116,13 +116,21 @@ def test_mavproxy_sees_both_vehicles_and_arms_and_changes_modes():
                                 after=len(mp.lines))
                 await mp.send("watch")
 
-                await mp.send("vehicle 1")
-                await mp.expect(r"Set vehicle 1")
-                # No setpoints: PX4 ACKs ACCEPTED, then refuses the switch and says so.
+                # Armed, no setpoints: PX4 ACKs ACCEPTED, then refuses the switch and says so.
                 await mp.send(f"long DO_SET_MODE {CUSTOM} {Px4MainMode.OFFBOARD} 0")
                 await mp.expect(r"COMMAND_ACK: DO_SET_MODE: ACCEPTED", after=len(mp.lines) - 1)
                 await mp.expect(r"Switching to Offboard is currently not available")
-                assert sim.vehicle("a").mode is FlightMode.HOLD
+                assert sim.vehicle("b").mode is not FlightMode.OFFBOARD
+
+                await mp.send("vehicle 1")
+                await mp.expect(r"Set vehicle 1")
+                # Disarmed, PX4 selects OFFBOARD without setpoints (its requirement then gates arming).
+                await mp.send(f"long DO_SET_MODE {CUSTOM} {Px4MainMode.OFFBOARD} 0")
+                await mp.expect(r"COMMAND_ACK: DO_SET_MODE: ACCEPTED", after=len(mp.lines) - 1)
+                assert await sim.wait_for(lambda: sim.vehicle("a").mode is FlightMode.OFFBOARD, 5.0)
+                await mp.send("arm throttle")
+                await mp.expect(r"Arming denied: no offboard signal")
+                assert not sim.vehicle("a").armed
                 await mp.send(f"long DO_SET_MODE {CUSTOM} {Px4MainMode.AUTO} {Px4AutoSubMode.LAND}")
                 await mp.expect(r"COMMAND_ACK: DO_SET_MODE: ACCEPTED", after=len(mp.lines) - 1)
                 assert await sim.wait_for(lambda: sim.vehicle("a").mode is FlightMode.LAND, 5.0)
