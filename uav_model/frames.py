@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import pymap3d
 
 _A = 6_378_137.0  # WGS-84 semi-major axis, m
 _E2 = 6.694_379_990_14e-3  # WGS-84 first eccentricity squared
@@ -72,7 +71,7 @@ def local_to_geodetic(origin: GeoOrigin, x_east_m: float, y_north_m: float,
 
     pymap3d has the inverse too, but it costs ~2 ms a call (numpy masks on scalars), and the stub
     converts every GLOBAL_POSITION_INT it sends. So this solves geodetic_to_local(lat, lon) = (x, y)
-    by Newton steps on pymap3d's forward transform, from a spherical first guess; two steps reach
+    by Newton steps on the forward transform, from a spherical first guess; two steps reach
     well under a millimetre over a mission's few kilometres (tests/model/test_frames.py).
     """
     lat0, lon0 = origin.lat_deg, origin.lon_deg
@@ -86,21 +85,43 @@ def local_to_geodetic(origin: GeoOrigin, x_east_m: float, y_north_m: float,
         n_lon = _A / w * math.cos(math.radians(lat))
         lat += math.degrees(dy / m_lat)
         lon += math.degrees(dx / n_lon)
-        e, n, _ = pymap3d.geodetic2enu(lat, lon, origin.alt_m, lat0, lon0, origin.alt_m)
-        dx, dy = x_east_m - float(e), y_north_m - float(n)
+        e, n = _tangent_plane_en(origin, lat, lon)
+        dx, dy = x_east_m - e, y_north_m - n
         if abs(dx) < 1e-5 and abs(dy) < 1e-5:
             break
     return lat, lon, origin.alt_m + z_up_m
 
 
+def _ecef(lat_deg: float, lon_deg: float, alt_m: float) -> tuple[float, float, float]:
+    """WGS-84 geodetic to earth-centred, earth-fixed metres (pymap3d's geodetic2ecef, on floats)."""
+    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
+    s, c = math.sin(lat), math.cos(lat)
+    n = _A / math.sqrt(1.0 - _E2 * s * s)
+    return (n + alt_m) * c * math.cos(lon), (n + alt_m) * c * math.sin(lon), (n * (1.0 - _E2) + alt_m) * s
+
+
+def _tangent_plane_en(origin: GeoOrigin, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+    """East and north of (lat, lon) at the origin's altitude on the origin's WGS-84 tangent plane.
+
+    pymap3d's geodetic2enu step for step (both ECEF points, their difference rotated into the
+    origin's ENU axes) in plain floats: it builds an Ellipsoid and numpy masks on every call,
+    ~40 us, and the stub and the companion convert every position message.
+    """
+    x0, y0, z0 = _ecef(origin.lat_deg, origin.lon_deg, origin.alt_m)
+    x, y, z = _ecef(lat_deg, lon_deg, origin.alt_m)
+    u, v, w = x - x0, y - y0, z - z0
+    lat0, lon0 = math.radians(origin.lat_deg), math.radians(origin.lon_deg)
+    t = math.cos(lon0) * u + math.sin(lon0) * v
+    return -math.sin(lon0) * u + math.cos(lon0) * v, -math.sin(lat0) * t + math.cos(lat0) * w
+
+
 def geodetic_to_local(origin: GeoOrigin, lat_deg: float, lon_deg: float,
                       alt_m: float | None = None) -> tuple[float, float, float]:
-    """(lat, lon, alt AMSL) to local ENU metres: the WGS-84 tangent plane at the origin (pymap3d).
+    """(lat, lon, alt AMSL) to local ENU metres: the WGS-84 tangent plane at the origin (as pymap3d).
 
     East and north are exact. Up is the altitude difference (flat ground at the origin's
     altitude), as PX4's local z is; the plane's curvature drop (~0.7 m at 3 km) is not applied.
     """
-    e, n, _ = pymap3d.geodetic2enu(lat_deg, lon_deg, origin.alt_m,
-                                   origin.lat_deg, origin.lon_deg, origin.alt_m)
+    e, n = _tangent_plane_en(origin, lat_deg, lon_deg)
     z = 0.0 if alt_m is None else alt_m - origin.alt_m
-    return float(e), float(n), z
+    return e, n, z

@@ -82,3 +82,15 @@ def test_geodetic_to_local_distances_are_geodesic():
         x, y, _ = frames.geodetic_to_local(sea_level, lat, lon)
         dist, _ = vdist(ORIGIN.lat_deg, ORIGIN.lon_deg, lat, lon)
         assert math.hypot(x, y) == pytest.approx(float(dist), rel=2e-6)  # plane vs ellipsoid: < 1 cm at 3 km
+
+
+def test_geodetic_to_local_is_pymap3ds_tangent_plane():
+    """The plain-float transform gives pymap3d's geodetic2enu east and north to a micrometre."""
+    import pymap3d
+
+    origin = GeoOrigin(47.397742, 8.545594, 488.0)
+    for dlat, dlon in [(0.0, 0.0), (0.03, -0.04), (-0.05, 0.05), (0.001, 0.0007), (-0.02, -0.03)]:
+        lat, lon = origin.lat_deg + dlat, origin.lon_deg + dlon
+        e, n, _ = pymap3d.geodetic2enu(lat, lon, origin.alt_m, origin.lat_deg, origin.lon_deg, origin.alt_m)
+        x, y, z = frames.geodetic_to_local(origin, lat, lon, 500.0)
+        assert (x, y, z) == pytest.approx((float(e), float(n), 12.0), abs=1e-6)
