@@ -70,8 +70,14 @@ class Controller:
             ramp = 1.0 if start is None else first + (1.0 - first) * (v.sim_time_s - start - TAKEOFF_SPOOLUP_S) / ramp_s
             climb = p["MPC_TKO_SPEED"] * clip(ramp, first, 1.0)
             return self.goto(target, speed_m_s, dt_s, climb_m_s=climb)
-        cmd = self.goto(target, speed_m_s, dt_s)
-        vd = clip(TAKEOFF_APPROACH_KP_1_S * (target[2] - v.state.down_m), -p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"])
+        return self.climb_approach(self.goto(target, speed_m_s, dt_s), target[2])
+
+    def climb_approach(self, cmd: VelocityCommand, target_down_m: float) -> VelocityCommand:
+        """``cmd`` with PX4's auto-mode approach to an altitude (take-off's upper part, RTL's climb):
+        TAKEOFF_APPROACH_KP_1_S per metre to go, within MPC_Z_VEL_MAX_UP / DN."""
+        p = self._v.params
+        vd = clip(TAKEOFF_APPROACH_KP_1_S * (target_down_m - self._v.state.down_m), -p["MPC_Z_VEL_MAX_UP"],
+                  p["MPC_Z_VEL_MAX_DN"])
         return replace(cmd, z_m_s=vd)
 
     def track(self, target: NED, feed_forward: NED) -> VelocityCommand:

@@ -88,8 +88,9 @@ class Navigator:
         rtl_alt = max(v.params["RTL_RETURN_ALT"], 0.5)
         home_n, home_e, _ = v.home_ned
         cruise = v.params["MPC_XY_CRUISE"]
-        if self.rtl_phase is RtlPhase.CLIMB:
-            return ctl.goto((self.hold_ned[0], self.hold_ned[1], min(-rtl_alt, v.state.down_m)), cruise, dt_s)
+        if self.rtl_phase is RtlPhase.CLIMB:  # PX4 SIH: 25 -> 30 m in ~8 s, slowing near the top
+            target = (self.hold_ned[0], self.hold_ned[1], min(-rtl_alt, v.state.down_m))
+            return ctl.climb_approach(ctl.goto(target, cruise, dt_s), target[2])
         if self.rtl_phase is RtlPhase.RETURN:
             return ctl.goto((home_n, home_e, min(-rtl_alt, self.hold_ned[2])), cruise, dt_s, face_travel=True)
         return ctl.land_command(home_n, home_e, dt_s)

@@ -30,7 +30,7 @@ TAKEOFF_SPOOLUP_S = 3.9  # on the ground this long after the take-off command be
 # The climb, fitted on px4_sih_1x and _4x (z traces: 19 m above ground 17.1 and 18.0 s after the command):
 TAKEOFF_RAMP = (0.3, 2.0)  # climb rate from this fraction of MPC_TKO_SPEED at lift-off, linear to all of it in s
 TAKEOFF_FAST_FRACTION = 0.55  # MPC_TKO_SPEED up to this fraction of the take-off altitude (PX4: 11 m of 20)
-TAKEOFF_APPROACH_KP_1_S = 0.4  # then climb rate per metre below the take-off altitude (PX4: 2.7 m/s peak)
+TAKEOFF_APPROACH_KP_1_S = 0.37  # then climb rate per metre below the take-off altitude (PX4: 2.7 m/s peak)
 LAND_DETECT_S = 2.0  # on the ground this long before "Landing detected"
 
 
