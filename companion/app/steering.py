@@ -12,7 +12,7 @@ import numpy as np
 from uav_model import frames
 from companion.app import monitors
 from companion.planning.dwa import OtherUav, Pose, inflated_clearance
-from companion.planning.fleet import Neighbour, choose_other
+from companion.planning.fleet import Neighbour, Reaction, react_to
 from companion.planning.obstacle_field import ObstacleTrack
 from companion.planning.vehicle_planner import TickResult
 from companion.vehicle.port import HOVER, PoseSample, TrafficReport, VelocityYawRateSetpoint
@@ -48,7 +48,9 @@ class Steering:
         own = Pose(pose.x_east_m, pose.y_north_m, pose.heading_enu_rad)
         self._snapshot = self.ctx.field.from_tracks(self._obstacle_tracks(pose))
         self._t_plan = self.ctx.schedule_time(self, pose)
-        result = self.planner.tick(own, self._other(pose), self._snapshot, self._mission_time(pose), self._t_plan)
+        reaction = self._reaction(pose)
+        result = self.planner.tick(own, reaction.other, self._snapshot, self._mission_time(pose), self._t_plan,
+                                   separate_from=reaction.separate_from)
         self.outcome.ticks += 1
         if not result.arrived:
             self.outcome.planner_ms.append(result.planner_ms)
@@ -62,11 +64,9 @@ class Steering:
             age = (at.t_wall_s - t_wall_s) * (self.vehicle.sim_rate() or 1.0)
         return min(max(age, 0.0), 5.0) if math.isfinite(age) else 0.0
 
-    def _other(self, pose: PoseSample) -> OtherUav | None:
-        """The vehicle the planner reacts to (fleet.choose_other: separation first, then priority)."""
-        chosen = choose_other(pose.x_east_m, pose.y_north_m, self.ctx.rank[self.name], self._neighbours(pose),
-                              self.planner.config)
-        return None if chosen is None else chosen.uav
+    def _reaction(self, pose: PoseSample) -> Reaction:
+        """Whom the planner reacts to (fleet.react_to: separation from all, sightline to one)."""
+        return react_to(pose.x_east_m, pose.y_north_m, self.ctx.rank[self.name], self._neighbours(pose))
 
     def _nearest_other(self, pose: PoseSample) -> tuple[str | None, OtherUav | None]:
         """The nearest other vehicle, from its own telemetry, extrapolated to this pose's time."""
@@ -163,7 +163,7 @@ class Steering:
         clearance = inflated_clearance(np.array([pose.x_east_m]), np.array([pose.y_north_m]), np.zeros(1),
                                        self._snapshot)
         clear_m = float(clearance.min()) if clearance.size else math.inf
-        other = self._other(pose)
+        _, other = self._nearest_other(pose)
         sep_m = math.inf if other is None else math.hypot(other.x_m - pose.x_east_m, other.y_m - pose.y_north_m)
         to_go = self._remaining_m(pose)
         mode = self.vehicle.status().mode.value

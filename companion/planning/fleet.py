@@ -1,26 +1,27 @@
-"""Which other vehicle one vehicle's planner reacts to, when more than two fly (issue 15).
+"""Whom one vehicle's planner reacts to, when more than two fly (issue 15).
 
-The BDWA step (:func:`companion.planning.dwa.plan_step`) takes one other UAV: it keeps the
-separation from it and, for every vehicle but the first in priority, scores the sightline to it.
-With N vehicles the choice, made every tick, is by safety first and then by priority:
+The BDWA step (:func:`companion.planning.dwa.plan_step`) reacts to the other UAVs in two ways:
 
-1. the nearest vehicle whose predicted path can come within the separation of a rollout
-   (the same reach test as ``plan_step``'s): separation is a success criterion;
-2. otherwise the nearest vehicle of higher priority: the paper's lower-priority UAV hides from
-   the prioritised one, so each vehicle hides from the nearest vehicle that has right of way
-   over it;
-3. otherwise (the first in priority, or nobody of higher priority still flying) the nearest one.
+- *separation* (a legality rule): against **every** other vehicle whose predicted path can come
+  within reach of a rollout, all of them in one array operation. Separation is a success
+  criterion for every pair; keeping clear of one vehicle at a time lost it where eight routes
+  meet (49-50 m < 50 m at the centre of the perimeter layout);
+- *sightline* (a critic, for every vehicle but the first in priority): toward **one** partner,
+  the nearest vehicle of higher priority still flying (the paper's lower-priority UAV hides
+  from the prioritised one, so each vehicle hides from the nearest vehicle that has right of way
+  over it); otherwise (the first in priority, or nobody of higher priority still flying) the
+  nearest one.
 
-With two vehicles every rule picks the one other vehicle, so two-vehicle flights are unchanged.
+With two vehicles both are the one other vehicle, so two-vehicle flights are unchanged.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from companion.planning.dwa import DwaConfig, OtherUav
+from companion.planning.dwa import OtherUav
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,25 +33,41 @@ class Neighbour:
     uav: OtherUav
 
 
-def separation_can_bind(x_m: float, y_m: float, other: OtherUav, config: DwaConfig) -> bool:
-    """Whether ``other``'s predicted path can come within the separation of a rollout from (x, y)."""
-    reach = (config.reach_m + config.min_separation_m
-             + math.hypot(other.vx_m_s, other.vy_m_s) * config.horizon_s + 1.0)
-    return math.hypot(x_m - other.x_m, y_m - other.y_m) <= reach
+@dataclass(frozen=True, slots=True)
+class Reaction:
+    """What one vehicle's planner takes this tick: the sightline partner and every UAV to keep
+    separated from (the arguments ``other`` and ``separate_from`` of ``plan_step``)."""
+
+    partner: Neighbour | None
+    separate_from: tuple[OtherUav, ...]
+
+    @property
+    def other(self) -> OtherUav | None:
+        return None if self.partner is None else self.partner.uav
 
 
-def choose_other(x_m: float, y_m: float, rank: int, neighbours: Sequence[Neighbour],
-                 config: DwaConfig) -> Neighbour | None:
-    """The neighbour the planner of the vehicle at (x, y) with priority ``rank`` reacts to."""
-    if not neighbours:
-        return None
-    if len(neighbours) == 1:
-        return neighbours[0]
+def sightline_partner(x_m: float, y_m: float, rank: int, neighbours: Sequence[Neighbour]) -> Neighbour | None:
+    """The neighbour the vehicle at (x, y) with priority ``rank`` hides from: the nearest one of
+    higher priority still flying, else the nearest."""
+    if len(neighbours) <= 1:
+        return neighbours[0] if neighbours else None
     by_distance = sorted(neighbours, key=lambda n: (math.hypot(n.uav.x_m - x_m, n.uav.y_m - y_m), n.rank))
-    nearest = by_distance[0]
-    if config.min_separation_m > 0 and separation_can_bind(x_m, y_m, nearest.uav, config):
-        return nearest
     for n in by_distance:
         if n.rank < rank and not n.uav.arrived:
             return n
-    return nearest
+    return by_distance[0]
+
+
+def react_to(x_m: float, y_m: float, rank: int, neighbours: Sequence[Neighbour]) -> Reaction:
+    """The sightline partner and the separation set of the vehicle at (x, y) with ``rank``.
+
+    With more than two vehicles, each one flying with higher priority is marked as having right
+    of way (``OtherUav.right_of_way``: kept clear of by a margin more), so that of two vehicles
+    meeting the lower-priority one gives way first. With two, the routes already keep the pair
+    apart (the paper's opposite-side rule) and nobody is marked."""
+    partner = sightline_partner(x_m, y_m, rank, neighbours)
+    if len(neighbours) < 2:
+        return Reaction(partner, tuple(n.uav for n in neighbours))
+    uavs = tuple(replace(n.uav, right_of_way=True) if n.rank < rank and not n.uav.arrived else n.uav
+                 for n in neighbours)
+    return Reaction(partner, uavs)

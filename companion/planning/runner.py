@@ -28,7 +28,7 @@ import numpy as np
 from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to_ned, ned_to_enu, ned_yaw_to_enu_heading
 from uav_model.mission import Mission
 from companion.planning.dwa import OtherUav, Pose
-from companion.planning.fleet import Neighbour, choose_other
+from companion.planning.fleet import Neighbour, react_to
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.coordination import plan_coordinated
 from companion.planning.vehicle_planner import VARIANTS as PLANNER_VARIANTS
@@ -158,10 +158,9 @@ def simulate(mission: Mission, variant: str | None = None, *,
             own = states[name]
             neighbours = [Neighbour(n, rank[n], _other(states[n], parked=n not in active)) for n in others[name]]
             # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
-            chosen = choose_other(*_xy(own), rank[name], neighbours, planners[name].config)
-            other = None if chosen is None else chosen.uav
+            reaction = react_to(*_xy(own), rank[name], neighbours)
             planner = planners[name]
-            result = planner.tick(_pose(own), other, snapshot, t)
+            result = planner.tick(_pose(own), reaction.other, snapshot, t, separate_from=reaction.separate_from)
             if planner.replan_due:  # no progress for a while: a new route from here, at once
                 x, y = _xy(own)
                 planner.adopt_detour(planner.plan_detour(x, y), x, y, t)

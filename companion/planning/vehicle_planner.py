@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from typing import TYPE_CHECKING
@@ -250,10 +250,12 @@ class VehiclePlanner:
         return self._station_xy
 
     def tick(self, own: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, t_s: float,
-             schedule_t_s: float | None = None) -> TickResult:
+             schedule_t_s: float | None = None, separate_from: Sequence[OtherUav] | None = None) -> TickResult:
         """Decide this tick's command from the current own pose, other UAV and obstacles.
         ``schedule_t_s``: the time to read the timed route at, when it is not ``t_s`` (the live
         companion's schedule clock, which may pause and jump; the progress watchdog keeps ``t_s``).
+        ``other`` is the sightline partner; ``separate_from`` every UAV to keep separated from
+        (None: ``other`` alone; see :mod:`companion.planning.fleet`).
 
         Once inside the arrival radius the vehicle has arrived for good and holds.
         """
@@ -269,7 +271,7 @@ class VehiclePlanner:
             self._watch_progress(own.x_m, own.y_m, t_s, held)
         reach = self.config.reach_m + self.tracker.acceptance_radius_m
         goals = self.tracker.window(own.x_m, own.y_m, reach, self._aim_radius_m)
-        decision = plan_step(own, goals, other, snapshot, self.config, scheduled)
+        decision = plan_step(own, goals, other, snapshot, self.config, scheduled, separate_from)
         ms = (time.perf_counter() - started) * 1e3
         if isinstance(decision, NoLegalRollout):
             if decision.recovery is not None:

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
 import pytest
 
-from companion.planning.dwa import DwaConfig, OtherUav
-from companion.planning.fleet import Neighbour, choose_other
+from companion.planning.dwa import NO_OBSTACLES, Command, DwaConfig, OtherUav, Pose, plan_step
+from companion.planning.fleet import Neighbour, Reaction, react_to, sightline_partner
 from companion.planning.metrics import pair_name
 from companion.planning.runner import simulate
 from companion.scenarios import ScenarioConfig, generate_scenario
@@ -16,36 +19,73 @@ SMALL_FLEET = {"side_m": 1000.0, "static_count": 2, "static_circumradius_m": [40
                "moving_speed_m_s": [2.0, 4.0], "station_clearance_m": 100.0, "vehicles": 4}
 
 
+def _n(name: str, rank: int, x: float, y: float, arrived: bool = False) -> Neighbour:
+    return Neighbour(name, rank, OtherUav(x, y, 0.0, 0.0, arrived=arrived))
+
+
+def test_one_other_vehicle_is_always_the_partner_and_the_whole_separation_set():
+    only = _n("a", 0, 3000.0, 0.0)
+    reaction = react_to(0.0, 0.0, 1, [only])
+    assert reaction.partner is only
+    assert reaction.separate_from == (only.uav,)  # not marked as having right of way: pairs unchanged
+    assert react_to(0.0, 0.0, 1, []) == Reaction(None, ())
+
+
+def test_the_nearest_higher_priority_flying_vehicle_is_hidden_from():
+    lower = _n("d", 3, 100.0, 0.0)
+    boss_parked = _n("a", 0, 150.0, 0.0, arrived=True)
+    boss = _n("b", 1, 300.0, 0.0)
+    assert sightline_partner(0.0, 0.0, 2, [lower, boss_parked, boss]) is boss
+    # the first in priority has nobody to hide from: the nearest
+    assert sightline_partner(0.0, 0.0, 0, [lower, boss]) is lower
+
+
+def test_every_vehicle_is_kept_separated_from_and_the_higher_priority_ones_have_right_of_way():
+    lower = _n("d", 3, 100.0, 0.0)
+    boss_parked = _n("a", 0, 150.0, 0.0, arrived=True)
+    boss = _n("b", 1, 300.0, 0.0)
+    reaction = react_to(0.0, 0.0, 2, [lower, boss_parked, boss])
+    assert [(u.x_m, u.right_of_way) for u in reaction.separate_from] == [(100.0, False), (150.0, False), (300.0, True)]
+
+
 @pytest.fixture(scope="module")
 def config() -> DwaConfig:
     mission = generate_scenario(11, 0, ScenarioConfig.from_mapping(SMALL_FLEET)).mission
     return DwaConfig.from_settings(mission.planner, mission.vehicles[2], mission.safety)
 
 
-def _n(name: str, rank: int, x: float, y: float, arrived: bool = False) -> Neighbour:
-    return Neighbour(name, rank, OtherUav(x, y, 0.0, 0.0, arrived=arrived))
+def test_the_separation_rule_keeps_clear_of_every_vehicle_in_reach_not_only_the_partner(config):
+    """Two vehicles ahead, left and right of the straight rollout: a rollout may come near
+    neither, though the sightline partner is a third one far away."""
+    pose = Pose(0.0, 0.0, 0.0)
+    side = config.min_separation_m + 10.0
+    left = OtherUav(0.7 * config.reach_m, side, 0.0, 0.0)
+    right = OtherUav(0.7 * config.reach_m, -side, 0.0, 0.0)
+    far = OtherUav(-5000.0, 0.0, 0.0, 0.0)
+    goal = (2.0 * config.reach_m, 0.0)
+    both = plan_step(pose, goal, far, NO_OBSTACLES, config, separate_from=(left, right, far))
+    one = plan_step(pose, goal, far, NO_OBSTACLES, config, separate_from=(left,))
+    assert isinstance(both, Command) and isinstance(one, Command)
+    assert 0 < both.legal_count < one.legal_count < config.count
+    i = int(np.flatnonzero(config.yaw_rates_rad_s == both.yaw_rate_rad_s)[0])
+    px, py = config.body_xy_m[i, :, 0], config.body_xy_m[i, :, 1]
+    for u in (left, right):
+        assert np.hypot(px - u.x_m, py - u.y_m).min() >= config.min_separation_m - 1e-6
+    # the partner alone is out of reach: every rollout is legal
+    assert plan_step(pose, goal, far, NO_OBSTACLES, config).legal_count == config.count
 
 
-def test_one_other_vehicle_is_always_the_one(config):
-    only = _n("a", 0, 3000.0, 0.0)
-    assert choose_other(0.0, 0.0, 1, [only], config) is only
-    assert choose_other(0.0, 0.0, 1, [], config) is None
-
-
-def test_a_vehicle_within_separation_reach_comes_first_whatever_its_priority(config):
-    close = _n("d", 3, config.reach_m, 0.0)
-    boss = _n("a", 0, 2000.0, 0.0)
-    assert choose_other(0.0, 0.0, 2, [boss, close], config) is close
-
-
-def test_otherwise_the_nearest_higher_priority_flying_vehicle_is_hidden_from(config):
-    far = 10 * (config.reach_m + config.min_separation_m)
-    lower = _n("d", 3, far, 0.0)
-    boss_parked = _n("a", 0, 1.5 * far, 0.0, arrived=True)
-    boss = _n("b", 1, 3 * far, 0.0)
-    assert choose_other(0.0, 0.0, 2, [lower, boss_parked, boss], config) is boss
-    # the first in priority has nobody to hide from: the nearest
-    assert choose_other(0.0, 0.0, 0, [lower, boss], config) is lower
+def test_a_vehicle_with_right_of_way_is_kept_clear_of_by_the_yield_margin_more(config):
+    pose = Pose(0.0, 0.0, 0.0)
+    gap = config.min_separation_m + config.yield_margin_m / 2  # off the straight rollout's end
+    uav = OtherUav(config.reach_m, gap, 0.0, 0.0)
+    straight = config.count // 2
+    equal = plan_step(pose, (config.reach_m, 0.0), None, NO_OBSTACLES, config, separate_from=(uav,))
+    boss = plan_step(pose, (config.reach_m, 0.0), None, NO_OBSTACLES, config,
+                     separate_from=(replace(uav, right_of_way=True),))
+    assert config.yield_margin_m > 0 and isinstance(equal, Command) and isinstance(boss, Command)
+    assert equal.yaw_rate_rad_s == config.yaw_rates_rad_s[straight]  # far enough: straight on
+    assert boss.yaw_rate_rad_s < 0.0  # not far enough from one with right of way: gives way to the right
 
 
 def test_a_generated_four_vehicle_scenario_keeps_every_pair_separated():

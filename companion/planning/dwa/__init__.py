@@ -1,6 +1,6 @@
 """BDWA: one vectorised dynamic-window step with three critics (paper section IV, SPEC §1).
 
-    plan_step(pose, goals, other, snapshot, config) -> Command | NoLegalRollout
+    plan_step(pose, goals, other, snapshot, config, separate_from=...) -> Command | NoLegalRollout
 
 The vehicle flies at constant speed v; only the yaw rate is chosen. ``config.samples`` yaw rates
 span [-v/r, v/r]; each is rolled out for the prediction time p in steps of dt. Because v and the
@@ -23,8 +23,9 @@ Legality (a rollout that fails is discarded, never scored):
 - no rollout point inside an inflated obstacle (the paper's rule). A vehicle that already is
   inside an inflated zone (a moving obstacle came to it) may only fly rollouts that never get
   deeper than it is now, so the planner leads it out instead of freezing it there;
-- no rollout point closer than ``min_separation_m`` to the other UAV predicted at constant
-  velocity (same relaxation when already closer). A hard rule rather than a penalty, because
+- no rollout point closer than ``min_separation_m`` to any other UAV within reach (``other``,
+  or every UAV of ``separate_from``) predicted at constant velocity (same relaxation when
+  already closer), all of them in one array operation. A hard rule rather than a penalty, because
   separation is a success criterion and a penalty can always be outbid by the other critics;
 - no rollout point outside the geofence box (same relaxation when already outside).
 

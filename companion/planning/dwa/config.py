@@ -28,6 +28,9 @@ class DwaConfig:
     two steps of travel). On the reference mission UAV a needs 477.1 / 477.8 / 479.1 / 480.7 s
     with 0 / 10 / 30 / 60 m: the larger it is, the further the vehicle keeps off its route.
     ``min_separation_m``: the planning separation from the other UAV (see from_settings).
+    ``yield_margin_m``: kept from a UAV that has right of way (``OtherUav.right_of_way``) on top
+    of ``min_separation_m``: the lower-priority vehicle gives way first, which breaks the
+    symmetric standoffs of several vehicles meeting (issue 15).
     ``turnaround_deg``: see :func:`companion.planning.dwa.legality.commit_turn`; 180 disables the rule.
     ``fence_m``: the geofence box; rollout points must stay inside it (legality, like obstacles).
     ``speed_samples``: speeds sampled from ``min_speed_m_s`` (hover: 0) to cruise ``speed_m_s``,
@@ -51,6 +54,7 @@ class DwaConfig:
     sightline_cap_m: float
     distance_saturation_m: float = 10.0
     min_separation_m: float = 0.0
+    yield_margin_m: float = 15.0
     turnaround_deg: float = 90.0
     fence_m: tuple[float, float, float, float] | None = None  # keep-in box (x0, y0, x1, y1)
     recovery_samples: int = 11  # yaw-rate samples per heading in the spin recovery; 0 disables it

@@ -3,8 +3,11 @@ trajectories with a reason; here each rule keeps its own mask so that the reason
 
 - obstacle: no rollout point inside an inflated obstacle. A vehicle already inside one (a moving
   obstacle came to it) may only fly rollouts that never get deeper than it is now;
-- separation: no rollout point closer than ``min_separation_m`` to the other UAV predicted at
-  constant velocity (same relaxation when already closer);
+- separation: no rollout point closer than ``min_separation_m`` to any other UAV predicted at
+  constant velocity (same relaxation, per UAV, when already closer). Every UAV whose predicted
+  path can come within reach counts, all of them in one array operation (rollouts x UAVs x
+  steps): with more than two vehicles, keeping clear of one at a time loses the separation
+  where several routes meet;
 - geofence: no rollout point outside the keep-in box (same relaxation when already outside).
 
 The turn-around preference (:func:`commit_turn`) narrows the legal set but is never a rule.
@@ -13,6 +16,7 @@ The turn-around preference (:func:`commit_turn`) narrows the legal set but is ne
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from enum import Enum
 
 import numpy as np
@@ -29,10 +33,15 @@ class Rule(str, Enum):
     GEOFENCE = "geofence"
 
 
+def kept_from(other: OtherUav, config: DwaConfig) -> float:
+    """The separation a rollout keeps from ``other``: more when it has right of way."""
+    return config.min_separation_m + config.yield_margin_m if other.right_of_way else config.min_separation_m
+
+
 def separation_can_bind(pose: Pose, other: OtherUav | None, config: DwaConfig) -> bool:
     """Whether the other UAV's predicted path comes within reach of any rollout."""
     return other is not None and config.min_separation_m > 0 and (
-        math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m) <= config.reach_m + config.min_separation_m
+        math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m) <= config.reach_m + kept_from(other, config)
         + math.hypot(other.vx_m_s, other.vy_m_s) * config.horizon_s + 1.0)
 
 
@@ -53,13 +62,33 @@ def obstacle_ok(clear: np.ndarray, lowest: np.ndarray) -> np.ndarray:
     return (clear >= np.minimum(clear[:, 0:1], 0.0) - 1e-9).all(axis=0)  # already inside: never deeper
 
 
-def separation_ok(px: np.ndarray, py: np.ndarray, times: np.ndarray, pose: Pose, other: OtherUav,
+def binding_uavs(pose: Pose, others: Sequence[OtherUav], config: DwaConfig) -> tuple[OtherUav, ...]:
+    """The UAVs of ``others`` whose predicted path can come within the separation of a rollout."""
+    return tuple(o for o in others if separation_can_bind(pose, o, config))
+
+
+def separation_limits2(pose: Pose, others: Sequence[OtherUav], config: DwaConfig) -> np.ndarray:
+    """(N,): the squared separation kept from each UAV (:func:`kept_from`), or the distance now
+    when it is already closer (a rollout may then not get any closer); 1e-6 m of slack."""
+    return np.array([(min(kept_from(o, config), math.hypot(pose.x_m - o.x_m, pose.y_m - o.y_m)) - 1e-6) ** 2
+                     for o in others])
+
+
+def uav_distance2(px: np.ndarray, py: np.ndarray, times: np.ndarray, others: Sequence[OtherUav]) -> np.ndarray:
+    """(N, *px.shape): squared distance from the points (px, py) at ``times`` (broadcasting
+    against px) to each UAV predicted at constant velocity."""
+    state = np.array([(o.x_m, o.y_m, o.vx_m_s, o.vy_m_s) for o in others]).reshape((len(others),) + (1,) * px.ndim + (4,))
+    ox = state[..., 0] + state[..., 2] * times
+    oy = state[..., 1] + state[..., 3] * times
+    return (px - ox) ** 2 + (py - oy) ** 2
+
+
+def separation_ok(px: np.ndarray, py: np.ndarray, times: np.ndarray, pose: Pose, others: Sequence[OtherUav],
                   config: DwaConfig) -> np.ndarray:
-    """(S, K + 1): rollout points far enough from the other UAV predicted at constant velocity."""
-    ox = other.x_m + other.vx_m_s * times
-    oy = other.y_m + other.vy_m_s * times
-    limit = min(config.min_separation_m, math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m))
-    return (px - ox) ** 2 + (py - oy) ** 2 >= (limit - 1e-6) ** 2
+    """(S, K + 1): rollout points far enough from every UAV of ``others`` predicted at constant
+    velocity."""
+    ok = uav_distance2(px, py, times, others) >= separation_limits2(pose, others, config).reshape(-1, 1, 1)
+    return ok[0] if len(ok) == 1 else ok.all(axis=0)
 
 
 def inside_fence_by(px: np.ndarray, py: np.ndarray, fence: tuple[float, float, float, float]) -> np.ndarray:

@@ -4,11 +4,11 @@ In this order (:func:`no_legal_rollout`):
 
 1. Spin recovery (nav2's spin behaviour; a multicopter can yaw in place): the rollouts that
    start here after a yaw in place to another heading, under the same rules and critics,
-   with moving obstacles and the other UAV predicted over the yaw time too and the hover
+   with moving obstacles and the other UAVs predicted over the yaw time too and the hover
    point safe while yawing. The best one's heading is the target: yaw toward it, speed 0.
    Without this a vehicle in a pocket hovers with a fixed heading for ever.
 2. Hold, if the hover point stays clear of the inflated obstacles (moving ones predicted at
-   constant velocity) and of the other UAV for a full spin plus a horizon.
+   constant velocity) and of every other UAV for a full spin plus a horizon.
 3. The hover point is going to be hit: the recovery judged on the TRUE footprints (the
    inflation margin is the reserve an emergency may use); else
 4. the rollout from the current heading that stays clear of the true footprints longest,
@@ -18,6 +18,7 @@ In this order (:func:`no_legal_rollout`):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,7 @@ from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.evaluate import command_for, evaluate
 from companion.planning.dwa.geometry import inflated_clearance
 from companion.planning.dwa.heading import heading_scores
-from companion.planning.dwa.legality import Rule, inside_fence_by
+from companion.planning.dwa.legality import Rule, inside_fence_by, separation_limits2, uav_distance2
 from companion.planning.dwa.shapes import rotation
 from companion.planning.dwa.sightline import sightline_term
 from companion.planning.dwa.snapshot import ObstacleSnapshot
@@ -38,25 +39,30 @@ class HoverCheck:
     """Whether hovering here stays clear, step by step over a spin plus a horizon."""
 
     steps: int
-    inflated: np.ndarray  # (steps + 1,) clear of the inflated obstacles and the other UAV up to step k
+    inflated: np.ndarray  # (steps + 1,) clear of the inflated obstacles and the other UAVs up to step k
     true: np.ndarray  # (steps + 1,) the same on the true footprints
     field: ObstacleSnapshot  # the obstacles within reach over that time
     margins: np.ndarray | None  # (O, 1) inflation margins of ``field``
     floor_inflated: np.ndarray | None  # (O, 1) how deep the pose is in each inflated obstacle now (<= 0)
     floor_true: np.ndarray | None
-    sep_limit: float | None  # the separation kept from the other UAV, when it binds
+    sep_from: tuple[OtherUav, ...]  # the UAVs kept separated from
+    sep_limit2: np.ndarray | None  # (N, 1, 1) the squared separation kept from each, when any
 
 
 def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
                      near: ObstacleSnapshot, config: DwaConfig, ok_by_rule: dict[Rule, np.ndarray],
-                     heading: np.ndarray, clear: np.ndarray | None) -> NoLegalRollout:
-    """The four strategies of the module docstring, in order."""
+                     heading: np.ndarray, clear: np.ndarray | None,
+                     separate_from: Sequence[OtherUav] | None = None) -> NoLegalRollout:
+    """The four strategies of the module docstring, in order. ``other``: the sightline partner;
+    ``separate_from``: every UAV kept separated from (None: ``other`` alone)."""
     blocking = [rule for rule, ok in ok_by_rule.items() if not ok[:, 1:].all(axis=1).any()]
     what = ", ".join(blocking) if blocking else "no rollout satisfies all rules at once"
     reason = f"all {config.count} rollouts break a rule within {config.prediction_time_s:g} s ({what})"
-    hover = hover_check(pose, other, snapshot, config)
+    if separate_from is None:
+        separate_from = () if other is None else (other,)
+    hover = hover_check(pose, separate_from, snapshot, config)
     if config.rec_delay_s.size:
-        pts, ok_inf, ok_true, distance = spin_candidates(pose, other, config, hover)
+        pts, ok_inf, ok_true, distance = spin_candidates(pose, config, hover)
         for legal, how in ((ok_inf, "recovering"), (None, None), (ok_true, "recovering on the margin")):
             if legal is None:  # between the two recoveries: a hover that stays clear is the better wait
                 if hover.inflated[-1]:
@@ -69,8 +75,10 @@ def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snap
     return escape(config, near, ok_by_rule, heading, clear, hover, reason)
 
 
-def hover_check(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig) -> HoverCheck:
-    """The hover point over a spin plus a horizon, inflated and true; separation is never relaxed."""
+def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: ObstacleSnapshot,
+                config: DwaConfig) -> HoverCheck:
+    """The hover point over a spin plus a horizon, inflated and true, against the obstacles and
+    every UAV of ``separate_from``; separation is never relaxed."""
     dt = config.dt_s
     hover_steps = config.steps + round(config.spin_time_s / dt)
     t_hover = dt * np.arange(hover_steps + 1)
@@ -85,18 +93,19 @@ def hover_check(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, 
         floor_true = np.minimum(hc[:, 0:1] + margins, 0.0)
         hover_inf &= (hc >= floor_inf - 1e-9).all(axis=0)
         hover_true &= (hc + margins >= floor_true - 1e-9).all(axis=0)
-    sep_limit = None
-    if other is not None and config.min_separation_m > 0:
-        sep_limit = min(config.min_separation_m, math.hypot(pose.x_m - other.x_m, pose.y_m - other.y_m)) - 1e-6
-        d2 = (other.x_m + other.vx_m_s * t_hover - pose.x_m) ** 2 + (other.y_m + other.vy_m_s * t_hover - pose.y_m) ** 2
-        hover_inf &= d2 >= sep_limit ** 2
-        hover_true &= d2 >= sep_limit ** 2
+    sep_from = tuple(separate_from) if config.min_separation_m > 0 else ()
+    sep_limit2 = None
+    if sep_from:
+        sep_limit2 = separation_limits2(pose, sep_from, config).reshape(-1, 1, 1)
+        d2 = uav_distance2(np.full(hover_steps + 1, pose.x_m), np.full(hover_steps + 1, pose.y_m), t_hover, sep_from)
+        apart = (d2 >= sep_limit2[:, 0]).all(axis=0)
+        hover_inf &= apart
+        hover_true &= apart
     return HoverCheck(hover_steps, np.logical_and.accumulate(hover_inf), np.logical_and.accumulate(hover_true),
-                      field_h, margins, floor_inf, floor_true, sep_limit)
+                      field_h, margins, floor_inf, floor_true, sep_from, sep_limit2)
 
 
-def spin_candidates(pose: Pose, other: OtherUav | None, config: DwaConfig,
-                    hover: HoverCheck) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def spin_candidates(pose: Pose, config: DwaConfig, hover: HoverCheck) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The recovery rollouts placed at the pose (R, K + 1, 2), which of them are legal on the
     inflated and on the true footprints (R,) each, and their distance critic (R,)."""
     dt = config.dt_s
@@ -116,10 +125,10 @@ def spin_candidates(pose: Pose, other: OtherUav | None, config: DwaConfig,
     else:
         distance = np.full(n_r, config.distance_saturation_m)
     rules = np.ones(px.shape, dtype=bool)
-    if hover.sep_limit is not None:
+    if hover.sep_limit2 is not None:  # (N, R, K + 1) at once
         t = config.rec_point_times_s.reshape(n_r, -1)
-        rules &= ((px - other.x_m - other.vx_m_s * t) ** 2 + (py - other.y_m - other.vy_m_s * t) ** 2
-                  >= hover.sep_limit ** 2)
+        ox, oy, ovx, ovy = np.array([(o.x_m, o.y_m, o.vx_m_s, o.vy_m_s) for o in hover.sep_from]).T[:, :, None, None]
+        rules &= (((px - ox - ovx * t) ** 2 + (py - oy - ovy * t) ** 2) >= hover.sep_limit2).all(axis=0)
     fence = config.fence_m
     if fence is not None:
         here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from companion.planning.dwa.config import DwaConfig
@@ -9,8 +11,8 @@ from companion.planning.dwa.distance import distance_scores, no_obstacle_in_reac
 from companion.planning.dwa.evaluate import command_for, evaluate
 from companion.planning.dwa.geometry import inflated_clearance
 from companion.planning.dwa.heading import heading_from_ends, single_target
-from companion.planning.dwa.legality import (Rule, commit_turn, fence_distance, fence_ok, legal_rollouts,
-                                             obstacle_ok, separation_can_bind, separation_ok)
+from companion.planning.dwa.legality import (Rule, binding_uavs, commit_turn, fence_distance, fence_ok,
+                                             legal_rollouts, obstacle_ok, separation_ok)
 from companion.planning.dwa.recovery import no_legal_rollout
 from companion.planning.dwa.shapes import placement
 from companion.planning.dwa.sightline import sightline_term
@@ -21,10 +23,12 @@ from companion.planning.dwa.types import Command, LocalGoals, NoLegalRollout, Ot
 
 def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherUav | None,
               snapshot: ObstacleSnapshot, config: DwaConfig,
-              scheduled_speed_m_s: float | None = None) -> Command | NoLegalRollout:
+              scheduled_speed_m_s: float | None = None,
+              separate_from: Sequence[OtherUav] | None = None) -> Command | NoLegalRollout:
     """One BDWA decision: the best legal yaw rate (and speed, with a speed window) toward the
     local goal, or NoLegalRollout. ``scheduled_speed_m_s``: what a timed route asks for now
-    (the speed critic's reference; None: cruise).
+    (the speed critic's reference; None: cruise). ``other`` is the UAV the sightline term hides
+    from; ``separate_from`` every UAV the separation rule keeps clear of (None: ``other`` alone).
 
     ``goals`` is a :class:`LocalGoals` window (what the vehicle planner passes) or a bare (x, y).
     Every array here is small (31 x 23 points), so the cost is the number of numpy calls, not
@@ -35,14 +39,16 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
         goals = LocalGoals.single(goals)
     shape = (config.count, config.steps + 1)
     near = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, config.horizon_s)
-    separation = separation_can_bind(pose, other, config)
+    if separate_from is None:
+        separate_from = () if other is None else (other,)
+    binding = binding_uavs(pose, separate_from, config)
     fence_here = fence_distance(pose, config)
 
     place = placement(pose)
     origin = (pose.x_m, pose.y_m)
     single = single_target(goals, config.end_reach_m, origin)
     px = py = None  # (S, K + 1) each, when needed; column 0 is the pose itself
-    if near.count or separation or fence_here is not None or not single:
+    if near.count or binding or fence_here is not None or not single:
         px, py, gx, gy = _placed(place, config, shape)
         ex, ey = px[:, -1], py[:, -1]
     else:
@@ -61,8 +67,8 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
             ok_by_rule[Rule.OBSTACLE], distance, clear = _obstacle_terms(gx, gy, near, config)
     else:
         distance = no_obstacle_in_reach(config)
-    if separation:
-        ok_by_rule[Rule.SEPARATION] = separation_ok(px, py, config.times_s, pose, other, config)
+    if binding:
+        ok_by_rule[Rule.SEPARATION] = separation_ok(px, py, config.times_s, pose, binding, config)
     if fence_here is not None:
         ok_by_rule[Rule.GEOFENCE] = fence_ok(px, py, config.fence_m, fence_here)
 
@@ -70,7 +76,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single,
                                 soonest_deg=_SOONEST_DEG if config.count > config.samples else 0.0)
     if not np.count_nonzero(legal) or _only_hover(legal, config, scheduled_speed_m_s):
-        return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear)
+        return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear, separate_from)
     legal = commit_turn(pose, goals, legal, config)
 
     sightline = _sightline(pose, other, snapshot, config, ex, ey, None if px is None else (gx, gy))

@@ -26,6 +26,9 @@ class OtherUav:
     vx_m_s: float
     vy_m_s: float
     arrived: bool = False  # parked at its station: still kept clear of, no longer hidden from
+    # Has right of way over this vehicle (more than two flying: see companion.planning.fleet);
+    # then kept clear of by ``DwaConfig.yield_margin_m`` more than the separation.
+    right_of_way: bool = False
 
 
 @dataclass(frozen=True, slots=True)
