@@ -11,7 +11,7 @@ from companion.planning.dwa import NO_OBSTACLES, Command, DwaConfig, OtherUav, P
 from companion.planning.fleet import Neighbour, Reaction, react_to, sightline_partner
 from companion.planning.metrics import pair_name
 from companion.planning.runner import simulate
-from companion.scenarios import ScenarioConfig, generate_scenario
+from companion.scenarios import ScenarioConfig, fleet_layout, generate_scenario
 from uav_model.mission import MissionError, mission_from_data
 
 SMALL_FLEET = {"side_m": 1000.0, "static_count": 2, "static_circumradius_m": [40.0, 90.0],
@@ -117,3 +117,20 @@ def test_a_shared_goal_is_still_refused_with_many_vehicles():
     doc["vehicles"][3]["goal"] = doc["vehicles"][2]["goal"]
     with pytest.raises(MissionError, match="already the goal"):
         mission_from_data(doc, "fleet")
+
+
+def test_eight_vehicles_meeting_at_the_centre_keep_every_separation():
+    """The perimeter layout's eight vehicles, all through the centre at once (no obstacles, a
+    1 km square to keep it short): reacting to one vehicle at a time, the planners lost the
+    separation there (48.6 m); keeping clear of all of them, and lower priority giving way,
+    every one of the 28 pairs keeps it and every vehicle arrives."""
+    side = 1000.0
+    fleet = fleet_layout(side, 8)
+    doc = {"name": "eight_converging_small", "plant": "multicopter",
+           "area": {"x_min_m": 0.0, "y_min_m": 0.0, "x_max_m": side, "y_max_m": side, "geofence_margin_m": 200.0},
+           "stations": fleet["stations"], "obstacles": [], "vehicles": fleet["vehicles"]}
+    mission = mission_from_data(doc, "eight_converging_small")
+    summary = simulate(mission).summary
+    assert summary.success, summary.reason
+    assert len(summary.pairs) == 28
+    assert min(p.min_separation_m for p in summary.pairs.values()) >= mission.safety.min_separation_m
