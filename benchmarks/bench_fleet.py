@@ -28,7 +28,7 @@ from pathlib import Path
 
 import psutil
 
-from companion.testing.plugin import free_udp_port, free_udp_port_block
+from sim_bridge.testing import free_udp_port_block, free_udp_ports
 from uav_model.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,7 +43,7 @@ def run_once(mission: Path, speedup: float, count: int, seed: int) -> dict[str, 
     """One ``companion run``; CPU seconds of the companion and the stub, wall and sim seconds."""
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "companion.cli", "run", str(mission), "--speedup", f"{speedup:g}",
-               "--out", tmp, "--port-base", str(free_udp_port_block(count)), "--gcs-port", str(free_udp_port()),
+               "--out", tmp, "--port-base", str(free_udp_port_block(count)), "--gcs-port", str(free_udp_ports(1)[0]),
                "--seed", str(seed), "--progress-every", "1000"]
         started = time.perf_counter()
         child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
