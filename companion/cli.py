@@ -28,7 +28,8 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from companion.cli_common import EXIT_FAILED, EXIT_OK, BadInput, add_variant_option, bad_input, output_dir
+from companion.cli_common import (EXIT_FAILED, EXIT_OK, BadInput, add_plant_option, add_variant_option, bad_input,
+                                  output_dir, with_plant)
 from uav_model.mission import Mission, MissionError, load_mission
 from companion.planning.errors import NoPath
 
@@ -81,6 +82,7 @@ def _add_simulate(sub) -> None:
                                    "plant as the live companion; write summary.json and trajectory.png.")
     p.add_argument("mission", type=Path)
     add_variant_option(p)
+    add_plant_option(p)
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="output directory (default: simulate-<mission>-<variant>)")
     p.set_defaults(func=cmd_simulate)
@@ -91,7 +93,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from companion.plots import save_trajectory
 
     try:
-        mission = load_mission(args.mission)
+        mission = with_plant(load_mission(args.mission), args.plant)
         run = simulate(mission, args.variant)
     except (MissionError, NoPath) as exc:
         return bad_input(exc)
@@ -208,6 +210,7 @@ def _add_sweep(sub) -> None:
         t.add_argument("--mission", type=Path, default=Path("missions/paper_reference.yaml"),
                        help="the reference mission to vary (default missions/paper_reference.yaml)")
         add_variant_option(t)
+        add_plant_option(t)
         t.add_argument("--out", type=Path, default=None, metavar="DIR",
                        help="write <table>.json and a trajectory per row here")
         t.set_defaults(func=cmd_sweep, table=table)
@@ -222,7 +225,7 @@ def _add_sweep(sub) -> None:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     try:
-        base = load_mission(args.mission)
+        base = with_plant(load_mission(args.mission), args.plant)
     except MissionError as exc:
         return bad_input(exc)
     if len(base.vehicles) < 2 or (args.table == "table3" and len(base.world.obstacles) != 1):

@@ -11,11 +11,13 @@ A handler raises :class:`BadInput` (or returns :func:`bad_input`) for anything t
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from uav_model.mission import VARIANTS, MissionError
+from uav_model.mission import VARIANTS, Mission, MissionError
+from uav_model.plant import Plant
 
 if TYPE_CHECKING:
     from companion.app.flight_plan import FlightPlan
@@ -44,6 +46,17 @@ def output_dir(path: Path) -> Path:
 
 def add_variant_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variant", choices=VARIANTS, default=None, help="planner variant (default: the mission's)")
+
+
+def add_plant_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--plant", choices=[p.value for p in Plant], default=None,
+                        help="the vehicles' dynamics (default: the mission's); unicycle is the paper's ideal vehicle, "
+                             "multicopter the PX4-like one")
+
+
+def with_plant(mission: Mission, plant: str | None) -> Mission:
+    """The mission flown with ``--plant`` when one was given, else as written."""
+    return mission if plant is None else dataclasses.replace(mission, plant=Plant(plant))
 
 
 def add_no_fence_option(parser: argparse.ArgumentParser) -> None:
