@@ -8,7 +8,8 @@ because no rollout can reach them) and "clutter" (all 7 within one rollout lengt
 every obstacle is evaluated against every rollout point: the worst case).
 Target (docs/results-reference.md): <= 1 ms per UAV per tick; the bench needs ~0.3 ms all-in.
 The same step with the astar-bdwa-timed window (4 speeds x 31 rates, sloped sightline, fixed
-scales) is timed in alternating rounds with the paper's window.
+scales) is timed in alternating rounds with the paper's window; with numba installed, each also
+on the numpy kernels (the code without numba). Wall medians, and CPU per call (shared machine).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import time
 import numpy as np
 
 from uav_model.mission import parse_mission
-from companion.planning.dwa import Command, OtherUav, Pose, plan_step
+from companion.planning.dwa import Command, OtherUav, Pose, kernels, plan_step
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.vehicle_planner import VehiclePlanner, window_settings
 
@@ -69,17 +70,30 @@ def timed(fn, n: int) -> tuple[float, float]:
     return statistics.median(samples), statistics.quantiles(samples, n=100)[98]
 
 
-def interleaved(fns: dict, n: int, rounds: int = 10) -> dict[str, tuple[float, float]]:
-    """Median and p99 per function, run in alternating rounds so that a shared machine's load
-    falls on all of them alike."""
+def interleaved(fns: dict, n: int, rounds: int = 10) -> dict[str, tuple[float, float, float]]:
+    """Median and p99 wall ms per call, and CPU ms per call (the median over rounds), per
+    function, run in alternating rounds so that a shared machine's load falls on all alike."""
     samples: dict[str, list[float]] = {k: [] for k in fns}
+    cpu: dict[str, list[float]] = {k: [] for k in fns}
+    per_round = max(1, n // rounds)
     for _ in range(rounds):
         for k, fn in fns.items():
-            for _ in range(max(1, n // rounds)):
+            c0 = time.process_time()
+            for _ in range(per_round):
                 t0 = time.perf_counter()
                 fn()
                 samples[k].append((time.perf_counter() - t0) * 1e3)
-    return {k: (statistics.median(v), statistics.quantiles(v, n=100)[98]) for k, v in samples.items()}
+            cpu[k].append((time.process_time() - c0) * 1e3 / per_round)
+    return {k: (statistics.median(v), statistics.quantiles(v, n=100)[98], statistics.median(cpu[k]))
+            for k, v in samples.items()}
+
+
+def numpy_only(fn):
+    """``fn`` run on the numpy kernels (what the code without numba, and before it, runs)."""
+    def run():
+        with kernels.numpy_only():
+            return fn()
+    return run
 
 
 def main() -> None:
@@ -101,13 +115,16 @@ def main() -> None:
               f"dt = {cfg.dt_s:g} s); {snapshot.count} obstacles ({len(snapshot.poly_ids)} polygons, "
               f"{len(mission.world.moving_obstacles)} moving), {near.count} within reach; "
               f"{result.legal_count if isinstance(result, Command) else 0} legal rollouts")
-        times = interleaved({"paper": lambda: plan_step(pose, goal, other, snapshot, cfg),
-                             "timed": lambda: plan_step(pose, goal, other, snapshot, timed_cfg)}, args.repeat)
-        med, p99 = times["paper"]
-        print(f"  plan_step (BDWA core)              median {med:.3f} ms   p99 {p99:.3f} ms")
-        med, p99 = times["timed"]
-        print(f"  plan_step, astar-bdwa-timed window median {med:.3f} ms   p99 {p99:.3f} ms   "
-              f"({timed_cfg.count} rollouts: {timed_cfg.speed_samples} speeds x {timed_cfg.samples} rates)")
+        paper = lambda: plan_step(pose, goal, other, snapshot, cfg)  # noqa: E731
+        timed_window = lambda: plan_step(pose, goal, other, snapshot, timed_cfg)  # noqa: E731
+        fns = {"paper": paper, "timed": timed_window}
+        if kernels.circle_clearance is not None:  # numba: the numpy kernels beside, interleaved
+            fns.update({"paper, numpy": numpy_only(paper), "timed, numpy": numpy_only(timed_window)})
+        for key, (med, p99, cpu) in interleaved(fns, args.repeat).items():
+            window = (f"timed window ({timed_cfg.count} rollouts)" if key.startswith("timed")
+                      else f"paper window ({cfg.count} rollouts)")
+            kind = "numpy kernels" if key.endswith("numpy") else ("numba kernels" if len(fns) > 2 else "numpy")
+            print(f"  plan_step, {window:27} {kind:13} median {med:.3f} ms  p99 {p99:.3f} ms  cpu {cpu:.3f} ms")
         med, p99 = timed(lambda: field.at_time(60.0), args.repeat)
         print(f"  ObstacleField.at_time (snapshot)   median {med:.3f} ms   p99 {p99:.3f} ms")
         snapshots = field.at_times(0.5 * np.arange(args.repeat * 2 + 1))

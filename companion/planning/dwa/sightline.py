@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from companion.planning.dwa import kernels
 from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.sightline_slope import open_clearance
 from companion.planning.dwa.snapshot import ObstacleSnapshot
@@ -60,6 +61,8 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
         parts.append((p_a + shift[:, None, :]).reshape(-1, 2))  # vertices, from q
         parts.append(p_d.reshape(-1, 2))  # edge vectors
     m = (parts[0] if len(parts) == 1 else np.concatenate(parts)) @ basis
+    if kernels.sightline_depth is not None:
+        return kernels.sightline_depth(m, len2, c_r, n_c, n_p, p_a.shape[1] if n_p else 0)
     best = np.zeros(n_s)
     if n_c:
         side, along = m[:n_c, :n_s], m[:n_c, n_s:]  # centre: from the line; along it, from q

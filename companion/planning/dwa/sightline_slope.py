@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from companion.planning.dwa import kernels
 from companion.planning.dwa.geometry import polygon_signed_distance
 from companion.planning.dwa.snapshot import ObstacleSnapshot
 
@@ -35,6 +36,8 @@ def open_clearance(ex: np.ndarray, ey: np.ndarray, q: tuple[float, float], t_s: 
     Between a segment and a polygon the nearest pair has a polygon vertex or a segment end in it,
     so vertices-to-segment and ends-to-polygon cover it; a circle is its centre's distance minus R.
     """
+    if kernels.open_clearance is not None:
+        return _compiled_open_clearance(ex, ey, q, t_s, snap)
     best = np.full(len(ex), np.inf)
     if snap.circle_ids:
         centres = snap.circle_xy_m + snap.circle_vel_m_s * t_s
@@ -43,6 +46,22 @@ def open_clearance(ex: np.ndarray, ey: np.ndarray, q: tuple[float, float], t_s: 
     if snap.poly_ids:
         verts = (snap.poly_a_m + (snap.poly_vel_m_s * t_s)[:, None, :]).reshape(-1, 2)
         best = np.minimum(best, points_to_segments(verts[:, 0], verts[:, 1], ex, ey, q).min(axis=0))
+        n_s = len(ex)
+        ends = polygon_signed_distance(np.append(ex, q[0]), np.append(ey, q[1]), np.full(n_s + 1, t_s), snap)
+        best = np.minimum(best, np.minimum(ends[:, :n_s].min(axis=0), float(ends[:, n_s].min())))
+    return best
+
+
+def _compiled_open_clearance(ex: np.ndarray, ey: np.ndarray, q: tuple[float, float], t_s: float,
+                             snap: ObstacleSnapshot) -> np.ndarray:
+    """open_clearance with the compiled kernels: circle centres (less their radius) and polygon
+    vertices as one set of points, then the segment ends' distance to the polygons."""
+    centres = snap.circle_xy_m + snap.circle_vel_m_s * t_s
+    verts = (snap.poly_a_m + (snap.poly_vel_m_s * t_s)[:, None, :]).reshape(-1, 2)
+    pts = np.concatenate([centres, verts])
+    radius = np.concatenate([snap.circle_radius_m, np.zeros(len(verts))])
+    best = kernels.open_clearance(ex, ey, float(q[0]), float(q[1]), pts[:, 0], pts[:, 1], radius)
+    if snap.poly_ids:
         n_s = len(ex)
         ends = polygon_signed_distance(np.append(ex, q[0]), np.append(ey, q[1]), np.full(n_s + 1, t_s), snap)
         best = np.minimum(best, np.minimum(ends[:, :n_s].min(axis=0), float(ends[:, n_s].min())))

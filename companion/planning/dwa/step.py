@@ -76,6 +76,8 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single,
                                 soonest_deg=_SOONEST_DEG if config.count > config.samples else 0.0)
     if not np.count_nonzero(legal) or _only_hover(legal, config, scheduled_speed_m_s):
+        if clear is not None and config.row_of is not None:  # the escape reads every rollout's
+            clear = clear.reshape(len(clear), *gx.shape)[:, config.row_of].reshape(len(clear), -1)
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear, separate_from)
     legal = commit_turn(pose, goals, legal, config)
 
@@ -123,16 +125,15 @@ def _placed(place: np.ndarray, config: DwaConfig,
 
 def _obstacle_terms(gx: np.ndarray, gy: np.ndarray, near: ObstacleSnapshot,
                     config: DwaConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The obstacle rule (S, K + 1), the distance critic (S,) and the clearances (O, S * (K + 1))
-    computed on the distinct rollouts (gx, gy) and spread to every rollout."""
+    """The obstacle rule (S, K + 1) and the distance critic (S,), computed on the distinct
+    rollouts (gx, gy) and spread to every rollout, and their clearances (O, G * (K + 1))."""
     g_shape = gx.shape
     clear = inflated_clearance(gx.ravel(), gy.ravel(), config.geo_point_times_s, near)
     lowest = clear.min(axis=0)
     row_of = config.row_of
     ok = obstacle_ok(clear, lowest).reshape(g_shape)[row_of]
     distance = distance_scores(lowest, g_shape, config)[row_of]
-    spread = clear.reshape(len(clear), *g_shape)[:, row_of].reshape(len(clear), -1)
-    return ok, distance, spread
+    return ok, distance, clear
 
 
 def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig, ex: np.ndarray,

@@ -1,0 +1,147 @@
+"""Compiled (numba) versions of the per-point geometry kernels, when numba is installed (the
+``fast`` extra); None otherwise, and the numpy kernels run.
+
+Each kernel does, per element, exactly the floating-point operations of its numpy twin in the
+same order (no fast-math, no contraction into fused multiply-adds), so the results are bit for
+bit the same: ``tests/planning/test_kernels.py`` checks this against the numpy code. Only what
+numpy does as a matrix product stays in numpy (BLAS may fuse multiply-adds), and sums stay in
+numpy too (its pairwise summation is not a loop's). What is gained is the numpy temporaries and
+per-call overhead: a window of 124 rollouts against 3 polygons makes (3, 6, 2900) temporaries
+a dozen times per tick, which the loops below never allocate.
+
+``cache=True`` keeps the compiled code beside this file (``__pycache__``), so that bench
+workers and later runs load it instead of compiling again (about 2 s per kernel).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+
+try:
+    import numba
+except ImportError:  # the numpy kernels run instead
+    numba = None
+
+__all__ = ["circle_clearance", "numpy_only", "open_clearance", "polygon_clearance", "sightline_depth"]
+_NAMES = ("circle_clearance", "polygon_clearance", "sightline_depth", "open_clearance")
+
+circle_clearance = polygon_clearance = sightline_depth = open_clearance = None
+
+if numba is not None:
+    _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+    @_jit
+    def circle_clearance(px, py, t_s, xy, vel, radius, margin, out, row0):  # noqa: F811
+        """out[row0 + c, n] = |point n at t_n - centre c| - radius - margin (predicted circle)."""
+        for c in range(len(radius)):
+            cx, cy, vx, vy = xy[c, 0], xy[c, 1], vel[c, 0], vel[c, 1]
+            r, m = radius[c], margin[c]
+            moves = vx != 0.0 or vy != 0.0
+            row = out[row0 + c]
+            for n in range(len(px)):
+                dx = px[n] - cx
+                dy = py[n] - cy
+                if moves:
+                    dx -= vx * t_s[n]
+                    dy -= vy * t_s[n]
+                row[n] = np.hypot(dx, dy) - r - m
+
+    @_jit
+    def polygon_clearance(px, py, t_s, a, b, d, inv_len2, dx_per_dy, vel, margin, out, row0):  # noqa: F811
+        """out[row0 + p, n] = signed distance of point n at t_n to true polygon p (negative
+        inside, crossing number), minus margin[p]; a moving polygon in its own frame."""
+        n_e = a.shape[1]
+        for p in range(a.shape[0]):
+            vx, vy, m = vel[p, 0], vel[p, 1], margin[p]
+            row = out[row0 + p]
+            for n in range(len(px)):
+                qx = px[n] - vx * t_s[n]
+                qy = py[n] - vy * t_s[n]
+                inside = False
+                best = np.inf
+                for e in range(n_e):
+                    ax, ay = a[p, e, 0], a[p, e, 1]
+                    apx = qx - ax
+                    apy = qy - ay
+                    if ((ay > qy) != (b[p, e, 1] > qy)) and apx < apy * dx_per_dy[p, e]:
+                        inside = not inside
+                    abx, aby = d[p, e, 0], d[p, e, 1]
+                    u = apx * abx
+                    u += apy * aby
+                    u *= inv_len2[p, e]
+                    u = min(max(u, 0.0), 1.0)
+                    ex = apx - u * abx
+                    ey = apy - u * aby
+                    d2 = ex * ex + ey * ey
+                    if d2 < best:
+                        best = d2
+                dist = math.sqrt(best)
+                row[n] = (-dist if inside else dist) - m
+
+    @_jit
+    def sightline_depth(m, len2, radius, n_c, n_p, n_e):  # noqa: F811
+        """The paper's S from the projections ``m`` (rows, 2S) of circle centres, polygon
+        vertices and edge vectors onto the S sight lines (see sightline._sightline_scores)."""
+        n_s = len(len2)
+        best = np.zeros(n_s)
+        k0 = n_c + n_p * n_e
+        for s in range(n_s):
+            l2 = len2[s]
+            top = 0.0  # numpy's S is max(0, every crossing's depth): a circle's is > 0
+            for c in range(n_c):
+                side, along = m[c, s], m[c, n_s + s]
+                u = along / l2 + 1.0
+                over = u - min(max(u, 0.0), 1.0)
+                r = radius[c]
+                value = r - abs(side) if side * side + over * over * l2 < r * r else 0.0
+                top = max(top, value)
+            for p in range(n_p):
+                crossed = False
+                hi, lo = -np.inf, np.inf
+                for e in range(n_e):
+                    i = n_c + p * n_e + e
+                    sa, pa = m[i, s], m[i, n_s + s]
+                    sd, pd = m[k0 + p * n_e + e, s], m[k0 + p * n_e + e, n_s + s]
+                    if (sa > 0.0) != (sa + sd > 0.0):
+                        w = pa + sa / -sd * pd
+                        if w >= -l2 and w <= 0.0:
+                            crossed = True
+                    hi = max(hi, sa)
+                    lo = min(lo, sa)
+                if crossed:
+                    top = max(top, min(hi, -lo))
+            best[s] = top
+        return best
+
+    @_jit
+    def open_clearance(ex, ey, qx, qy, px, py, radius):  # noqa: F811
+        """min over points (px, py)[j] of their distance to each segment (ex, ey)[i] -> q,
+        minus radius[j] (S,): sightline_slope.points_to_segments, reduced."""
+        best = np.full(len(ex), np.inf)
+        for i in range(len(ex)):
+            dx = qx - ex[i]
+            dy = qy - ey[i]
+            l2 = max(dx * dx + dy * dy, 1e-12)
+            for j in range(len(px)):
+                rx = px[j] - ex[i]
+                ry = py[j] - ey[i]
+                u = min(max((rx * dx + ry * dy) / l2, 0.0), 1.0)
+                value = np.hypot(rx - u * dx, ry - u * dy) - radius[j]
+                if value < best[i]:
+                    best[i] = value
+        return best
+
+
+@contextmanager
+def numpy_only() -> Iterator[None]:
+    """Run the numpy kernels inside the block, numba or not (tests and benchmarks compare the two)."""
+    saved = {name: globals()[name] for name in _NAMES}
+    globals().update(dict.fromkeys(_NAMES))
+    try:
+        yield
+    finally:
+        globals().update(saved)

@@ -1,0 +1,95 @@
+"""The compiled geometry kernels (numba, the ``fast`` extra) give bit for bit the numbers of the
+numpy kernels they replace, over random worlds; and the numpy kernels agree with shapely."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from companion.planning.dwa import ObstacleSnapshot, kernels
+from companion.planning.dwa.geometry import inflated_clearance, polygon_signed_distance
+from companion.planning.dwa.sightline import sightline_scores
+from companion.planning.dwa.sightline_slope import open_clearance
+
+needs_numba = pytest.mark.skipif(kernels.circle_clearance is None, reason="numba not installed (the fast extra)")
+
+coord = st.floats(-300.0, 300.0, allow_nan=False)
+speed = st.sampled_from([0.0, 0.0, -4.0, 2.5])  # static as often as moving
+
+
+@st.composite
+def worlds(draw) -> ObstacleSnapshot:
+    """Up to 3 circles and 3 convex or concave polygons (3-7 vertices: ragged edge counts are
+    padded), some moving, margins 0-20 m."""
+    circles = [(f"c{i}", draw(coord), draw(coord), draw(st.floats(1.0, 90.0)), draw(st.floats(0.0, 20.0)),
+                draw(speed), draw(speed)) for i in range(draw(st.integers(0, 3)))]
+    polygons = []
+    for i in range(draw(st.integers(0, 3))):
+        n = draw(st.integers(3, 7))
+        angles = np.sort(np.array(draw(st.lists(st.floats(0.0, 6.28), min_size=n, max_size=n, unique=True))))
+        radii = np.array(draw(st.lists(st.floats(5.0, 120.0), min_size=n, max_size=n)))
+        verts = np.c_[np.cos(angles) * radii, np.sin(angles) * radii] + (draw(coord), draw(coord))
+        if shapely.Polygon(verts).is_valid:
+            polygons.append((f"p{i}", verts, draw(st.floats(0.0, 20.0)), draw(speed), draw(speed)))
+    snap = ObstacleSnapshot.build(circles, polygons)
+    assume(snap.count)  # the planner never measures against nothing
+    return snap
+
+
+def points(seed: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    px, py = rng.uniform(-400.0, 400.0, (2, n))
+    return px, py, rng.uniform(0.0, 20.0, n)
+
+
+def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal to the last bit, the sign of zero included."""
+    return a.shape == b.shape and np.array_equal(a.view(np.uint64), b.view(np.uint64))
+
+
+@needs_numba
+@settings(max_examples=40, deadline=None)
+@given(worlds(), st.integers(0, 2**31), st.integers(1, 3000))
+def test_clearance_kernels_match_numpy_bit_for_bit(snap: ObstacleSnapshot, seed: int, n: int) -> None:
+    px, py, t = points(seed, n)
+    compiled = inflated_clearance(px, py, t, snap)
+    with kernels.numpy_only():
+        reference = inflated_clearance(px, py, t, snap)
+    assert same_bits(compiled, reference)
+    if snap.poly_ids:
+        compiled = polygon_signed_distance(px, py, t, snap)
+        with kernels.numpy_only():
+            assert same_bits(compiled, polygon_signed_distance(px, py, t, snap))
+
+
+@needs_numba
+@settings(max_examples=40, deadline=None)
+@given(worlds(), st.integers(0, 2**31), st.integers(1, 130), coord, coord, st.floats(0.0, 20.0))
+def test_sightline_kernels_match_numpy_bit_for_bit(snap: ObstacleSnapshot, seed: int, n: int, qx: float,
+                                                   qy: float, t_s: float) -> None:
+    ex, ey, _ = points(seed, n)
+    ends = np.c_[ex, ey]
+    compiled = sightline_scores(ends, (qx, qy), t_s, snap), open_clearance(ex, ey, (qx, qy), t_s, snap)
+    with kernels.numpy_only():
+        reference = sightline_scores(ends, (qx, qy), t_s, snap), open_clearance(ex, ey, (qx, qy), t_s, snap)
+    assert all(same_bits(a, b) for a, b in zip(compiled, reference))
+
+
+@settings(max_examples=40, deadline=None)
+@given(worlds(), st.integers(0, 2**31))
+def test_clearance_is_the_distance_to_the_buffered_shape(snap: ObstacleSnapshot, seed: int) -> None:
+    """Whichever kernels run: the clearance of a point is shapely's distance to the inflated
+    (round-buffered) true shape, negative inside by the depth (static time 0)."""
+    px, py, _ = points(seed, 40)
+    got = inflated_clearance(px, py, np.zeros(40), snap)
+    shapes = [shapely.Point(xy).buffer(r, 256) for xy, r in zip(snap.circle_xy_m, snap.circle_radius_m)]
+    shapes += [shapely.Polygon(snap.vertices(i)) for i in range(len(snap.poly_ids))]
+    margins = np.concatenate([snap.circle_margin_m, snap.poly_margin_m])
+    pts = shapely.points(px, py)
+    for row, shape, margin in zip(got, shapes, margins):
+        edge = shapely.distance(shape.exterior, pts)
+        signed = np.where(shapely.contains(shape, pts), -edge, edge) - margin
+        assert row == pytest.approx(signed, abs=0.05)  # 0.05 m: the circle's 256-segment buffer
