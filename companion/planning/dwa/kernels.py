@@ -51,36 +51,39 @@ if numba is not None:
                 row[n] = np.hypot(dx, dy) - r - m
 
     @_jit
+    def _polygon_point(qx, qy, p, a, b, d, inv_len2, dx_per_dy):
+        """Signed distance of (qx, qy) to true polygon p: negative inside (crossing number)."""
+        inside = False
+        best = np.inf
+        for e in range(a.shape[1]):
+            ax, ay = a[p, e, 0], a[p, e, 1]
+            apx = qx - ax
+            apy = qy - ay
+            if ((ay > qy) != (b[p, e, 1] > qy)) and apx < apy * dx_per_dy[p, e]:
+                inside = not inside
+            abx, aby = d[p, e, 0], d[p, e, 1]
+            u = apx * abx
+            u += apy * aby
+            u *= inv_len2[p, e]
+            u = min(max(u, 0.0), 1.0)
+            ex = apx - u * abx
+            ey = apy - u * aby
+            d2 = ex * ex + ey * ey
+            if d2 < best:
+                best = d2
+        dist = math.sqrt(best)
+        return -dist if inside else dist
+
+    @_jit
     def polygon_clearance(px, py, t_s, a, b, d, inv_len2, dx_per_dy, vel, margin, out, row0):  # noqa: F811
-        """out[row0 + p, n] = signed distance of point n at t_n to true polygon p (negative
-        inside, crossing number), minus margin[p]; a moving polygon in its own frame."""
-        n_e = a.shape[1]
+        """out[row0 + p, n] = signed distance of point n at t_n to true polygon p, minus
+        margin[p]; a moving polygon in its own frame (the point moves by -v t)."""
         for p in range(a.shape[0]):
             vx, vy, m = vel[p, 0], vel[p, 1], margin[p]
             row = out[row0 + p]
             for n in range(len(px)):
-                qx = px[n] - vx * t_s[n]
-                qy = py[n] - vy * t_s[n]
-                inside = False
-                best = np.inf
-                for e in range(n_e):
-                    ax, ay = a[p, e, 0], a[p, e, 1]
-                    apx = qx - ax
-                    apy = qy - ay
-                    if ((ay > qy) != (b[p, e, 1] > qy)) and apx < apy * dx_per_dy[p, e]:
-                        inside = not inside
-                    abx, aby = d[p, e, 0], d[p, e, 1]
-                    u = apx * abx
-                    u += apy * aby
-                    u *= inv_len2[p, e]
-                    u = min(max(u, 0.0), 1.0)
-                    ex = apx - u * abx
-                    ey = apy - u * aby
-                    d2 = ex * ex + ey * ey
-                    if d2 < best:
-                        best = d2
-                dist = math.sqrt(best)
-                row[n] = (-dist if inside else dist) - m
+                row[n] = _polygon_point(px[n] - vx * t_s[n], py[n] - vy * t_s[n], p, a, b, d, inv_len2,
+                                        dx_per_dy) - m
 
     @_jit
     def sightline_depth(m, len2, radius, n_c, n_p, n_e):  # noqa: F811
@@ -118,10 +121,9 @@ if numba is not None:
         return best
 
     @_jit
-    def open_clearance(ex, ey, qx, qy, px, py, radius):  # noqa: F811
-        """min over points (px, py)[j] of their distance to each segment (ex, ey)[i] -> q,
-        minus radius[j] (S,): sightline_slope.points_to_segments, reduced."""
-        best = np.full(len(ex), np.inf)
+    def _to_segments(ex, ey, qx, qy, px, py, radius, best):
+        """best[i] = min(best[i], min over j of |point j - segment (ex, ey)[i] -> q| - radius[j])
+        (sightline_slope.points_to_segments, reduced)."""
         for i in range(len(ex)):
             dx = qx - ex[i]
             dy = qy - ey[i]
@@ -133,6 +135,38 @@ if numba is not None:
                 value = np.hypot(rx - u * dx, ry - u * dy) - radius[j]
                 if value < best[i]:
                     best[i] = value
+
+    @_jit
+    def open_clearance(ex, ey, qx, qy, t_s, c_xy, c_vel, c_r, a, b, d, inv_len2, dx_per_dy, p_vel):  # noqa: F811
+        """sightline_slope.open_clearance: each segment (ex, ey)[i] -> q's clearance (S,) to the
+        nearest true obstacle predicted to t_s (circles, polygon vertices, and the ends' own
+        distance to each polygon)."""
+        best = np.full(len(ex), np.inf)
+        n_c, n_p, n_e = len(c_r), a.shape[0], a.shape[1]
+        cx, cy = np.empty(n_c), np.empty(n_c)
+        for c in range(n_c):
+            cx[c] = c_xy[c, 0] + c_vel[c, 0] * t_s
+            cy[c] = c_xy[c, 1] + c_vel[c, 1] * t_s
+        _to_segments(ex, ey, qx, qy, cx, cy, c_r, best)
+        if n_p == 0:
+            return best
+        vx, vy = np.empty(n_p * n_e), np.empty(n_p * n_e)
+        for p in range(n_p):
+            sx, sy = p_vel[p, 0] * t_s, p_vel[p, 1] * t_s
+            for e in range(n_e):
+                vx[p * n_e + e] = a[p, e, 0] + sx
+                vy[p * n_e + e] = a[p, e, 1] + sy
+        _to_segments(ex, ey, qx, qy, vx, vy, np.zeros(n_p * n_e), best)
+        # The ends: a segment end inside a polygon, or nearer to it than any vertex is to the segment.
+        at_q = np.inf
+        ends = np.full(len(ex), np.inf)
+        for p in range(n_p):
+            sx, sy = p_vel[p, 0] * t_s, p_vel[p, 1] * t_s
+            at_q = min(at_q, _polygon_point(qx - sx, qy - sy, p, a, b, d, inv_len2, dx_per_dy))
+            for i in range(len(ex)):
+                ends[i] = min(ends[i], _polygon_point(ex[i] - sx, ey[i] - sy, p, a, b, d, inv_len2, dx_per_dy))
+        for i in range(len(ex)):
+            best[i] = min(best[i], min(ends[i], at_q))
         return best
 
 

@@ -52,17 +52,9 @@ def open_clearance(ex: np.ndarray, ey: np.ndarray, q: tuple[float, float], t_s: 
     return best
 
 
+
 def _compiled_open_clearance(ex: np.ndarray, ey: np.ndarray, q: tuple[float, float], t_s: float,
                              snap: ObstacleSnapshot) -> np.ndarray:
-    """open_clearance with the compiled kernels: circle centres (less their radius) and polygon
-    vertices as one set of points, then the segment ends' distance to the polygons."""
-    centres = snap.circle_xy_m + snap.circle_vel_m_s * t_s
-    verts = (snap.poly_a_m + (snap.poly_vel_m_s * t_s)[:, None, :]).reshape(-1, 2)
-    pts = np.concatenate([centres, verts])
-    radius = np.concatenate([snap.circle_radius_m, np.zeros(len(verts))])
-    best = kernels.open_clearance(ex, ey, float(q[0]), float(q[1]), pts[:, 0], pts[:, 1], radius)
-    if snap.poly_ids:
-        n_s = len(ex)
-        ends = polygon_signed_distance(np.append(ex, q[0]), np.append(ey, q[1]), np.full(n_s + 1, t_s), snap)
-        best = np.minimum(best, np.minimum(ends[:, :n_s].min(axis=0), float(ends[:, n_s].min())))
-    return best
+    return kernels.open_clearance(ex, ey, float(q[0]), float(q[1]), float(t_s), snap.circle_xy_m,
+                                  snap.circle_vel_m_s, snap.circle_radius_m, snap.poly_a_m, snap.poly_b_m,
+                                  snap.poly_d_m, snap.poly_inv_len2, snap.poly_dx_per_dy, snap.poly_vel_m_s)
