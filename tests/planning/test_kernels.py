@@ -1,4 +1,4 @@
-"""The compiled geometry kernels (numba, the ``fast`` extra) give bit for bit the numbers of the
+"""The compiled kernels (numba, the ``fast`` extra: geometry, culling, heading) give bit for bit the numbers of the
 numpy kernels they replace, over random worlds; and the numpy kernels agree with shapely."""
 
 from __future__ import annotations
@@ -9,8 +9,9 @@ import shapely
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from companion.planning.dwa import ObstacleSnapshot, kernels
+from companion.planning.dwa import LocalGoals, ObstacleSnapshot, kernels
 from companion.planning.dwa.geometry import inflated_clearance, polygon_signed_distance
+from companion.planning.dwa.heading import heading_from_ends
 from companion.planning.dwa.sightline import sightline_scores
 from companion.planning.dwa.sightline_slope import open_clearance
 
@@ -93,3 +94,29 @@ def test_clearance_is_the_distance_to_the_buffered_shape(snap: ObstacleSnapshot,
         edge = shapely.distance(shape.exterior, pts)
         signed = np.where(shapely.contains(shape, pts), -edge, edge) - margin
         assert row == pytest.approx(signed, abs=0.05)  # 0.05 m: the circle's 256-segment buffer
+
+
+@needs_numba
+@settings(max_examples=60, deadline=None)
+@given(worlds(), coord, coord, st.floats(0.0, 400.0), st.floats(0.0, 30.0),
+       st.none() | st.tuples(coord, coord))
+def test_culling_kernel_matches_numpy(snap: ObstacleSnapshot, x: float, y: float, reach: float, horizon: float,
+                                      to_xy: tuple[float, float] | None) -> None:
+    keep, kept = snap.near_mask(x, y, reach, horizon, to_xy)
+    with kernels.numpy_only():
+        ref_keep, ref_kept = snap.near_mask(x, y, reach, horizon, to_xy)
+    assert keep.dtype == ref_keep.dtype and np.array_equal(keep, ref_keep) and kept == ref_kept
+
+
+@needs_numba
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31), st.integers(1, 130), coord, coord, st.floats(-20.0, 20.0))
+def test_heading_kernel_matches_numpy(seed: int, n: int, tx: float, ty: float, heading: float) -> None:
+    ex, ey, _ = points(seed, n)
+    ex[::7] = tx  # straight above or below the target, and on it
+    ey[::11] = ty
+    final = heading + np.linspace(-3.0, 3.0, n)
+    goals = LocalGoals.single((tx, ty))
+    got = heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True)
+    with kernels.numpy_only():
+        assert same_bits(got, heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True))

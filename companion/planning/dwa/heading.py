@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from companion.planning.dwa import kernels
 from companion.planning.dwa.types import LocalGoals
 
 
@@ -48,6 +49,8 @@ def heading_from_ends(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray,
         single = single_target(goals, math.sqrt(float((dx * dx + dy * dy).max())), origin)
     if single:
         tx, ty = goals.first_xy
+        if kernels.heading_toward is not None:
+            return kernels.heading_toward(ex, ey, final_heading, tx, ty)
     else:
         gx, gy = nodes[:, 0], nodes[:, 1]
         near2 = (((px.ravel() - gx[:, None]) ** 2 + (py.ravel() - gy[:, None]) ** 2)

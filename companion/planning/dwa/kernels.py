@@ -26,10 +26,11 @@ try:
 except ImportError:  # the numpy kernels run instead
     numba = None
 
-__all__ = ["circle_clearance", "numpy_only", "open_clearance", "polygon_clearance", "sightline_depth"]
-_NAMES = ("circle_clearance", "polygon_clearance", "sightline_depth", "open_clearance")
+__all__ = ["circle_clearance", "heading_toward", "near_mask", "numpy_only", "open_clearance", "polygon_clearance", "sightline_depth"]
+_NAMES = ("circle_clearance", "polygon_clearance", "sightline_depth", "open_clearance", "near_mask",
+          "heading_toward")
 
-circle_clearance = polygon_clearance = sightline_depth = open_clearance = None
+circle_clearance = polygon_clearance = sightline_depth = open_clearance = near_mask = heading_toward = None
 
 if numba is not None:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -49,6 +50,39 @@ if numba is not None:
                     dx -= vx * t_s[n]
                     dy -= vy * t_s[n]
                 row[n] = np.hypot(dx, dy) - r - m
+
+    @_jit
+    def heading_toward(ex, ey, final_heading, tx, ty):  # noqa: F811
+        """The heading critic (S,) toward one target (tx, ty): 180 - |heading - bearing| in deg."""
+        out = np.empty(len(ex))
+        for i in range(len(ex)):
+            bearing = np.arctan2(ty - ey[i], tx - ex[i])
+            deviation = abs((final_heading[i] - bearing + np.pi) % (2.0 * np.pi) - np.pi)
+            out[i] = 180.0 - np.degrees(deviation)
+        return out
+
+    @_jit
+    def near_mask(bound_xy, bound_r, speed, x, y, reach, horizon, to_x, to_y, segment):  # noqa: F811
+        """ObstacleSnapshot.near_mask: which bounding discs, moving at their speed for horizon,
+        come within reach of (x, y), or of the segment (x, y) -> (to_x, to_y); and how many."""
+        n = len(bound_r)
+        keep = np.empty(n, dtype=np.bool_)
+        kept = 0
+        dx, dy = to_x - x, to_y - y
+        len2 = dx * dx + dy * dy
+        for i in range(n):
+            rx = bound_xy[i, 0] - x
+            ry = bound_xy[i, 1] - y
+            if not segment:
+                d = math.sqrt(rx * rx + ry * ry)
+            elif len2 == 0.0:
+                d = np.hypot(rx, ry)
+            else:
+                u = min(max((rx * dx + ry * dy) / len2, 0.0), 1.0)
+                d = np.hypot(rx - u * dx, ry - u * dy)
+            keep[i] = d - bound_r[i] - speed[i] * horizon <= reach
+            kept += keep[i]
+        return keep, kept
 
     @_jit
     def _polygon_point(qx, qy, p, a, b, d, inv_len2, dx_per_dy):

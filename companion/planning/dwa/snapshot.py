@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from companion.planning.dwa import kernels
 from companion.planning.dwa.geometry import to_segment
 
 
@@ -157,6 +158,10 @@ class ObstacleSnapshot:
                   to_xy: tuple[float, float] | None = None) -> tuple[np.ndarray, int]:
         """What :meth:`near` keeps, as a mask over the obstacles (circles, then polygons), and
         how many it keeps; for a caller that only indexes a few arrays."""
+        if kernels.near_mask is not None:
+            to_x, to_y = (x_m, y_m) if to_xy is None else to_xy
+            return kernels.near_mask(self.bound_xy_m, self.bound_radius_m, self.speed_m_s, x_m, y_m, reach_m,
+                                     horizon_s, float(to_x), float(to_y), to_xy is not None)
         bx, by = self.bound_xy_m[:, 0], self.bound_xy_m[:, 1]
         if to_xy is None:
             dx, dy = bx - x_m, by - y_m
