@@ -1,5 +1,6 @@
-"""The compiled kernels (numba, the ``fast`` extra: geometry, culling, heading) give bit for bit the numbers of the
-numpy kernels they replace, over random worlds; and the numpy kernels agree with shapely."""
+"""The compiled kernels (numba, the ``fast`` extra: geometry, culling, heading) give bit for bit
+the numbers of the numpy kernels they replace, over random worlds; and the clearance agrees with
+shapely."""
 
 from __future__ import annotations
 
