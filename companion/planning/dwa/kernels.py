@@ -34,6 +34,7 @@ circle_clearance = polygon_clearance = sightline_depth = open_clearance = near_m
 
 if numba is not None:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+    _inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 
     @_jit
     def circle_clearance(px, py, t_s, xy, vel, radius, margin, out, row0):  # noqa: F811
@@ -84,7 +85,7 @@ if numba is not None:
             kept += keep[i]
         return keep, kept
 
-    @_jit
+    @_inline
     def _polygon_point(qx, qy, p, a, b, d, inv_len2, dx_per_dy):
         """Signed distance of (qx, qy) to true polygon p: negative inside (crossing number)."""
         inside = False
