@@ -1,16 +1,16 @@
-"""Compiled (numba) versions of the per-point geometry kernels, when numba is installed (the
+"""Compiled (numba) versions of the tick's per-point kernels (clearance to circles and polygons,
+the sightline critics, culling, the single-target heading critic), when numba is installed (the
 ``fast`` extra); None otherwise, and the numpy kernels run.
 
 Each kernel does, per element, exactly the floating-point operations of its numpy twin in the
 same order (no fast-math, no contraction into fused multiply-adds), so the results are bit for
-bit the same: ``tests/planning/test_kernels.py`` checks this against the numpy code. Only what
-numpy does as a matrix product stays in numpy (BLAS may fuse multiply-adds), and sums stay in
-numpy too (its pairwise summation is not a loop's). What is gained is the numpy temporaries and
-per-call overhead: a window of 124 rollouts against 3 polygons makes (3, 6, 2900) temporaries
-a dozen times per tick, which the loops below never allocate.
+bit the same: ``tests/planning/test_kernels.py`` checks this against the numpy code. What numpy
+does as a matrix product stays in numpy (BLAS may fuse multiply-adds), and so do sums (numpy's
+pairwise summation is not a loop's). What is saved is numpy's temporaries, large for a speed
+window against polygons, and its per-call overhead on small arrays.
 
 ``cache=True`` keeps the compiled code beside this file (``__pycache__``), so that bench
-workers and later runs load it instead of compiling again (about 2 s per kernel).
+workers and later runs load it instead of compiling again.
 """
 
 from __future__ import annotations
@@ -207,7 +207,8 @@ if numba is not None:
 
 @contextmanager
 def numpy_only() -> Iterator[None]:
-    """Run the numpy kernels inside the block, numba or not (tests and benchmarks compare the two)."""
+    """Run the numpy kernels inside the block, numba or not (tests and benchmarks compare the two;
+    it swaps module globals, so not while another thread plans)."""
     saved = {name: globals()[name] for name in _NAMES}
     globals().update(dict.fromkeys(_NAMES))
     try:
