@@ -31,7 +31,8 @@ def worlds(draw) -> ObstacleSnapshot:
     polygons = []
     for i in range(draw(st.integers(0, 3))):
         n = draw(st.integers(3, 7))
-        angles = np.sort(np.array(draw(st.lists(st.floats(0.0, 6.28), min_size=n, max_size=n, unique=True))))
+        # Star-shaped about the centre, vertices at least 10 deg apart: simple, no tiny edges.
+        angles = np.radians(10.0 * np.sort(draw(st.lists(st.integers(0, 35), min_size=n, max_size=n, unique=True))))
         radii = np.array(draw(st.lists(st.floats(5.0, 120.0), min_size=n, max_size=n)))
         verts = np.c_[np.cos(angles) * radii, np.sin(angles) * radii] + (draw(coord), draw(coord))
         if shapely.Polygon(verts).is_valid:
