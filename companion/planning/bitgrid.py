@@ -10,6 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
+try:
+    import numba
+except ImportError:  # the numpy dilation runs instead (the ``fast`` extra brings numba)
+    numba = None
+
 
 def pack(mask: np.ndarray) -> np.ndarray:
     """(ny, nx) bool -> (ny, ceil(nx / 64)) uint64."""
@@ -50,3 +55,46 @@ def dilate(m: np.ndarray, kind: int) -> np.ndarray:
     out[1:, :] |= src[:-1, :]
     out[:-1, :] |= src[1:, :]
     return out
+
+
+def dilate_within(m: np.ndarray, free: np.ndarray, moves: tuple[int, ...]) -> np.ndarray:
+    """``m`` dilated once per entry of ``moves`` (4 or 8), masked by ``free`` after each: a new
+    array. Compiled when numba is installed (bit operations: the same words either way; the
+    numpy loop spends most of its time in per-call overhead on a few thousand words)."""
+    if _dilate_within_jit is not None:
+        return _dilate_within_jit(m, free, np.asarray(moves, dtype=np.int64))
+    for kind in moves:
+        m = dilate(m, kind) & free
+    return m
+
+
+_dilate_within_jit = None
+if numba is not None:
+    @numba.njit(cache=True, nogil=True)
+    def _dilate_within_jit(m, free, moves):
+        rows, words = m.shape
+        one, top = np.uint64(1), np.uint64(63)
+        cur = m.copy()
+        row = np.empty_like(m)
+        nxt = np.empty_like(m)
+        for kind in moves:
+            for y in range(rows):
+                for w in range(words):
+                    v = cur[y, w]
+                    r = v | (v << one) | (v >> one)
+                    if w > 0:
+                        r |= cur[y, w - 1] >> top
+                    if w < words - 1:
+                        r |= cur[y, w + 1] << top
+                    row[y, w] = r
+            src = row if kind == 8 else cur
+            for y in range(rows):
+                for w in range(words):
+                    o = row[y, w]
+                    if y > 0:
+                        o |= src[y - 1, w]
+                    if y < rows - 1:
+                        o |= src[y + 1, w]
+                    nxt[y, w] = o & free[y, w]
+            cur, nxt = nxt, cur
+        return cur

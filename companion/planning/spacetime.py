@@ -75,11 +75,7 @@ def grow(bits: np.ndarray, free_bits: np.ndarray, moves: tuple[int, ...]) -> np.
         return out
     r = len(moves)
     y0, y1 = max(rows[0] - r, 0), min(rows[-1] + r + 1, bits.shape[0])
-    m = bits[y0:y1]
-    f = free_bits[y0:y1]
-    for kind in moves:
-        m = bitgrid.dilate(m, kind) & f
-    out[y0:y1] = m
+    out[y0:y1] = bitgrid.dilate_within(bits[y0:y1], free_bits[y0:y1], moves)
     return out
 
 
