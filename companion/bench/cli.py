@@ -95,6 +95,9 @@ def add_common_arguments(parser: argparse.ArgumentParser, *, scenarios: int, why
     parser.add_argument("--vehicles", type=positive_int, default=None, metavar="N",
                         help="vehicles per scenario, 2 to 8 (default: the scenario config's, 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--no-certificate", action="store_true",
+                        help="skip each scenario's occlusion certificate (its cert_* columns stay empty; "
+                             "it costs about as much CPU as flying the four variants)")
 
 
 def executor_spec(args: argparse.Namespace) -> ExecutorSpec:
@@ -186,7 +189,8 @@ def fly(args: argparse.Namespace, out: Path, variants: Sequence[str], weight_set
     with open_pool(spec) as pool:
         started = time.perf_counter()
         rows = execute.run_bench(args.seed, args.scenarios, variants, pool=pool, out_dir=out, config=config,
-                                 weight_sets=weight_sets, progress=None if args.quiet else sys.stderr)
+                                 weight_sets=weight_sets, progress=None if args.quiet else sys.stderr,
+                                 certificate=not args.no_certificate)
         return Flown(rows, out, spec, pool.where, time.perf_counter() - started, config)
 
 

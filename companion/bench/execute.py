@@ -53,6 +53,7 @@ class ScenarioTask:
     artefacts: bool = False  # return the failure gallery's files (and the example) with the rows
     example: bool = False  # also draw this scenario's first run as the example trajectory
     weight_sets: tuple[Weights | None, ...] = (None,)  # None: the mission's weights
+    certificate: bool = True  # work out the scenario's occlusion certificate (its cert_* columns)
 
     def runs(self) -> Iterator[tuple[str, Weights | None]]:
         for variant in self.variants:
@@ -82,7 +83,7 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
                                                   None, wall_s=0.0, reason="no_scenario", error=str(exc)), w)
                                 for v, w in task.runs()])
     rows, files = [], []
-    cert = _certificate(scenario)
+    cert = _certificate(scenario) if task.certificate else {}
     bounds = {v.name: vehicle_lower_bound_s(scenario.mission, v.name) for v in scenario.mission.vehicles}
     for k, (variant, weights) in enumerate(task.runs()):
         mission = scenario.mission if weights is None else weights.apply(scenario.mission)
@@ -200,7 +201,8 @@ class Progress:
 def run_bench(seed: int, count: int, variants: Sequence[str], *, workers: int | None = None,
               pool: Pool | None = None, out_dir: str | Path | None = None, config: ScenarioConfig | None = None,
               progress: TextIO | None = sys.stderr, weight_sets: Sequence[Weights | None] = (None,),
-              on_rows: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
+              on_rows: Callable[[list[dict[str, Any]]], None] | None = None,
+              certificate: bool = True) -> list[dict[str, Any]]:
     """Fly scenarios 0..count-1 of ``seed`` with every variant (x weight set); rows sorted by
     (index, variant, weight set), in the order given.
 
@@ -210,8 +212,8 @@ def run_bench(seed: int, count: int, variants: Sequence[str], *, workers: int | 
     config = config or ScenarioConfig()
     weight_sets = tuple(weight_sets)
     artefacts = out_dir is not None
-    tasks = [ScenarioTask(seed, i, tuple(variants), config, artefacts, example=(i == 0), weight_sets=weight_sets)
-             for i in range(count)]
+    tasks = [ScenarioTask(seed, i, tuple(variants), config, artefacts, example=(i == 0), weight_sets=weight_sets,
+                          certificate=certificate) for i in range(count)]
     bar = Progress(len(tasks), progress)
     rows: list[dict[str, Any]] = []
     failed = 0

@@ -68,3 +68,14 @@ def test_every_run_of_a_scenario_carries_its_certificate():
     assert expected["cert_closest_approach"] in ("feasible", "needs-hold", "infeasible")
     for row in rows:
         assert {k: row[k] for k in expected} == expected
+
+
+def test_without_the_certificate_the_runs_are_the_same_and_its_columns_empty():
+    config = ScenarioConfig.from_mapping(SMALL)
+    with_cert = run_scenario(ScenarioTask(7, 0, ("astar-bdwa",), config)).rows
+    without = run_scenario(ScenarioTask(7, 0, ("astar-bdwa",), config, certificate=False)).rows
+    timing = {"wall_s", "planner_ms_per_tick"}
+    for a, b in zip(with_cert, without):
+        assert not any(k.startswith("cert_") for k in b)
+        assert {k: v for k, v in a.items() if not k.startswith("cert_") and k not in timing} == \
+               {k: v for k, v in b.items() if k not in timing}
