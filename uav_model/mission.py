@@ -209,6 +209,8 @@ def _planner(planner_raw: dict, pdef: dict) -> PlannerSettings:
                           else SightlineCritic(planner_raw["sightline_critic"])),
         normalisation=(None if _opt(planner_raw, pdef, "normalisation") is None
                        else Normalisation(planner_raw["normalisation"])),
+        final_approach=(None if _opt(planner_raw, pdef, "final_approach") is None
+                        else bool(planner_raw["final_approach"])),
     )
 
 

@@ -90,6 +90,8 @@ class PlannerSettings:
     weight_speed: float = 0.5
     sightline_critic: SightlineCritic | None = None
     normalisation: Normalisation | None = None
+    # A speed window near the station for the constant-speed variants; None: the plant's choice.
+    final_approach: bool | None = None
 
     def prediction_time_for(self, vehicle: VehicleSpec) -> float:
         """The paper's p = ceil(2*pi / ((v/r) * 2)) + 1 seconds, unless the mission fixes it."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 from typing import TYPE_CHECKING
 
@@ -25,7 +25,7 @@ from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.routes import detour_route
 from uav_model.mission import Normalisation, SightlineCritic
 from uav_model.world import World
-from uav_model.plant import tracking_margin_m
+from uav_model.plant import Plant, tracking_margin_m
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission, VehicleSpec
@@ -82,6 +82,20 @@ def window_settings(mission: "Mission", variant: str) -> dict:
     fixed = spec.fixed_scale if p.normalisation is None else p.normalisation is Normalisation.FIXED
     return dict(speed_samples=samples, min_speed_m_s=p.min_speed_m_s, w_v=p.weight_speed,
                 sightline_slope=sloped, fixed_scale=fixed, w_s=p.weight_sightline * spec.sightline_gain)
+
+
+def approach_config(mission: "Mission", config: DwaConfig) -> DwaConfig | None:
+    """The window a constant-speed vehicle flies near its station (``planner.final_approach``;
+    default: on for the multicopter plant, off for the unicycle): the timed variant's speeds,
+    hover to cruise, with the variant's critics. None when off or the window already has speeds.
+
+    Why: the multicopter flies the paper's 10 m/s at 0.3 rad/s on a 25 m circle, not 30 m, so a
+    vehicle that passed 19-22 m from its station (arrival radius 20 m) orbited it at ~25 m until
+    the time limit: no constant-speed rollout reaches it from there (issue 11)."""
+    on = mission.planner.final_approach
+    if not (mission.plant is Plant.MULTICOPTER if on is None else on) or config.count > config.samples:
+        return None
+    return replace(config, speed_samples=VARIANTS["astar-bdwa-timed"].speed_samples)
 
 
 def variant_nodes(variant: str, vehicle: "VehicleSpec", route: "Route | None") -> np.ndarray:
@@ -146,7 +160,8 @@ class VehiclePlanner:
     """
 
     def __init__(self, name: str, config: DwaConfig, tracker: LocalGoalTracker, arrival_radius_m: float,
-                 replanning: Replanning | None = None, timed_route: "TimedRoute | None" = None):
+                 replanning: Replanning | None = None, timed_route: "TimedRoute | None" = None,
+                 approach: DwaConfig | None = None):
         self.name = name
         self.timed_route = timed_route  # when given, flown on schedule (a speed window is needed)
         self.config = config
@@ -157,6 +172,11 @@ class VehiclePlanner:
         # it, tick after tick (a station circled at 20.5-21 m with a 20 m radius; the paper's
         # constant-speed window keeps the whole radius).
         self._aim_radius_m = arrival_radius_m * (_AIM_FRACTION if config.count > config.samples else 1.0)
+        # The final approach (see approach_config): flown within a turning diameter plus the
+        # arrival radius of the station, aiming inside half the radius as any speed window does.
+        self.approach = approach
+        self._approach_radius_m = (-math.inf if approach is None
+                                   else 2.0 * approach.speed_m_s / approach.max_yaw_rate_rad_s + arrival_radius_m)
         self.arrived = False
         self.replanning = replanning if replanning is not None and replanning.after_s > 0 else None
         self.replan_due = False
@@ -198,7 +218,8 @@ class VehiclePlanner:
             mission.planner.replan_after_s, mission.world, mission.planner.grid_resolution_m,
             goals_from is GoalSource.SPARSE, tuple(earlier), mission.safety.min_separation_m)
         timed = timed_route if spec.timed and config.count > config.samples else None
-        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, replanning, timed)
+        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, replanning, timed,
+                   approach_config(mission, config))
 
     def plan_detour(self, x_m: float, y_m: float) -> np.ndarray | None:
         """A new route from (x, y) to the station, or None when there is none. Reads only what
@@ -261,7 +282,8 @@ class VehiclePlanner:
         """
         started = time.perf_counter()
         sx, sy = self.station_xy
-        if self.arrived or math.hypot(own.x_m - sx, own.y_m - sy) <= self.arrival_radius_m:
+        to_station_m = math.hypot(own.x_m - sx, own.y_m - sy)
+        if self.arrived or to_station_m <= self.arrival_radius_m:
             self.arrived = True
             return TickResult(t_s, None, (sx, sy), self.tracker.index, True,
                               (time.perf_counter() - started) * 1e3, "arrived")
@@ -269,9 +291,12 @@ class VehiclePlanner:
         scheduled, held = self._schedule(own, t_s if schedule_t_s is None else schedule_t_s)
         if self.replanning is not None and not self.replan_due:
             self._watch_progress(own.x_m, own.y_m, t_s, held)
-        reach = self.config.reach_m + self.tracker.acceptance_radius_m
-        goals = self.tracker.window(own.x_m, own.y_m, reach, self._aim_radius_m)
-        decision = plan_step(own, goals, other, snapshot, self.config, scheduled, separate_from)
+        config, aim_m = self.config, self._aim_radius_m
+        if to_station_m <= self._approach_radius_m:
+            config, aim_m = self.approach, self.arrival_radius_m * _AIM_FRACTION
+        reach = config.reach_m + self.tracker.acceptance_radius_m
+        goals = self.tracker.window(own.x_m, own.y_m, reach, aim_m)
+        decision = plan_step(own, goals, other, snapshot, config, scheduled, separate_from)
         ms = (time.perf_counter() - started) * 1e3
         if isinstance(decision, NoLegalRollout):
             if decision.recovery is not None:

@@ -138,6 +138,17 @@ def test_speed_window_and_critic_settings_are_read_and_default_to_the_variant():
     assert p.sightline_critic is SightlineCritic.SLOPED and p.normalisation is Normalisation.FIXED
 
 
+def test_the_final_approach_setting_is_read_and_defaults_to_the_plants():
+    assert load_mission(REFERENCE).planner.final_approach is None
+    data = yaml.safe_load(Path(REFERENCE).read_text())
+    for value in (True, False):
+        data.setdefault("planner", {})["final_approach"] = value
+        assert parse_mission(yaml.safe_dump(data), "x.yaml").planner.final_approach is value
+    data["planner"]["final_approach"] = "yes"
+    with pytest.raises(MissionError, match="final_approach"):
+        parse_mission(yaml.safe_dump(data), "x.yaml")
+
+
 def test_a_minimum_speed_above_a_vehicles_speed_is_refused():
     data = yaml.safe_load(Path(REFERENCE).read_text())
     data.setdefault("planner", {})["min_speed_m_s"] = 12.0
