@@ -78,7 +78,8 @@ def test_bench_writes_every_artefact(small_bench):
     for r in rows:  # a gallery entry for exactly the failed runs
         entry = out / "failures" / failure_dir_name(r["variant"], r["seed"], r["index"])
         assert entry.is_dir() == (not r["success"])
-        assert (failure_dir_name(r["variant"], r["seed"], r["index"]) in index) == (not r["success"])
+        # As a link: "bdwa_s7_i001" is also inside "astar-bdwa_s7_i001".
+        assert (f'[{failure_dir_name(r["variant"], r["seed"], r["index"])}]' in index) == (not r["success"])
 
 
 def test_a_failed_run_replays_from_its_gallery_yaml(tmp_path):
