@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-import statistics
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -26,8 +25,9 @@ from companion.errors import PreflightRefused
 from companion.planning.vehicle_planner import VARIANTS
 from companion.vehicle.port import LandedState, Vehicle
 
-SHARED_CLOCK_TOLERANCE_S = 0.5  # sim: two clocks this close are one (an external sim-bridge)
-CLOCK_SAMPLES = 3
+SHARED_CLOCK_TOLERANCE_S = 0.5  # sim: two clocks this close are one (an external sim-bridge) ...
+CLOCK_JITTER_WALL_S = 0.05  # ... or closer than what 50 ms of delivery jitter makes of them at the speed factor
+CLOCK_SAMPLES = 8
 
 
 @dataclass(frozen=True)
@@ -58,10 +58,11 @@ def route_length_m(plan: FlightPlan, name: str) -> float:
 async def detect_shared_clock(vehicles: Mapping[str, Vehicle]) -> bool:
     """True when every vehicle stamps with one sim clock (an external sim-bridge runs them all),
     False for independent autopilots (PX4 instances boot at different times). Each clock is
-    projected to one wall instant with its measured rate; agreement within 0.5 s sim is one clock."""
+    projected to one wall instant with its measured rate; agreement within the tolerance
+    (:func:`clocks_agree`) is one clock."""
     if len(vehicles) < 2:
         return True
-    spreads = []
+    spreads, rates = [], []
     for _ in range(CLOCK_SAMPLES):
         await asyncio.sleep(0.05)
         now = time.monotonic()
@@ -73,9 +74,22 @@ async def detect_shared_clock(vehicles: Mapping[str, Vehicle]) -> bool:
                 return False
             if wall is not None and rate is not None:
                 t += (now - wall) * rate
+                rates.append(rate)
             projected.append(t)
         spreads.append(max(projected) - min(projected))
-    return statistics.median(spreads) <= SHARED_CLOCK_TOLERANCE_S
+    return clocks_agree(spreads, max(rates, default=None))
+
+
+def clocks_agree(spreads_s: list[float], sim_rate: float | None) -> bool:
+    """Whether clock spreads (sim seconds, one per sample) say one clock.
+
+    A sample's spread is the clocks' true offset plus delivery jitter: a busy machine delivers a
+    vehicle's stamp tens of ms late, which at 20x is a second of sim. The smallest spread is the
+    best estimate of the offset, and the tolerance grows with the speed factor; treating two
+    independent clocks closer than that as one costs at most that much sim time.
+    """
+    tolerance = max(SHARED_CLOCK_TOLERANCE_S, CLOCK_JITTER_WALL_S * (sim_rate or 0.0))
+    return min(spreads_s) <= tolerance
 
 
 async def get_ready(plan: FlightPlan, vehicles: Mapping[str, Vehicle], settings: RunSettings,

@@ -184,3 +184,16 @@ def test_probe_refuses_two_senders_with_one_system_id():
             for s in senders:
                 s.close()
     asyncio.run(main())
+
+
+def test_one_clock_is_told_from_two_by_the_smallest_spread_and_the_speed_factor():
+    from companion.app.readiness import clocks_agree
+    # One sim-bridge at 20x on a busy machine: most samples jittered by tens of ms of delivery.
+    assert clocks_agree([1.4, 0.9, 2.2, 0.3, 1.1], 20.0)
+    assert clocks_agree([0.9, 0.95], 20.0)  # within 50 ms wall at 20x
+    # Two PX4 instances booted seconds apart: never one clock, whatever the jitter.
+    assert not clocks_agree([31.0, 30.2, 30.9], 20.0)
+    assert not clocks_agree([3.0, 2.6], 20.0)
+    # At 1x the floor of 0.5 s sim holds.
+    assert not clocks_agree([0.9, 0.95], 1.0)
+    assert clocks_agree([0.4], None)
