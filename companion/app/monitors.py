@@ -70,8 +70,9 @@ def predicted_min_separation_m(own: Kinematic2D, forward_m_s: float, yaw_rate_ra
 
 def check_separation(own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float,
                      other: Kinematic2D | None, *, min_separation_m: float, own_has_priority: bool,
-                     horizon_s: float, step_s: float) -> Verdict:
-    """Hover if the look-ahead loses separation.
+                     horizon_s: float, step_s: float, stop_m: float = 0.0) -> Verdict:
+    """Hover if the look-ahead loses separation, plus ``stop_m`` (what this vehicle still flies
+    once the hover is sent: :func:`stop_distance_m`).
 
     The lower-priority vehicle yields as soon as the constant-velocity prediction of the other
     breaks the limit. The priority vehicle keeps flying unless its own command would bring it
@@ -79,23 +80,31 @@ def check_separation(own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float
     """
     if other is None:
         return FLY
+    limit = min_separation_m + stop_m
     moving = predicted_min_separation_m(own, forward_m_s, yaw_rate_rad_s, other, horizon_s, step_s, True)
-    if moving >= min_separation_m:
+    if moving >= limit:
         return FLY
     if not own_has_priority:
         return Verdict(True, "separation")
     still = predicted_min_separation_m(own, forward_m_s, yaw_rate_rad_s, other, horizon_s, step_s, False)
-    return Verdict(True, "separation") if still < min_separation_m else FLY
+    return Verdict(True, "separation") if still < limit else FLY
 
 
 def check_geofence(world: World, own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float, *,
-                   horizon_s: float, step_s: float) -> Verdict:
-    """Hover if the commanded arc would leave the geofence within the look-ahead."""
+                   horizon_s: float, step_s: float, stop_m: float = 0.0) -> Verdict:
+    """Hover if the commanded arc would come within ``stop_m`` of the geofence within the
+    look-ahead: the distance the vehicle still flies once the veto is sent (see :func:`stop_distance_m`)."""
     pts = unicycle_points(own, forward_m_s, yaw_rate_rad_s, horizon_s, step_s)
-    m = world.geofence_margin_m
+    m = world.geofence_margin_m - stop_m
     inside = ((pts[:, 0] >= world.x_min_m - m) & (pts[:, 0] <= world.x_max_m + m)
               & (pts[:, 1] >= world.y_min_m - m) & (pts[:, 1] <= world.y_max_m + m))
     return FLY if bool(np.all(inside)) else Verdict(True, "geofence")
+
+
+def stop_distance_m(speed_m_s: float, max_accel_m_s2: float, latency_s: float) -> float:
+    """How far a vehicle flies after a hover is decided: what it flies on the old command until
+    the new one acts (``latency_s`` sim: the pose's age plus a planner step), then its braking."""
+    return speed_m_s * latency_s + speed_m_s ** 2 / (2.0 * max_accel_m_s2)
 
 
 def is_stale(pose_t_sim_s: float, clock_t_sim_s: float | None, timeout_s: float) -> bool:

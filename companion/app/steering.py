@@ -5,6 +5,7 @@ monitors, and the flight log's row for it. Mixed into :class:`companion.app.pilo
 from __future__ import annotations
 
 import math
+import time
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -119,11 +120,13 @@ class Steering:
         other_name, other = self._nearest_other(pose)
         other_k = None if other is None else monitors.Kinematic2D(other.x_m, other.y_m, 0.0, other.vx_m_s, other.vy_m_s)
         priority = other_name is None or self.ctx.rank[self.name] < self.ctx.rank[other_name]
+        stop_m = self._stop_distance_m(pose)
         for verdict in (
             monitors.check_separation(own, v, w, other_k, min_separation_m=self.ctx.mission.safety.min_separation_m,
                                       own_has_priority=priority,
-                                      horizon_s=s.lookahead_s, step_s=dt / 2),
-            monitors.check_geofence(self.ctx.mission.world, own, v, w, horizon_s=s.lookahead_s, step_s=dt / 2),
+                                      horizon_s=s.lookahead_s, step_s=dt / 2, stop_m=stop_m),
+            monitors.check_geofence(self.ctx.mission.world, own, v, w, horizon_s=s.lookahead_s, step_s=dt / 2,
+                                    stop_m=stop_m),
         ):
             if verdict.hover:
                 self.outcome.interventions[verdict.reason] += 1
@@ -137,6 +140,16 @@ class Steering:
             self.outcome.interventions["planner: spin recovery"] += 1
             action = "recover (yaw in place)"
         return VelocityYawRateSetpoint(forward_m_s=v, yaw_rate_enu_rad_s=w, climb_m_s=climb), action
+
+    def _stop_distance_m(self, pose: PoseSample) -> float:
+        """What the vehicle flies after a veto: on the old command for the pose's age (on the
+        vehicle's clock, or since it arrived at the measured speed factor) and a planner step,
+        then braking. On a busy machine the age is a second of sim or more at 20x."""
+        clock, rate = self.vehicle.clock_s(), self.vehicle.sim_rate() or 1.0
+        age = max(0.0 if clock is None else clock - pose.t_sim_s, (time.monotonic() - pose.t_wall_s) * rate)
+        age = min(max(age, 0.0), self.ctx.mission.safety.telemetry_timeout_s)
+        return monitors.stop_distance_m(pose.ground_speed_m_s, self.spec.max_accel_m_s2,
+                                        age + self.ctx.mission.planner.dt_s)
 
     def _turn_in(self, pose: PoseSample, dt: float) -> VelocityYawRateSetpoint:
         """Stop and yaw toward the middle of the area. The monitor looks closer than the planner

@@ -43,6 +43,16 @@ def test_priority_vehicle_stops_short_of_a_hovering_vehicle():
     assert verdict == monitors.Verdict(True, "separation")
 
 
+def test_priority_vehicle_counts_its_stop_against_a_hovering_vehicle():
+    # a closes to 60 m of the hovering b within the look-ahead: enough on an instant link, not
+    # when a still flies 16 m on a late telemetry sample and its braking.
+    a = Kinematic2D(0.0, 0.0, 0.0, 10.0, 0.0)
+    b = Kinematic2D(80.0, 0.0, math.pi, 0.0, 0.0)
+    kw = dict(own_has_priority=True, min_separation_m=50.0, horizon_s=2.0, step_s=0.25)
+    assert not monitors.check_separation(a, 10.0, 0.0, b, **kw).hover
+    assert monitors.check_separation(a, 10.0, 0.0, b, stop_m=monitors.stop_distance_m(10.0, 8.0, 1.0), **kw).hover
+
+
 def test_diverging_vehicles_are_left_alone():
     a = Kinematic2D(0.0, 0.0, math.pi, -10.0, 0.0)
     b = Kinematic2D(70.0, 0.0, 0.0, 10.0, 0.0)
@@ -59,6 +69,19 @@ def test_geofence_exit_is_predicted_and_turning_away_is_not():
     assert monitors.check_geofence(w, edge, 10.0, 0.0, horizon_s=2.0, step_s=0.25) == monitors.Verdict(True, "geofence")
     inward = Kinematic2D(1090.0, 500.0, math.pi)
     assert not monitors.check_geofence(w, inward, 10.0, 0.0, horizon_s=2.0, step_s=0.25).hover
+
+
+def test_geofence_veto_comes_early_by_what_the_vehicle_flies_after_it():
+    w = _world()  # fence at x = 1100
+    # 30 m inside, flying at it: a 2 s arc ends 10 m inside, clear of the fence ...
+    edge = Kinematic2D(1070.0, 500.0, 0.0)
+    assert not monitors.check_geofence(w, edge, 10.0, 0.0, horizon_s=2.0, step_s=0.25).hover
+    # ... not once a second of latency and the braking (10 m + 6.25 m at 8 m/s^2) are counted.
+    stop = monitors.stop_distance_m(10.0, 8.0, 1.0)
+    assert stop == pytest.approx(16.25)
+    assert monitors.check_geofence(w, edge, 10.0, 0.0, horizon_s=2.0, step_s=0.25, stop_m=stop).hover
+    inward = Kinematic2D(1070.0, 500.0, math.pi)
+    assert not monitors.check_geofence(w, inward, 10.0, 0.0, horizon_s=2.0, step_s=0.25, stop_m=stop).hover
 
 
 def test_staleness_is_measured_on_the_vehicle_clock():
