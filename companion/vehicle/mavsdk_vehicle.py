@@ -40,14 +40,8 @@ from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import (  # shared with the in-process adapter
     MAV_FRAME_GLOBAL, FenceItem, fence_items, fence_zones, traffic_velocity_enu)
 from companion.vehicle.link_probe import probe_udpin
-from companion.vehicle.port import (
-    FlightMode,
-    GeoFenceZone,
-    GeoWaypoint,
-    LandedState,
-    TrafficReport,
-    VelocityYawRateSetpoint,
-)
+from companion.vehicle.port import (FlightMode, GeoFenceZone, GeoWaypoint, LandedState, TrafficReport,
+                                    VelocityYawRateSetpoint)
 
 log = logging.getLogger(__name__)
 
@@ -110,15 +104,15 @@ class MavsdkVehicle(BoardReaders):
         self._offboard = OffboardAsync(system)
         self._mission = MissionRawAsync(system)
         self._param = ParamAsync(system)
-        self._params: dict[str, float] | None = None  # all of the autopilot's, read once
+        self._params: dict[str, float] | None = None  # all of the autopilot's, read once; which are INT32:
+        self._int_params: set[str] = set()
         self._params_lock = asyncio.Lock()
         self._transponder = TransponderAsync(system)
         # Latest halves of a pose; a sample is emitted once both have been refreshed.
         self._att: tuple[float, float] | None = None  # (t_sim_s, heading_enu_rad)
         self._pos: tuple[float, float, float] | None = None  # (x_east_m, y_north_m, alt_rel_m)
         self._vel: tuple[float, float] = (0.0, 0.0)  # (vx_east, vy_north)
-        self._att_fresh = False
-        self._pos_fresh = False
+        self._att_fresh = self._pos_fresh = False
 
     # -- port: readers --------------------------------------------------------------------
     @property
@@ -178,20 +172,28 @@ class MavsdkVehicle(BoardReaders):
                     raise CommandRefused("read parameters", getattr(getattr(exc, "result", None), "name", "TIMEOUT"),
                                          vehicle=self._name) from None
                 self._params = {p.name: float(p.value) for p in (*everything.int_params, *everything.float_params)}
+                self._int_params = {p.name for p in everything.int_params}
         return self._params.get(name)
 
     async def set_param(self, name: str, value: float) -> None:
+        # As the type read with the list (an int sent as a float: PX4 rejects it, MAVSDK logs an error).
+        kinds = (int, float) if name in self._int_params else (float, int)
+
         async def attempt() -> None:
             try:
-                await self._param.set_param_float(name, float(value))
+                await self._set_typed(name, value, kinds[0])
             except ParamError as exc:
                 if exc.result not in (ParamResult.WRONG_TYPE, ParamResult.TYPE_MISMATCH):
                     raise CommandRefused(f"set {name}", exc.result.name, vehicle=self._name,
                                          retryable=exc.result is ParamResult.TIMEOUT) from None
-                await self._param.set_param_int(name, int(round(value)))
+                await self._set_typed(name, value, kinds[1])
         await self._command(f"set {name}", attempt)
         if self._params is not None:
             self._params[name] = float(value)
+
+    async def _set_typed(self, name: str, value: float, kind: type) -> None:
+        p = self._param
+        await (p.set_param_int(name, int(round(value))) if kind is int else p.set_param_float(name, float(value)))
 
     async def set_mode(self, mode: FlightMode, what: str = "set mode") -> None:
         calls = {FlightMode.HOLD: self._action.hold, FlightMode.RETURN_TO_LAUNCH: self._action.return_to_launch,

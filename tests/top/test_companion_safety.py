@@ -314,6 +314,8 @@ def test_px4_default_failsafe_and_a_3_s_uplink_blackout_the_mission_succeeds(sit
     assert run.exit_code == 0, run.tail
     assert run.summary["success"], run.summary["reason"]
     assert "COM_OBL_RC_ACT 0 (Position mode (without RC: Return)) -> 5 (Hold)" in run.stdout
+    log = (run.out_dir / "companion.log").read_text()
+    assert "Wrong type in param set" not in log and "rejected" not in log  # set as the INT32 it is, first time
     _failsafe_then_offboard(stub, "HOLD")
     assert "fell back to HOLD (offboard loss)" in run.stdout, run.stdout[-3000:]
     assert "stands down" not in run.stdout
