@@ -90,12 +90,15 @@ def check_separation(own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float
 
 def check_geofence(world: World, own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float, *,
                    horizon_s: float, step_s: float) -> Verdict:
-    """Hover if the commanded arc would leave the geofence within the look-ahead."""
-    pts = unicycle_points(own, forward_m_s, yaw_rate_rad_s, horizon_s, step_s)
+    """Hover if the commanded arc would leave the geofence within the look-ahead. A vehicle
+    already outside (an autopilot mode flew it there) may fly any arc that never takes it further
+    out: it must be able to come back, and every arc from outside begins outside."""
+    pts = np.vstack([[own.x_m, own.y_m], unicycle_points(own, forward_m_s, yaw_rate_rad_s, horizon_s, step_s)])
     m = world.geofence_margin_m
-    inside = ((pts[:, 0] >= world.x_min_m - m) & (pts[:, 0] <= world.x_max_m + m)
-              & (pts[:, 1] >= world.y_min_m - m) & (pts[:, 1] <= world.y_max_m + m))
-    return FLY if bool(np.all(inside)) else Verdict(True, "geofence")
+    out_x = np.maximum.reduce([world.x_min_m - m - pts[:, 0], pts[:, 0] - world.x_max_m - m, np.zeros(len(pts))])
+    out_y = np.maximum.reduce([world.y_min_m - m - pts[:, 1], pts[:, 1] - world.y_max_m - m, np.zeros(len(pts))])
+    outside = np.hypot(out_x, out_y)  # how far beyond the fence, 0 inside
+    return FLY if bool(np.all(np.diff(outside) <= 1e-9)) else Verdict(True, "geofence")
 
 
 def is_stale(pose_t_sim_s: float, clock_t_sim_s: float | None, timeout_s: float) -> bool:
