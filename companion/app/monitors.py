@@ -93,12 +93,15 @@ def check_separation(own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float
 def check_geofence(world: World, own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float, *,
                    horizon_s: float, step_s: float, stop_m: float = 0.0) -> Verdict:
     """Hover if the commanded arc would come within ``stop_m`` of the geofence within the
-    look-ahead: the distance the vehicle still flies once the veto is sent (see :func:`stop_distance_m`)."""
-    pts = unicycle_points(own, forward_m_s, yaw_rate_rad_s, horizon_s, step_s)
+    look-ahead: the distance the vehicle still flies once the veto is sent (see :func:`stop_distance_m`).
+    A vehicle already in that band, or outside (an autopilot mode flew it there), may fly any arc
+    that never takes it further out: it must be able to come back, and every such arc begins out."""
+    pts = np.vstack([[own.x_m, own.y_m], unicycle_points(own, forward_m_s, yaw_rate_rad_s, horizon_s, step_s)])
     m = world.geofence_margin_m - stop_m
-    inside = ((pts[:, 0] >= world.x_min_m - m) & (pts[:, 0] <= world.x_max_m + m)
-              & (pts[:, 1] >= world.y_min_m - m) & (pts[:, 1] <= world.y_max_m + m))
-    return FLY if bool(np.all(inside)) else Verdict(True, "geofence")
+    out_x = np.maximum.reduce([world.x_min_m - m - pts[:, 0], pts[:, 0] - world.x_max_m - m, np.zeros(len(pts))])
+    out_y = np.maximum.reduce([world.y_min_m - m - pts[:, 1], pts[:, 1] - world.y_max_m - m, np.zeros(len(pts))])
+    outside = np.hypot(out_x, out_y)  # how far beyond the band's inner edge, 0 inside
+    return FLY if bool(np.all(np.diff(outside) <= 1e-9)) else Verdict(True, "geofence")
 
 
 def stop_distance_m(speed_m_s: float, max_accel_m_s2: float, latency_s: float) -> float:

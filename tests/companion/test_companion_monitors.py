@@ -84,6 +84,22 @@ def test_geofence_veto_comes_early_by_what_the_vehicle_flies_after_it():
     assert not monitors.check_geofence(w, inward, 10.0, 0.0, horizon_s=2.0, step_s=0.25, stop_m=stop).hover
 
 
+def test_a_vehicle_outside_the_geofence_may_fly_back_but_not_further_out():
+    w = _world()  # fence at x = 1100 (area and margin)
+    outside = Kinematic2D(1106.0, 500.0, math.pi)  # 6 m out, facing in: every arc starts outside
+    assert monitors.check_geofence(w, outside, 10.0, 0.0, horizon_s=2.0, step_s=0.25) is monitors.FLY
+    assert monitors.check_geofence(w, outside, 0.0, 0.5, horizon_s=2.0, step_s=0.25) is monitors.FLY
+    along = Kinematic2D(1106.0, 500.0, math.pi / 2)  # along the fence, outside: no further out, allowed
+    assert monitors.check_geofence(w, along, 10.0, 0.0, horizon_s=2.0, step_s=0.25) is monitors.FLY
+    away = Kinematic2D(1106.0, 500.0, 0.3)
+    assert monitors.check_geofence(w, away, 10.0, 0.0, horizon_s=2.0, step_s=0.25).hover
+    # Inside the fence but within the stopping distance of it: the same rule, inward arcs fly.
+    band = Kinematic2D(1090.0, 500.0, math.pi)
+    assert monitors.check_geofence(w, band, 10.0, 0.0, horizon_s=2.0, step_s=0.25, stop_m=16.25) is monitors.FLY
+    assert monitors.check_geofence(w, Kinematic2D(1090.0, 500.0, 0.0), 10.0, 0.0, horizon_s=2.0, step_s=0.25,
+                                   stop_m=16.25).hover
+
+
 def test_staleness_is_measured_on_the_vehicle_clock():
     assert not monitors.is_stale(10.0, None, 1.0)
     assert not monitors.is_stale(10.0, 10.9, 1.0)
