@@ -29,6 +29,7 @@ from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings
 from companion.app.preflight import PreflightSettings
 from companion.app.readiness import get_ready
+from companion.app.warmup import warm_up_planners
 from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
                               PreflightRefused, VehicleNotReady, primary_error)
 from uav_model.mission import VehicleSpec
@@ -78,6 +79,9 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
     with FlightLog(out_dir) as log:
         try:
             async with AsyncExitStack() as stack:
+                # Before connecting: the first tick's kernel loading would otherwise stall the loop in flight.
+                log_warm = warm_up_planners(plan)
+                report(f"planner warmed up in {log_warm:.1f} s")
                 vehicles = {}
                 for spec in mission.vehicles:
                     url = connections[spec.name]

@@ -14,7 +14,7 @@ from uav_model import frames
 from companion.app import monitors
 from companion.planning.dwa import OtherUav, Pose, inflated_clearance
 from companion.planning.fleet import Neighbour, Reaction, react_to
-from companion.planning.obstacle_field import ObstacleTrack
+from companion.planning.obstacle_field import ObstacleSnapshot, ObstacleTrack
 from companion.planning.vehicle_planner import TickResult
 from companion.vehicle.port import HOVER, PoseSample, TrafficReport, VelocityYawRateSetpoint
 
@@ -23,6 +23,12 @@ if TYPE_CHECKING:
     from companion.app.context import FlightContext, PilotOutcome
     from companion.planning.vehicle_planner import VehiclePlanner
     from companion.vehicle.port import Vehicle
+
+
+def clearance_here_m(x_m: float, y_m: float, snapshot: ObstacleSnapshot) -> float:
+    """Clearance (m) of the point (x, y) to the inflated obstacles of ``snapshot`` (the log's column)."""
+    clearance = inflated_clearance(np.array([x_m]), np.array([y_m]), np.zeros(1), snapshot)
+    return float(clearance.min()) if clearance.size else math.inf
 
 
 class Steering:
@@ -173,9 +179,7 @@ class Steering:
 
     def _log_tick(self, pose: PoseSample, t_mission: float, result: TickResult,
                   setpoint: VelocityYawRateSetpoint, action: str) -> None:
-        clearance = inflated_clearance(np.array([pose.x_east_m]), np.array([pose.y_north_m]), np.zeros(1),
-                                       self._snapshot)
-        clear_m = float(clearance.min()) if clearance.size else math.inf
+        clear_m = clearance_here_m(pose.x_east_m, pose.y_north_m, self._snapshot)
         _, other = self._nearest_other(pose)
         sep_m = math.inf if other is None else math.hypot(other.x_m - pose.x_east_m, other.y_m - pose.y_north_m)
         to_go = self._remaining_m(pose)

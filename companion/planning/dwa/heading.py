@@ -50,7 +50,9 @@ def heading_from_ends(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray,
     if single:
         tx, ty = goals.first_xy
         if kernels.heading_toward is not None:
-            return kernels.heading_toward(ex, ey, final_heading, tx, ty)
+            # Contiguous copies (S floats): the ends arrive as views or as arrays by the path taken, and
+            # each layout is a compiled signature of its own (loaded, or compiled, at its first call).
+            return kernels.heading_toward(np.ascontiguousarray(ex), np.ascontiguousarray(ey), final_heading, tx, ty)
     else:
         gx, gy = nodes[:, 0], nodes[:, 1]
         near2 = (((px.ravel() - gx[:, None]) ** 2 + (py.ravel() - gy[:, None]) ** 2)

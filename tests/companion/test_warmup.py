@@ -1,0 +1,45 @@
+"""The warm-up before a flight loads every compiled kernel signature that the flight uses, so that
+the first tick in the air does not stall the event loop (seconds of wall time on a busy machine)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+pytest.importorskip("numba")
+
+# In a fresh interpreter: the dispatchers of this one may have signatures from other tests.
+SCRIPT = textwrap.dedent("""
+    import sys
+    from uav_model.mission import load_mission
+    from companion.app.flight_plan import prepare
+    from companion.app.steering import clearance_here_m
+    from companion.app.warmup import warm_up_planners
+    from companion.planning.dwa import kernels
+    from companion.planning.obstacle_field import ObstacleField
+    from companion.planning.runner import simulate
+
+    mission = load_mission(sys.argv[1])
+    warm_up_planners(prepare(mission))
+    warm = {n: len(getattr(kernels, n).signatures) for n in kernels._NAMES}
+    assert sum(warm.values()) >= 3, warm
+    simulate(mission)  # every tick of a whole flight, moving and turning
+    field = ObstacleField.from_world(mission.world)
+    clearance_here_m(10.0, 10.0, field.from_tracks(field.tracks_at(30.0)))  # the flight log's column
+    later = {n: len(getattr(kernels, n).signatures) for n in kernels._NAMES}
+    print({n: later[n] - warm[n] for n in warm if later[n] != warm[n]})
+""")
+
+
+@pytest.mark.parametrize("mission", ["missions/moving_obstacles.yaml", "tests/data/small_swap.yaml"])
+def test_the_flight_needs_no_kernel_signature_the_warm_up_did_not_load(mission):
+    done = subprocess.run([sys.executable, "-c", SCRIPT, str(ROOT / mission)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=240)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.strip() == "{}", f"signatures first needed in flight: {done.stdout}"
