@@ -19,6 +19,7 @@ EIGHT = ROOT / "missions" / "eight_vehicles.yaml"
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(600)  # ~40 s of CPU; in process the sim waits for it, so only wall time grows under load
 def test_eight_vehicles_fly_in_process_and_keep_every_separation(tmp_path, capsys, companion_logger):
     mission = load_mission(EIGHT)
     assert len(mission.vehicles) == 8 and len({v.goal for v in mission.vehicles}) == 8
