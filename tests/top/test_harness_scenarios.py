@@ -89,8 +89,12 @@ def test_moving_obstacles(sitl, companion):
         vel_errors.append(min(float(np.hypot(*(v - np.array(o.motion.velocity_at(t + lag)))))
                               for lag in np.arange(-3.0, 3.01, 0.1)))
     assert len(rows) > 200
-    # Stamped with the receiving vehicle's latest clock: at most one API stream period late.
-    assert np.median(errors) < 1.5 and max(errors) < 5.0, (np.median(errors), max(errors))
+    # Stamped with the receiving vehicle's latest clock (ADSB_VEHICLE carries no time): typically
+    # one API stream period late. The clock comes on another MAVSDK stream (attitude), and a busy
+    # machine delivers one stream up to ~0.1 s of wall time behind the other: 2 s of sim at 20x,
+    # the fastest obstacle's speed x 2 s of position (under two busy loops: 6.6 m at 4 m/s, 1 of 3).
+    fastest = max(math.hypot(float(r["vx_m_s"]), float(r["vy_m_s"])) for r in rows)
+    assert np.median(errors) < 1.5 and max(errors) < fastest * 0.1 * 20, (np.median(errors), max(errors), fastest)
     assert max(vel_errors) < 0.05
 
 
