@@ -22,6 +22,11 @@ import shapely
 from companion.planning.grid import OccupancyGrid
 from uav_model.world import World
 
+try:
+    import numba
+except ImportError:  # the numpy masks run instead (the ``fast`` extra brings numba)
+    numba = None
+
 
 def convex_pieces(footprint: shapely.Polygon) -> list[np.ndarray]:
     """The footprint as convex CCW vertex arrays (V, 2): itself when convex, else its triangles."""
@@ -55,10 +60,19 @@ class SightShadows:
                 edge = np.roll(v, -1, axis=0) - v
                 normal = np.stack([edge[:, 1], -edge[:, 0]], axis=1)  # outward for CCW
                 self._pieces.append((v, normal, np.einsum("ij,ij->i", normal, v)))
+        self._xs, self._ys = xs, ys
+        self._circle_rows = np.array(self._circles, dtype=float).reshape(-1, 3)
+        if self._pieces:
+            self._piece_start = np.cumsum([0] + [len(v) for v, _, _ in self._pieces])
+            self._piece_v = np.concatenate([v for v, _, _ in self._pieces])
+            self._piece_n = np.concatenate([n for _, n, _ in self._pieces])
+            self._piece_off = np.concatenate([o for _, _, o in self._pieces])
 
     def blocked_from(self, xy: tuple[float, float]) -> np.ndarray:
         """(ny, nx) bool: the segment from each cell centre to ``xy`` meets a true obstacle."""
         px, py = float(xy[0]), float(xy[1])
+        if _blocked_jit is not None:
+            return self._blocked_compiled(px, py)
         dx, dy = self._qx - px, self._qy - py  # q - p, broadcast (1, nx) and (ny, 1)
         out = np.zeros(self.shape, dtype=bool)
         len2 = dx * dx + dy * dy
@@ -77,6 +91,16 @@ class SightShadows:
             out |= self._meets_convex(px, py, dx, dy, v, normal, offset)
         return out
 
+    def _blocked_compiled(self, px: float, py: float) -> np.ndarray:
+        """blocked_from by the compiled loop: the same operations per cell, so the same mask.
+        Each edge's side of p stays a numpy product, as in the numpy mask."""
+        if not self._pieces:
+            return _blocked_jit(self._xs, self._ys, px, py, self._circle_rows, np.zeros(1, dtype=np.int64),
+                                np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.bool_))
+        outside = np.concatenate([normal @ (px, py) - offset > 0 for _, normal, offset in self._pieces])
+        return _blocked_jit(self._xs, self._ys, px, py, self._circle_rows, self._piece_start, self._piece_v,
+                            self._piece_n, self._piece_off, outside)
+
     def _meets_convex(self, px: float, py: float, dx: np.ndarray, dy: np.ndarray, v: np.ndarray,
                       normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
         separated = np.zeros(self.shape, dtype=bool)
@@ -91,3 +115,51 @@ class SightShadows:
             above &= cross > 0
             below &= cross < 0
         return ~(separated | above | below)
+
+
+_blocked_jit = None
+if numba is not None:
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _blocked_jit(xs, ys, px, py, circles, start, v, normal, offset, outside):
+        """SightShadows.blocked_from per cell: circles (C, 3) as (x, y, r), convex pieces k as
+        rows start[k]:start[k + 1] of v, normal, offset; ``outside``: p outside edge j."""
+        out = np.zeros((len(ys), len(xs)), dtype=np.bool_)
+        for c in range(len(circles)):
+            wx, wy, r = circles[c, 0] - px, circles[c, 1] - py, circles[c, 2]
+            if wx * wx + wy * wy < r * r:  # p inside: everything is blocked
+                out[:, :] = True
+                return out
+        for iy in range(len(ys)):
+            qy = ys[iy]
+            dy = qy - py
+            for ix in range(len(xs)):
+                qx = xs[ix]
+                dx = qx - px
+                len2 = dx * dx + dy * dy
+                blocked = False
+                for c in range(len(circles)):
+                    cx, cy, r = circles[c, 0], circles[c, 1], circles[c, 2]
+                    ex, ey = qx - cx, qy - cy
+                    wx, wy = cx - px, cy - py
+                    along = wx * dx + wy * dy
+                    cross = dx * wy - dy * wx
+                    if ex * ex + ey * ey < r * r or (along > 0 and along < len2 and cross * cross < r * r * len2):
+                        blocked = True
+                        break
+                k = 0
+                while not blocked and k < len(start) - 1:
+                    separated = False
+                    for j in range(start[k], start[k + 1]):
+                        if outside[j] and normal[j, 0] * qx + normal[j, 1] * qy > offset[j]:
+                            separated = True
+                            break
+                    if not separated:
+                        above = below = True
+                        for j in range(start[k], start[k + 1]):
+                            cross = dx * (v[j, 1] - py) - dy * (v[j, 0] - px)
+                            above = above and cross > 0
+                            below = below and cross < 0
+                        blocked = not (above or below)
+                    k += 1
+                out[iy, ix] = blocked
+        return out

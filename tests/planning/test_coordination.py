@@ -18,6 +18,7 @@ from companion.planning.errors import NoPath
 from companion.planning.grid import rasterise
 from companion.planning.metrics import TruthGeometry, pair_min_distance
 from companion.planning.routes import detour_route, plan_routes
+from companion.planning import shadow as shadow_module
 from companion.planning.shadow import SightShadows
 from companion.planning.spacetime import step_model
 from companion.planning.timed import TimedRoute, forecast, forecast_from
@@ -74,6 +75,22 @@ def test_shadow_masks_agree_with_the_metric_sight_test(world, p):
     for i in disagree:
         seg = shapely.LineString([(qx.flat[i], qy.flat[i]), p])
         assert min(seg.distance(o.footprint.exterior) for o in world.obstacles) < 1e-3
+
+
+@pytest.mark.skipif(shadow_module.numba is None, reason="numba (the 'fast' extra) is not installed")
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(worlds(0, 5), st.tuples(st.floats(-50.0, 1050.0), st.floats(-50.0, 1050.0)))
+def test_compiled_shadow_masks_equal_the_numpy_masks(world, p):
+    """p anywhere, inside an obstacle too (a circle's inside blocks everything)."""
+    grid = rasterise(world, 25.0)
+    shadows = SightShadows(world, grid)
+    compiled = shadows.blocked_from(p)
+    saved, shadow_module._blocked_jit = shadow_module._blocked_jit, None
+    try:
+        reference = shadows.blocked_from(p)
+    finally:
+        shadow_module._blocked_jit = saved
+    assert compiled.dtype == reference.dtype and np.array_equal(compiled, reference)
 
 
 # --- the space-time plan ------------------------------------------------------------------------
