@@ -1,4 +1,4 @@
-"""The compiled kernels (numba, the ``fast`` extra: geometry, culling, heading) give bit for bit
+"""The compiled kernels (numba, the ``fast`` extra: geometry, culling, heading, the choice) give bit for bit
 the numbers of the numpy kernels they replace, over random worlds; and the clearance agrees with
 shapely."""
 
@@ -10,7 +10,8 @@ import shapely
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from companion.planning.dwa import LocalGoals, ObstacleSnapshot, kernels
+from companion.planning.dwa import DwaConfig, LocalGoals, ObstacleSnapshot, kernels
+from companion.planning.dwa.evaluate import choose
 from companion.planning.dwa.geometry import inflated_clearance, polygon_signed_distance
 from companion.planning.dwa.heading import heading_from_ends
 from companion.planning.dwa.sightline import sightline_scores
@@ -122,3 +123,41 @@ def test_heading_kernel_matches_numpy(seed: int, n: int, tx: float, ty: float, h
     got = heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True)
     with kernels.numpy_only():
         assert same_bits(got, heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True))
+
+
+@st.composite
+def choices(draw):
+    """A window (paper's or with speeds; sum-normalised or fixed-scale; sloped sightline or not),
+    random critics and legal sets, and the turn-around preference on or off."""
+    speeds = draw(st.sampled_from([1, 1, 3, 5]))
+    weights = [draw(st.sampled_from([0.0, 0.2, 0.37, 1.0])) for _ in range(4)]
+    config = DwaConfig(speed_m_s=10.0, max_yaw_rate_rad_s=0.35, samples=draw(st.sampled_from([1, 7, 31])), dt_s=0.5,
+                       prediction_time_s=5.0, w_h=weights[0], w_d=weights[1], w_s=weights[2], w_v=weights[3],
+                       sightline_cap_m=50.0, speed_samples=speeds, fixed_scale=draw(st.booleans()),
+                       sightline_slope=draw(st.booleans()))
+    rng = np.random.default_rng(draw(st.integers(0, 2**31)))
+    n = config.count
+    legal = rng.random(n) < draw(st.sampled_from([0.0, 0.3, 0.9, 1.0]))
+    heading = rng.uniform(0.0, 180.0, n)
+    heading[::3] = 180.0  # ties
+    distance = config.saturated_m if draw(st.booleans()) else np.minimum(rng.uniform(-1.0, 12.0, n).clip(0.0), 10.0)
+    sightline = draw(st.sampled_from([None, "zero", "random"]))
+    if sightline is not None:
+        sightline = np.zeros(n) if sightline == "zero" else rng.uniform(-50.0 if config.sightline_slope else 0.0,
+                                                                        50.0, n)
+    speed = None if config.count == config.samples else rng.uniform(0.0, 1.0, n)
+    error = draw(st.sampled_from([float("nan"), 2.5, -2.0, 0.0]))
+    return config, legal, error, heading, distance, sightline, speed
+
+
+@needs_numba
+@settings(max_examples=200, deadline=None)
+@given(choices())
+def test_choice_kernel_matches_numpy(case) -> None:
+    """The compiled choice (turn preference, normalised weighted sum, argmax) picks the same
+    rollout with the same total, to the last bit, and counts the same legal rollouts."""
+    got = choose(*case)
+    with kernels.numpy_only():
+        reference = choose(*case)
+    assert got[0] == reference[0] and got[2] == reference[2]
+    assert same_bits(np.array([got[1]]), np.array([reference[1]]))

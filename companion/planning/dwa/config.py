@@ -89,6 +89,8 @@ class DwaConfig:
     all_legal: np.ndarray = field(init=False, repr=False)  # (S,) all True
     saturated_m: np.ndarray = field(init=False, repr=False)  # (S,) all distance_saturation_m
     saturated_sums: tuple[float, ...] = field(init=False, repr=False)  # [n]: numpy's sum of n of them
+    saturated_sums_m: np.ndarray = field(init=False, repr=False)  # the same as an array (compiled choice)
+    weights: np.ndarray = field(init=False, repr=False)  # (w_h, w_d, w_s, w_v)
     end_reach_m: float = field(init=False, repr=False)  # the farthest prediction point from the pose
     # Spin recovery: rollouts (R = J headings x recovery samples) that start after yawing in place
     # by rec_turn_rad (J headings one tick of full-rate yaw apart, all round), rec_delay_s later.
@@ -136,6 +138,10 @@ class DwaConfig:
             value.setflags(write=False)
             object.__setattr__(self, name, value)
         object.__setattr__(self, "saturated_sums", tuple(float(self.saturated_m[:n].sum()) for n in range(len(w) + 1)))
+        for name, value in (("saturated_sums_m", np.array(self.saturated_sums)),
+                            ("weights", np.array([self.w_h, self.w_d, self.w_s, self.w_v], dtype=float))):
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
         object.__setattr__(self, "end_reach_m", float(np.hypot(body[:, -1, 0], body[:, -1, 1]).max()))
         object.__setattr__(self, "steps", steps)
         object.__setattr__(self, "horizon_s", float(t[-1]))

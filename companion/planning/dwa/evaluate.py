@@ -4,8 +4,30 @@ from __future__ import annotations
 
 import numpy as np
 
+from companion.planning.dwa import kernels
 from companion.planning.dwa.config import DwaConfig
+from companion.planning.dwa.legality import commit_turn
 from companion.planning.dwa.types import Command
+
+_NONE = np.zeros(0)  # a critic that is off, for the compiled choice
+
+
+def choose(config: DwaConfig, legal: np.ndarray, turn_error: float, heading: np.ndarray, distance: np.ndarray,
+           sightline: np.ndarray | None, speed: np.ndarray | None) -> tuple[int, float, int]:
+    """The turn-around preference (``turn_error``: see :func:`legality.turn_error`), the weighted
+    sum and the best rollout: (its index, its total, how many rollouts are legal). With numba,
+    one compiled pass does the same operations (:func:`kernels.choose`)."""
+    if kernels.choose is not None:
+        return kernels.choose(legal, config.yaw_rates_rad_s, turn_error, config.weights, heading, distance,
+                              distance is config.saturated_m, config.distance_saturation_m, config.saturated_sums_m,
+                              _NONE if sightline is None else sightline, sightline is not None,
+                              config.sightline_slope, _NONE if speed is None else speed, speed is not None,
+                              config.fixed_scale, config.sightline_cap_m)
+    legal = commit_turn(legal, config, turn_error)
+    n_legal = int(np.count_nonzero(legal))
+    total = evaluate(config, legal, heading, distance, sightline, n_legal == config.count, speed)
+    best = int(total.argmax())
+    return best, float(total[best]), n_legal
 
 
 def evaluate(config: DwaConfig, legal: np.ndarray, heading: np.ndarray, distance: np.ndarray,

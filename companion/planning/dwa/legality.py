@@ -116,9 +116,18 @@ def legal_rollouts(ok_by_rule: dict[Rule, np.ndarray], config: DwaConfig) -> np.
     return config.all_legal if ok_pts is None else ok_pts[:, 1:].all(axis=1)
 
 
-def commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaConfig) -> np.ndarray:
-    """Turn-around rule: with the goal more than ``turnaround_deg`` off the nose, only turns
-    toward the goal's side (or straight on) stay candidates.
+def turn_error(pose: Pose, goals: LocalGoals, config: DwaConfig) -> float:
+    """The goal's bearing off the nose (rad) when the turn-around preference applies, else NaN
+    (see :func:`commit_turn`)."""
+    gx, gy = goals.nodes_xy[0]
+    error = (math.atan2(gy - pose.y_m, gx - pose.x_m) - pose.heading_rad + math.pi) % (2.0 * math.pi) - math.pi
+    return math.nan if abs(error) <= math.radians(config.turnaround_deg) else error
+
+
+def commit_turn(legal: np.ndarray, config: DwaConfig, error: float) -> np.ndarray:
+    """Turn-around rule: with the goal more than ``turnaround_deg`` off the nose (``error``, from
+    :func:`turn_error`; NaN: it is not), only turns toward the goal's side (or straight on) stay
+    candidates.
 
     With p long enough for a U-turn (the paper's formula), a goal behind the vehicle is matched
     at the prediction point equally well by turning left or right. Which side wins then flips
@@ -128,9 +137,7 @@ def commit_turn(pose: Pose, goals: LocalGoals, legal: np.ndarray, config: DwaCon
     toward it only shrinks the angle. It is a preference, not a safety rule: if it would leave
     no legal rollout, it is dropped.
     """
-    gx, gy = goals.nodes_xy[0]
-    error = (math.atan2(gy - pose.y_m, gx - pose.x_m) - pose.heading_rad + math.pi) % (2.0 * math.pi) - math.pi
-    if abs(error) <= math.radians(config.turnaround_deg):
+    if math.isnan(error):
         return legal
     toward = legal & (config.yaw_rates_rad_s * error >= 0.0)
     return toward if toward.any() else legal

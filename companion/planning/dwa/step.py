@@ -8,11 +8,11 @@ import numpy as np
 
 from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.distance import distance_scores, no_obstacle_in_reach
-from companion.planning.dwa.evaluate import command_for, evaluate
+from companion.planning.dwa.evaluate import choose, command_for
 from companion.planning.dwa.geometry import inflated_clearance
 from companion.planning.dwa.heading import heading_from_ends, single_target
-from companion.planning.dwa.legality import (Rule, binding_uavs, commit_turn, fence_distance, fence_ok,
-                                             legal_rollouts, obstacle_ok, separation_ok)
+from companion.planning.dwa.legality import (Rule, binding_uavs, fence_distance, fence_ok, legal_rollouts,
+                                             obstacle_ok, separation_ok, turn_error)
 from companion.planning.dwa.recovery import no_legal_rollout
 from companion.planning.dwa.shapes import placement
 from companion.planning.dwa.sightline import sightline_term
@@ -79,16 +79,13 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
         if clear is not None and config.row_of is not None:  # the escape reads every rollout's
             clear = clear.reshape(len(clear), *gx.shape)[:, config.row_of].reshape(len(clear), -1)
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear, separate_from)
-    legal = commit_turn(pose, goals, legal, config)
 
     sightline = _sightline(pose, other, snapshot, config, ex, ey, None if px is None else (gx, gy))
-    n_legal = int(np.count_nonzero(legal))
     speed = None
     if config.count > config.samples:
         speed = speed_scores(config, reference_speed_m_s(pose, goals, config, scheduled_speed_m_s))
-    total = evaluate(config, legal, heading, distance, sightline, n_legal == config.count, speed)
-    best = int(total.argmax())
-    return command_for(config, best, heading, distance, sightline, float(total[best]), n_legal)
+    best, total, n_legal = choose(config, legal, turn_error(pose, goals, config), heading, distance, sightline, speed)
+    return command_for(config, best, heading, distance, sightline, total, n_legal)
 
 
 
@@ -102,9 +99,9 @@ def _only_hover(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_s: float
     deeper into an inflated obstacle), so a vehicle that drifted into one would hover there for
     ever with every moving rollout illegal (small_reference over MAVLink: b for 500 s). Unless
     its timed route holds it still, that is no legal rollout: recover as the paper's window does."""
-    moving = config.speeds_m_s > 0.0
-    if moving.all():
+    if config.speed_samples == 1 or config.min_speed_m_s > 0.0:  # every rollout moves (cruise > 0)
         return False
+    moving = config.speeds_m_s > 0.0
     if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * float(config.speeds_m_s[moving].min()):
         return False  # the plan asks for a wait here
     return not np.count_nonzero(legal & moving)
