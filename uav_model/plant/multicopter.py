@@ -29,6 +29,11 @@ import math
 from dataclasses import dataclass, field, fields
 from typing import Mapping
 
+try:
+    import numba
+except ImportError:  # the substeps run as Python (the ``fast`` extra brings numba)
+    numba = None
+
 from uav_model.plant.state import HOVER, KinematicState, VelocityCommand, VelocityFrame
 
 GRAVITY_M_S2 = 9.80665
@@ -151,22 +156,29 @@ def step(state: KinematicState, command: VelocityCommand, limits: MulticopterLim
         command = HOVER
     n, h, k_att, k_yaw, k_z = _substeps(limits, dt_s)
     drag, a_max, r_max = limits.derived
-    p, i_h, d = limits.mpc_xy_vel_p_acc, limits.mpc_xy_vel_i_acc * h, limits.mpc_xy_vel_d_acc
-    arw = 2.0 / p  # PX4's tracking anti-windup gain
-    v_max = limits.mpc_xy_vel_max
-    inv_drag = 1.0 / (1.0 + h * drag)
-    cos, sin, sqrt = math.cos, math.sin, math.sqrt
-    r_sp = max(-r_max, min(r_max, command.yawspeed_rad_s))
-    vd_sp = max(-limits.mpc_z_vel_max_up, min(limits.mpc_z_vel_max_dn, command.z_m_s))
-    dvd_up, dvd_dn = limits.mpc_acc_up_max * h, limits.mpc_acc_down_max * h
-    body = command.frame is VelocityFrame.BODY_NED
-    cx, cy = command.x_m_s, command.y_m_s
+    p = limits.mpc_xy_vel_p_acc
+    s = state
+    (north, east, down, vn, ve, vd, yaw, r, an, ae, i_n, i_e) = _substep_loop(
+        n, h, k_att, k_yaw, k_z, drag, a_max, p, limits.mpc_xy_vel_i_acc * h, limits.mpc_xy_vel_d_acc,
+        2.0 / p,  # PX4's tracking anti-windup gain
+        limits.mpc_xy_vel_max, 1.0 / (1.0 + h * drag),
+        max(-r_max, min(r_max, command.yawspeed_rad_s)),
+        max(-limits.mpc_z_vel_max_up, min(limits.mpc_z_vel_max_dn, command.z_m_s)),
+        limits.mpc_acc_up_max * h, limits.mpc_acc_down_max * h, command.frame is VelocityFrame.BODY_NED,
+        command.x_m_s, command.y_m_s, s.north_m, s.east_m, s.down_m, s.vn_m_s, s.ve_m_s, s.vd_m_s, s.yaw_rad,
+        s.yawspeed_rad_s, s.accel_n_m_s2, s.accel_e_m_s2, s.vel_int_n_m_s2, s.vel_int_e_m_s2)
+    if down > 0.0 or down < -limits.max_alt_m:
+        down = min(0.0, max(-limits.max_alt_m, down))
+        vd = 0.0
+    yaw = (yaw + math.pi) % (2.0 * math.pi) - math.pi
+    return KinematicState(north, east, down, vn, ve, vd, yaw, r, an, ae, i_n, i_e)
 
-    north, east, down = state.north_m, state.east_m, state.down_m
-    vn, ve, vd = state.vn_m_s, state.ve_m_s, state.vd_m_s
-    yaw, r = state.yaw_rad, state.yawspeed_rad_s
-    an, ae = state.accel_n_m_s2, state.accel_e_m_s2
-    i_n, i_e = state.vel_int_n_m_s2, state.vel_int_e_m_s2
+
+def _substep_loop(n, h, k_att, k_yaw, k_z, drag, a_max, p, i_h, d, arw, v_max, inv_drag, r_sp, vd_sp, dvd_up,
+                  dvd_dn, body, cx, cy, north, east, down, vn, ve, vd, yaw, r, an, ae, i_n, i_e):
+    """The n substeps of :func:`step` on plain numbers; compiled when numba is installed (the
+    ``fast`` extra), with the same operations in the same order, so the same results."""
+    cos, sin, sqrt = math.cos, math.sin, math.sqrt
     for _ in range(n):
         r += (r_sp - r) * k_yaw
         yaw += r * h
@@ -201,8 +213,9 @@ def step(state: KinematicState, command: VelocityCommand, limits: MulticopterLim
         dvd = (vd_sp - vd) * k_z
         vd += dvd if -dvd_up <= dvd <= dvd_dn else (-dvd_up if dvd < 0.0 else dvd_dn)
         down += vd * h
-    if down > 0.0 or down < -limits.max_alt_m:
-        down = min(0.0, max(-limits.max_alt_m, down))
-        vd = 0.0
-    yaw = (yaw + math.pi) % (2.0 * math.pi) - math.pi
-    return KinematicState(north, east, down, vn, ve, vd, yaw, r, an, ae, i_n, i_e)
+    return north, east, down, vn, ve, vd, yaw, r, an, ae, i_n, i_e
+
+
+substep_loop_python = _substep_loop  # the reference the compiled loop is tested against
+if numba is not None:
+    _substep_loop = numba.njit(cache=True, nogil=True, error_model="numpy")(_substep_loop)
