@@ -1,36 +1,72 @@
 """How long does `companion bench` take, and where does the time go?
 
-    python benchmarks/bench_ablation.py [--scenarios 12] [--seed 7] [--workers 2] [--repeats 3] [--numpy-too]
+    python benchmarks/bench_ablation.py [--scenarios 12] [--seed 7] [--workers 2] [--repeats 3]
+                                        [--numpy-too] [--baseline DIR]
 
 Runs a slice of the ablation (all four variants) and prints, per repeat and as medians: wall
-time, CPU time (this process + workers), simulated vehicle-ticks, CPU ms per vehicle-tick, and
+time, CPU time (the run and its workers), simulated vehicle-ticks, CPU ms per vehicle-tick, and
 the 120 x 4 wall time that CPU cost extrapolates to on ``--workers`` otherwise idle cores. CPU
 per tick is the number to compare across machines and loads: wall time on a shared 2-core box
-mostly measures the neighbours. The target is 120 x 4 in <= 180 s on 2 cores (issue 15: <= 60 s,
-and <= 0.1 ms per vehicle-tick).
+mostly measures the neighbours. Issue 15's targets: 120 x 4 in <= 60 s on 2 cores, <= 0.1 ms
+per vehicle-tick.
 
-``--numpy-too``: with numba installed, every repeat also runs on the numpy kernels (the code
-without numba), alternately, in this process (``--workers`` is then ignored): old and new in
-one window, CPU per vehicle-tick for both.
+Every repeat runs in a fresh process, one per kind of code, alternately (old and new in one
+window, as the shared machine's speed drifts):
+
+- this tree with whatever is installed (numba's compiled paths when the ``fast`` extra is);
+- ``--numpy-too``: this tree without the compiled paths (the DWA kernels, the sight shadows and
+  the multicopter's substeps as numpy / Python: the code without numba);
+- ``--baseline DIR``: another tree of the project (e.g. ``git archive main | tar -x -C DIR``).
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
+import json
+import os
 import resource
 import statistics
+import subprocess
+import sys
 import time
+from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[1]
+
+# Runs in the child: a slice of the bench, then its vehicle-ticks as JSON on the last line.
+_CHILD = """
+import json, sys
+seed, count, workers, numpy_only = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
+if numpy_only:
+    from companion.planning import shadow
+    from companion.planning.dwa import kernels
+    from uav_model.plant import multicopter
+    kernels.numpy_only().__enter__()
+    shadow._blocked_jit = None
+    multicopter._substep_loop = multicopter.substep_loop_python
 from companion.bench.cli import DEFAULT_VARIANTS
 from companion.bench.execute import run_bench
-from companion.planning.dwa import kernels
+rows = run_bench(seed, count, DEFAULT_VARIANTS, workers=workers, progress=None)
+# Each vehicle ticks until it arrives or the run ends: its flight time / dt (0.5 s).
+ticks = sum((r.get(f"{n}_flight_time_s") or 0.0) / 0.5 for r in rows for n in ("a", "b"))
+print(json.dumps({"runs": len(rows), "ticks": ticks}))
+"""
 
 
 def _cpu_s() -> float:
-    own = resource.getrusage(resource.RUSAGE_SELF)
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+    return kids.ru_utime + kids.ru_stime
+
+
+def _repeat(tree: Path, numpy_only: bool, args: argparse.Namespace) -> tuple[float, float, dict]:
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    cpu0, wall0 = _cpu_s(), time.perf_counter()
+    done = subprocess.run([sys.executable, "-c", _CHILD, str(args.seed), str(args.scenarios), str(args.workers),
+                           "1" if numpy_only else "0"], env=env, cwd=tree, capture_output=True, text=True)
+    wall, cpu = time.perf_counter() - wall0, _cpu_s() - cpu0
+    if done.returncode:
+        sys.exit(f"bench_ablation: the run in {tree} failed:\n{done.stderr[-2000:]}")
+    return wall, cpu, json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def main() -> None:
@@ -39,27 +75,26 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=7, help="a tuning seed, not a reporting one")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--numpy-too", action="store_true", help="also time the numpy kernels, alternately")
+    parser.add_argument("--numpy-too", action="store_true", help="also time this tree without numba's paths")
+    parser.add_argument("--baseline", type=Path, default=None, metavar="DIR", help="also time the tree in DIR")
     args = parser.parse_args()
+    if args.baseline is not None and not (args.baseline / "companion").is_dir():
+        sys.exit(f"bench_ablation: --baseline {args.baseline} is not a tree of the project")
 
-    kinds = {"": contextlib.nullcontext}
-    if args.numpy_too and kernels.circle_clearance is not None:
-        kinds = {"numba kernels": contextlib.nullcontext, "numpy kernels": kernels.numpy_only}
-    workers = 1 if len(kinds) > 1 else args.workers
+    kinds = {"this tree": (ROOT, False)}
+    if args.numpy_too:
+        kinds["this tree, numpy"] = (ROOT, True)
+    if args.baseline is not None:
+        kinds[f"baseline {args.baseline}"] = (args.baseline.resolve(), False)
     walls, cpus, per_tick = ({k: [] for k in kinds} for _ in range(3))
     for k in range(args.repeats):
-        for kind, context in kinds.items():
-            with context():
-                cpu0, wall0 = _cpu_s(), time.perf_counter()
-                rows = run_bench(args.seed, args.scenarios, DEFAULT_VARIANTS, workers=workers, progress=None)
-                wall, cpu = time.perf_counter() - wall0, _cpu_s() - cpu0
-            # Each vehicle ticks until it arrives or the run ends: its flight time / dt (0.5 s).
-            ticks = sum((r.get(f"{n}_flight_time_s") or 0.0) / 0.5 for r in rows for n in ("a", "b"))
+        for kind, (tree, numpy_only) in kinds.items():
+            wall, cpu, out = _repeat(tree, numpy_only, args)
             walls[kind].append(wall)
             cpus[kind].append(cpu)
-            per_tick[kind].append(1e3 * cpu / ticks)
-            print(f"repeat {k + 1} {kind}: {len(rows)} runs, wall {wall:.1f} s, cpu {cpu:.1f} s, "
-                  f"{ticks:.0f} vehicle-ticks, {per_tick[kind][-1]:.3f} cpu ms/vehicle-tick")
+            per_tick[kind].append(1e3 * cpu / out["ticks"])
+            print(f"repeat {k + 1} {kind}: {out['runs']} runs, wall {wall:.1f} s, cpu {cpu:.1f} s, "
+                  f"{out['ticks']:.0f} vehicle-ticks, {per_tick[kind][-1]:.3f} cpu ms/vehicle-tick", flush=True)
     scale = 120 / args.scenarios
     for kind in kinds:
         cpu = statistics.median(cpus[kind])
