@@ -4,7 +4,7 @@
                                         [--numpy-too] [--baseline DIR]
 
 Runs a slice of the ablation (all four variants) and prints, per repeat and as medians: wall
-time, CPU time (the run and its workers), simulated vehicle-ticks, CPU ms per vehicle-tick, and
+time, CPU time (the run and its workers, without the interpreter's start and imports), simulated vehicle-ticks, CPU ms per vehicle-tick, and
 the 120 x 4 wall time that CPU cost extrapolates to on ``--workers`` otherwise idle cores. CPU
 per tick is the number to compare across machines and loads: wall time on a shared 2-core box
 mostly measures the neighbours. Issue 15's targets: 120 x 4 in <= 60 s on 2 cores, <= 0.1 ms
@@ -24,11 +24,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import statistics
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,29 +42,31 @@ if numpy_only:
     kernels.numpy_only().__enter__()
     shadow._blocked_jit = None
     multicopter._substep_loop = multicopter.substep_loop_python
+import resource, time
 from companion.bench.cli import DEFAULT_VARIANTS
 from companion.bench.execute import run_bench
+def cpu():
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+cpu0, wall0 = cpu(), time.perf_counter()
 rows = run_bench(seed, count, DEFAULT_VARIANTS, workers=workers, progress=None)
+wall, spent = time.perf_counter() - wall0, cpu() - cpu0
 # Each vehicle ticks until it arrives or the run ends: its flight time / dt (0.5 s).
 ticks = sum((r.get(f"{n}_flight_time_s") or 0.0) / 0.5 for r in rows for n in ("a", "b"))
-print(json.dumps({"runs": len(rows), "ticks": ticks}))
+print(json.dumps({"runs": len(rows), "ticks": ticks, "wall": wall, "cpu": spent}))
 """
 
 
-def _cpu_s() -> float:
-    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return kids.ru_utime + kids.ru_stime
-
-
 def _repeat(tree: Path, numpy_only: bool, args: argparse.Namespace) -> tuple[float, float, dict]:
+    """One slice in a fresh process: its wall and CPU seconds around run_bench (the interpreter's
+    start and the imports left out; with workers, their start is in), and its counts."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    cpu0, wall0 = _cpu_s(), time.perf_counter()
     done = subprocess.run([sys.executable, "-c", _CHILD, str(args.seed), str(args.scenarios), str(args.workers),
                            "1" if numpy_only else "0"], env=env, cwd=tree, capture_output=True, text=True)
-    wall, cpu = time.perf_counter() - wall0, _cpu_s() - cpu0
     if done.returncode:
         sys.exit(f"bench_ablation: the run in {tree} failed:\n{done.stderr[-2000:]}")
-    return wall, cpu, json.loads(done.stdout.strip().splitlines()[-1])
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    return out["wall"], out["cpu"], out
 
 
 def main() -> None:
