@@ -230,7 +230,7 @@ if numba is not None:
     def _pairwise_sum(a, lo, n):
         """numpy's pairwise summation of a[lo:lo + n]: blocks of <= 128, halves (the first a
         multiple of 8) added pairwise. numpy recurses; here explicit stacks do (a recursive version
-        segfaulted once, loading a cache two processes had written at once)."""
+        segfaulted in a process that loaded it from numba's cache)."""
         if n <= 128:
             return _block_sum(a, lo, n)
         seg_lo, seg_n = np.empty(64, np.int64), np.empty(64, np.int64)
