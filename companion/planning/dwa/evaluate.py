@@ -18,8 +18,13 @@ def choose(config: DwaConfig, legal: np.ndarray, turn_error: float, heading: np.
     sum and the best rollout: (its index, its total, how many rollouts are legal). With numba,
     one compiled pass does the same operations (:func:`kernels.choose`)."""
     if kernels.choose is not None:
+        # One signature per kernel (each new one compiles or loads in flight; see app/warmup.py):
+        # the read-only all-legal mask and saturated distances as writable copies (31 elements).
+        saturated = distance is config.saturated_m
+        legal = legal if legal.flags.writeable else legal.copy()
+        distance = distance if distance.flags.writeable else distance.copy()
         return kernels.choose(legal, config.yaw_rates_rad_s, turn_error, config.weights, heading, distance,
-                              distance is config.saturated_m, config.distance_saturation_m, config.saturated_sums_m,
+                              saturated, config.distance_saturation_m, config.saturated_sums_m,
                               _NONE if sightline is None else sightline, sightline is not None,
                               config.sightline_slope, _NONE if speed is None else speed, speed is not None,
                               config.fixed_scale, config.sightline_cap_m)
