@@ -36,6 +36,7 @@ from companion.planning.vehicle_planner import TickResult, VehiclePlanner, varia
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
 from companion.planning.routes import Route, higher_routes, plan_routes
+from companion.planning.timed import PriorityClocks, closest_approach_m
 from uav_model.plant import (HOVER, KinematicState, PlantLimits, VelocityCommand, VelocityFrame, initial_state,
                              limits_for, step_for)
 
@@ -106,6 +107,18 @@ def start_states(mission: Mission) -> tuple[dict[str, PlantLimits], dict[str, Ki
     return limits, states
 
 
+SIGHT_NEAR_MARGIN_M = 200.0  # see VehiclePlanner.sight_near_m; chosen on seed 11
+
+
+def sight_near_m(mission: Mission, timed_routes: "dict[str, TimedRoute]", name: str) -> float | None:
+    """Where a lower vehicle's sightline term acts when it tracks a timed route: within the
+    planned closest approach to the first vehicle plus a margin (None: everywhere)."""
+    first = mission.by_priority[0].name
+    if name == first or name not in timed_routes or first not in timed_routes:
+        return None
+    return closest_approach_m(timed_routes[first], timed_routes[name]) + SIGHT_NEAR_MARGIN_M
+
+
 def simulate(mission: Mission, variant: str | None = None, *,
              routes: dict[str, Route] | None = None,
              lower_bounds_s: dict[str, float | None] | None = None,
@@ -129,9 +142,12 @@ def simulate(mission: Mission, variant: str | None = None, *,
     if timed_routes is None and PLANNER_VARIANTS[variant].timed and routes:
         timed_routes = plan_coordinated(mission, routes).timed  # the space-time plan (docs/design.md)
     timed_routes = timed_routes or {}
+    clocks = PriorityClocks(timed_routes, [v.name for v in vehicles]) if PLANNER_VARIANTS[variant].timed else None
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
                                              earlier=higher_routes(mission, routes, v.name),
-                                             timed_route=timed_routes.get(v.name)) for v in vehicles}
+                                             timed_route=timed_routes.get(v.name),
+                                             sight_near_m=sight_near_m(mission, timed_routes, v.name))
+                for v in vehicles}
     step = step_for(mission.plant)
     limits, states = start_states(mission)
     field = ObstacleField.from_world(mission.world)
@@ -154,19 +170,25 @@ def simulate(mission: Mission, variant: str | None = None, *,
         t = k * dt
         snapshot = next(snapshots)
         commands = {}
+        if clocks is not None:
+            for name in active:
+                clocks.observe(name, _xy(states[name]), t)
         for name in list(active):
             own = states[name]
             neighbours = [Neighbour(n, rank[n], _other(states[n], parked=n not in active)) for n in others[name]]
             # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
             reaction = react_to(*_xy(own), rank[name], neighbours)
             planner = planners[name]
-            result = planner.tick(_pose(own), reaction.other, snapshot, t, separate_from=reaction.separate_from)
+            result = planner.tick(_pose(own), reaction.other, snapshot, t, separate_from=reaction.separate_from,
+                                  schedule_t_s=None if clocks is None else clocks.now(name, t))
             if planner.replan_due:  # no progress for a while: a new route from here, at once
                 x, y = _xy(own)
                 planner.adopt_detour(planner.plan_detour(x, y), x, y, t)
             ticks[name].append(result)
             if result.arrived:
                 active.remove(name)
+                if clocks is not None:
+                    clocks.done(name)
                 last_row[name] = k
             else:
                 commands[name] = (HOVER if result.command is None

@@ -38,9 +38,16 @@ class TimedRoute:
             raise PlanningError(f"timed route of {self.vehicle!r}: {len(t)} times for {len(xy)} points")
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(xy))) or np.any(np.diff(t) < 0):
             raise PlanningError(f"timed route of {self.vehicle!r}: times must be finite and non-decreasing")
-        for name, a in (("t_s", t), ("xy_enu_m", xy)):
+        along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+        for name, a in (("t_s", t), ("xy_enu_m", xy), ("_along_m", along)):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
+
+    @property
+    def path_xy(self) -> np.ndarray:
+        """The route's geometry (K, 2): its points without the repeats of a wait."""
+        moved = np.concatenate([[True], np.any(np.diff(self.xy_enu_m, axis=0) != 0, axis=1)])
+        return self.xy_enu_m[moved]
 
     @property
     def departure_s(self) -> float:
@@ -104,14 +111,47 @@ class TimedRoute:
         t = np.asarray(t_s, dtype=float)
         return (self.planned_speed_at(t) < _WAIT_SPEED_M_S) & (t < self.arrival_s)
 
+    def planned_along_at(self, t_s: np.ndarray | float) -> np.ndarray:
+        """How far along the route (m, ...) the plan is at ``t_s``."""
+        return np.interp(np.asarray(t_s, dtype=float), self.t_s, self._along_m)
+
+    def progress_at(self, xy_enu_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(along, off) (...,) m: how far along the route the nearest route point to each of
+        ``xy_enu_m`` (..., 2) is, and how far the position is from it."""
+        xy = np.asarray(xy_enu_m, dtype=float)[..., None, :]
+        if len(self.t_s) == 1:
+            return np.zeros(xy.shape[:-2]), np.hypot(*np.moveaxis(xy[..., 0, :] - self.xy_enu_m[0], -1, 0))
+        a, d = self.xy_enu_m[:-1], np.diff(self.xy_enu_m, axis=0)
+        len2 = np.einsum("ij,ij->i", d, d)
+        u = np.clip(np.einsum("...ij,ij->...i", xy - a, d) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
+        dist = np.hypot(*np.moveaxis(a + d * u[..., None] - xy, -1, 0))
+        i = np.argmin(dist, axis=-1)[..., None]
+        along = self._along_m[:-1] + u * np.sqrt(len2)
+        return np.take_along_axis(along, i, -1)[..., 0], np.take_along_axis(dist, i, -1)[..., 0]
+
+    def lead_m(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float) -> np.ndarray:
+        """How far (m, ...) a vehicle at ``xy_enu_m`` is ahead of the plan at ``t_s`` along the
+        route (negative: it lags)."""
+        along, _ = self.progress_at(xy_enu_m)
+        return along - self.planned_along_at(t_s)
+
     def target_speed_at(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, max_speed_m_s: float,
                         lookahead_s: float = 5.0) -> np.ndarray:
         """The speed (...,) that takes a vehicle at ``xy_enu_m`` (..., 2) to where the plan will be
-        ``lookahead_s`` later, capped at ``max_speed_m_s``: cruise when it lags, slower when it is
-        ahead, 0 when it is already where a scheduled wait holds it."""
-        xy = np.asarray(xy_enu_m, dtype=float)
-        ahead = self.planned_position_at(np.asarray(t_s, dtype=float) + lookahead_s)
-        return np.minimum(np.hypot(*(ahead - xy).T).T / lookahead_s, max_speed_m_s)
+        ``lookahead_s`` later, measured along the route (plus its distance off it), capped at
+        ``max_speed_m_s``: cruise when it lags, slower when it is ahead, 0 when it is as far along
+        as the plan will be ``lookahead_s`` later (a scheduled wait, or running early: it waits
+        for the plan, however far ahead it is)."""
+        along, off = self.progress_at(xy_enu_m)
+        gap = self.planned_along_at(np.asarray(t_s, dtype=float) + lookahead_s) - along
+        return np.where(gap > 0, np.minimum(np.hypot(gap, off) / lookahead_s, max_speed_m_s), 0.0)
+
+
+def closest_approach_m(first: TimedRoute, second: TimedRoute, step_s: float = 0.5) -> float:
+    """The least planned distance between two timed routes (sampled every ``step_s``)."""
+    end = max(first.t_s[-1], second.t_s[-1])
+    t = np.arange(min(first.t_s[0], second.t_s[0]), end + step_s, step_s)
+    return float(np.hypot(*(first.planned_position_at(t) - second.planned_position_at(t)).T).min())
 
 
 def forecast(vehicle: str, route_enu_m: np.ndarray, speed_m_s: float, hold_s: float = 0.0,
@@ -200,3 +240,35 @@ class ScheduleClock:
         self._tau = max(self._tau, min(t_s, max(limit, t_s - self.max_lag_s)))
         self.worst_lag_s = max(self.worst_lag_s, t_s - self._tau)
         return self._tau
+
+
+class PriorityClocks:
+    """Each vehicle's schedule time when the vehicles above it are not where their plans have
+    them: sim time for the first in priority (it waits for nobody, the paper's rule); for every
+    other, a :class:`ScheduleClock` over the vehicles above it only. A lower vehicle's plan keeps
+    its sight line blocked against the *forecasts* of the higher ones; on the multicopter the
+    first lags its forecast by ~10-150 m (slower turns), and tracking the plan by sim time put
+    the lower one at the planned place with the higher one elsewhere. Read at the clock, the
+    lower vehicle keeps its planned place relative to where the higher ones really are.
+
+        clocks = PriorityClocks(plan.timed, ["a", "b"])
+        clocks.observe("a", (x, y), t)   # every flying vehicle, each tick
+        clocks.done("a")                 # arrived
+        tau = clocks.now("b", t)         # the time to track b's timed route at
+    """
+
+    def __init__(self, routes: "dict[str, TimedRoute]", order: "list[str]", **clock_options: float):
+        self._clocks = {name: ScheduleClock({m: routes[m] for m in order[:i] if m in routes}, **clock_options)
+                        for i, name in enumerate(order) if i > 0 and name in routes}
+
+    def observe(self, name: str, xy_enu_m, t_s: float) -> None:
+        for clock in self._clocks.values():
+            clock.observe(name, xy_enu_m, t_s)
+
+    def done(self, name: str) -> None:
+        for clock in self._clocks.values():
+            clock.done(name)
+
+    def now(self, name: str, t_s: float) -> float:
+        clock = self._clocks.get(name)
+        return t_s if clock is None else clock.now(t_s)

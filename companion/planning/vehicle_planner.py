@@ -161,7 +161,7 @@ class VehiclePlanner:
 
     def __init__(self, name: str, config: DwaConfig, tracker: LocalGoalTracker, arrival_radius_m: float,
                  replanning: Replanning | None = None, timed_route: "TimedRoute | None" = None,
-                 approach: DwaConfig | None = None):
+                 approach: DwaConfig | None = None, sight_near_m: float | None = None):
         self.name = name
         self.timed_route = timed_route  # when given, flown on schedule (a speed window is needed)
         self.config = config
@@ -177,6 +177,12 @@ class VehiclePlanner:
         self.approach = approach
         self._approach_radius_m = (-math.inf if approach is None
                                    else 2.0 * approach.speed_m_s / approach.max_yaw_rate_rad_s + arrival_radius_m)
+        # With a timed route the plan decides where the sight line is blocked; the sightline term
+        # only acts within ``sight_near_m`` of the other UAV (around the closest approach). Farther
+        # out it pulled b hundreds of metres off its timed path to hide from a distant a, and the
+        # plan's timing was lost where it mattered (seed 11).
+        self.sight_near_m = sight_near_m
+        self._unsighted = None if sight_near_m is None or config.w_s <= 0 else replace(config, w_s=0.0)
         self.arrived = False
         self.replanning = replanning if replanning is not None and replanning.after_s > 0 else None
         self.replan_due = False
@@ -188,7 +194,7 @@ class VehiclePlanner:
     @classmethod
     def build(cls, mission: "Mission", vehicle: "VehicleSpec", route: "Route | None",
               variant: str | None = None, *, earlier: "Iterable[Route]" = (),
-              timed_route: "TimedRoute | None" = None) -> "VehiclePlanner":
+              timed_route: "TimedRoute | None" = None, sight_near_m: float | None = None) -> "VehiclePlanner":
         """The planner for ``vehicle``; ``route`` is required for the A* variants. ``earlier``:
         the routes of the vehicles above it (:func:`routes.higher_routes`), which a detour after a
         stall keeps to the priority rule first. ``timed_route`` (arrival times along the route) is
@@ -218,8 +224,12 @@ class VehiclePlanner:
             mission.planner.replan_after_s, mission.world, mission.planner.grid_resolution_m,
             goals_from is GoalSource.SPARSE, tuple(earlier), mission.safety.min_separation_m)
         timed = timed_route if spec.timed and config.count > config.samples else None
+        if timed is not None and len(timed.path_xy) >= 2:
+            # Fly where the plan is timed: its space-time path may leave the A* route by a
+            # kilometre (another side of an obstacle), and its times mean nothing elsewhere.
+            tracker = LocalGoalTracker(timed.path_xy, mission.planner.acceptance_radius_m)
         return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, replanning, timed,
-                   approach_config(mission, config))
+                   approach_config(mission, config), sight_near_m if timed is not None else None)
 
     def plan_detour(self, x_m: float, y_m: float) -> np.ndarray | None:
         """A new route from (x, y) to the station, or None when there is none. Reads only what
@@ -243,6 +253,7 @@ class VehiclePlanner:
         adopted = nodes is not None and len(nodes) >= 2
         if adopted:
             self.tracker = LocalGoalTracker(nodes, self.tracker.acceptance_radius_m)
+            self.timed_route = None  # off the timed path: its times no longer apply; cruise
         self._progress = (self.tracker.remaining_m(x_m, y_m), t_s)
         return adopted
 
@@ -257,13 +268,14 @@ class VehiclePlanner:
 
     def _schedule(self, own: Pose, t_s: float) -> tuple[float | None, bool]:
         """The speed the timed route asks for now (None: no route, cruise) and whether the
-        schedule holds the vehicle (a scheduled wait: only then is standing still no stall; a vehicle
-        that strayed from its plan, or is ahead of it, still re-plans after a stall)."""
+        schedule holds the vehicle (a scheduled wait, or ahead of the plan along its path: only
+        then is standing still no stall; a vehicle that lags its plan still re-plans after a stall)."""
         route = self.timed_route
         if route is None:
             return None, False
-        speed = float(route.target_speed_at(np.array([own.x_m, own.y_m]), t_s, self.config.speed_m_s))
-        held = bool(route.is_waiting_at(t_s))
+        xy = np.array([own.x_m, own.y_m])
+        speed = float(route.target_speed_at(xy, t_s, self.config.speed_m_s))
+        held = bool(route.is_waiting_at(t_s)) or float(route.lead_m(xy, t_s)) > 0.0
         return speed, held
 
     @property
@@ -292,6 +304,9 @@ class VehiclePlanner:
         if self.replanning is not None and not self.replan_due:
             self._watch_progress(own.x_m, own.y_m, t_s, held)
         config, aim_m = self.config, self._aim_radius_m
+        if self._unsighted is not None and self.timed_route is not None and other is not None and \
+                math.hypot(other.x_m - own.x_m, other.y_m - own.y_m) > self.sight_near_m:
+            config = self._unsighted
         if to_station_m <= self._approach_radius_m:
             config, aim_m = self.approach, self.arrival_radius_m * _AIM_FRACTION
         reach = config.reach_m + self.tracker.acceptance_radius_m
