@@ -109,3 +109,13 @@ def test_staleness_is_measured_on_the_vehicle_clock():
 @pytest.mark.parametrize("rate, expected", [(None, 5.0), (1.0, 1.0), (20.0, 0.1), (5.0, 0.2), (0.1, 5.0)])
 def test_wall_bound_scales_with_the_measured_speed_factor(rate, expected):
     assert monitors.wall_bound_s(1.0, rate) == pytest.approx(expected)
+
+
+def test_vehicles_already_too_close_may_open_the_gap_but_not_close_it():
+    # 45 m apart after a failsafe (limit 50 m), both hovering: every command was vetoed, for ever.
+    a = Kinematic2D(0.0, 0.0, math.pi)  # facing away from b
+    b = Kinematic2D(45.0, 0.0, math.pi)  # facing a
+    kw = dict(min_separation_m=50.0, horizon_s=2.0, step_s=0.25)
+    for priority in (True, False):
+        assert monitors.check_separation(a, 5.0, 0.0, b, own_has_priority=priority, **kw) is monitors.FLY  # away
+        assert monitors.check_separation(b, 5.0, 0.0, a, own_has_priority=priority, **kw).hover  # closer
