@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import select
 import socket
 import subprocess
@@ -264,12 +265,18 @@ class UplinkCut:
 
 
 def _open_field(tmp_path: Path) -> Path:
-    """small_swap without its fire zone: where PX4's Return (a turn home, then a straight line)
-    cannot hit what only the companion knows about, whenever the loss comes."""
+    """small_swap's vehicles on two parallel lanes 636 m apart, northward along the area's west and
+    east edges, without the fire zone: where PX4's Return (a U-turn of 60 m on this plant, then a
+    straight line home) can neither hit what only the companion knows about nor bring the two
+    together, whenever the loss comes."""
     text = SMALL.read_text()
-    start, end = text.index("obstacles:\n"), text.index("vehicles:\n")
+    start, end = text.index("stations:\n"), text.index("vehicles:\n")
+    text = text[:start] + ("stations:\n  A: [0.0, 0.0]\n  B: [0.0, 636.4]\n  C: [636.4, 0.0]\n"
+                           "  D: [636.4, 636.4]\nobstacles: []\n") + text[end:]
+    text = text.replace("    start: B\n    goal: A\n", "    start: C\n    goal: D\n")
+    text = re.sub(r"initial_heading_deg: -?[0-9.]+", "initial_heading_deg: 90.0", text)
     path = tmp_path / "small_open_field.yaml"
-    path.write_text(text[:start] + "obstacles: []\n" + text[end:])
+    path.write_text(text)
     return path
 
 
@@ -325,11 +332,12 @@ def test_px4_default_failsafe_and_a_3_s_uplink_blackout_the_mission_succeeds(sit
 def test_kept_rtl_failsafe_is_resumed_not_stood_down(sitl, companion, tmp_path):
     # --keep-failsafe leaves PX4's default: the vehicles go to RTL after the loss; the companion
     # treats that as an offboard loss (not an operator's override), keeps streaming, and the
-    # vehicles are back in OFFBOARD. Over open ground: a Return turns home (a U-turn of 60 m on
-    # this plant) and flies straight there, through any obstacle only the companion knows about;
-    # on small_swap, how far it got depended on the machine's load, and it once clipped the fire
-    # zone (the hazard for which the companion sets Hold by default, tested above).
-    stub, run = _fly_with_uplink_cut(sitl, companion, "--keep-failsafe", cut_after_s=50.0, cut_s=1.5,
+    # vehicles are back in OFFBOARD. Over open ground, on lanes far apart: a Return turns home (a
+    # U-turn of 60 m on this plant) and flies straight there, through any obstacle only the
+    # companion knows about; on small_swap, how far it got depended on the machine's load, and it
+    # once clipped the fire zone (the hazard for which the companion sets Hold by default, tested
+    # above); head-on without it, or on lanes 141 m apart, the Returns' U-turns lost separation.
+    stub, run = _fly_with_uplink_cut(sitl, companion, "--keep-failsafe", cut_after_s=30.0, cut_s=1.5,
                                      mission=_open_field(tmp_path))
     assert run.exit_code == 0, run.tail
     assert run.summary["success"], run.summary["reason"]
