@@ -57,16 +57,14 @@ def constant_velocity_points(start: Kinematic2D, horizon_s: float, step_s: float
 
 def predicted_min_separation_m(own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float,
                                other: Kinematic2D, horizon_s: float, step_s: float,
-                               other_moves: bool = True, include_now: bool = True) -> float:
-    """Closest approach over the look-ahead, including now (unless ``include_now`` is False)."""
+                               other_moves: bool = True) -> float:
+    """Closest approach over the look-ahead (now excluded: the caller compares against it)."""
     mine = unicycle_points(own, forward_m_s, yaw_rate_rad_s, horizon_s, step_s)
     if other_moves:
         theirs = constant_velocity_points(other, horizon_s, step_s)
     else:
         theirs = np.repeat([[other.x_m, other.y_m]], len(mine), axis=0)
-    ahead = float(np.min(np.hypot(*(mine - theirs).T)))
-    now = math.hypot(own.x_m - other.x_m, own.y_m - other.y_m)
-    return min(now, ahead) if include_now else ahead
+    return float(np.min(np.hypot(*(mine - theirs).T)))
 
 
 def check_separation(own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float,
@@ -81,19 +79,16 @@ def check_separation(own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float
     """
     if other is None:
         return FLY
-    limit = min_separation_m + stop_m
-    now = math.hypot(own.x_m - other.x_m, own.y_m - other.y_m)
-    # Already inside the limit (a failsafe or a late sample brought them there): any command that
-    # does not close in is allowed, else two hovering vehicles veto each other for ever.
-    moving = predicted_min_separation_m(own, forward_m_s, yaw_rate_rad_s, other, horizon_s, step_s, True,
-                                        include_now=False)
-    if min(now, moving) >= limit or (now < limit and moving >= now):
+    # Never closer than the limit; or, already inside it (a failsafe or a late sample brought them
+    # there), never closer than now: else two hovering vehicles veto each other for ever.
+    floor = min(min_separation_m + stop_m, math.hypot(own.x_m - other.x_m, own.y_m - other.y_m))
+    moving = predicted_min_separation_m(own, forward_m_s, yaw_rate_rad_s, other, horizon_s, step_s, True)
+    if moving >= floor:
         return FLY
     if not own_has_priority:
         return Verdict(True, "separation")
-    still = predicted_min_separation_m(own, forward_m_s, yaw_rate_rad_s, other, horizon_s, step_s, False,
-                                       include_now=False)
-    return Verdict(True, "separation") if min(now, still) < limit and not (now < limit and still >= now) else FLY
+    still = predicted_min_separation_m(own, forward_m_s, yaw_rate_rad_s, other, horizon_s, step_s, False)
+    return FLY if still >= floor else Verdict(True, "separation")
 
 
 def check_geofence(world: World, own: Kinematic2D, forward_m_s: float, yaw_rate_rad_s: float, *,
