@@ -36,7 +36,7 @@ from companion.planning.vehicle_planner import TickResult, VehiclePlanner, varia
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
 from companion.planning.routes import Route, higher_routes, plan_routes
-from companion.planning.timed import PriorityClocks, closest_approach_m
+from companion.planning.timed import PriorityClocks, sight_near_m
 from uav_model.plant import (HOVER, KinematicState, PlantLimits, VelocityCommand, VelocityFrame, initial_state,
                              limits_for, step_for)
 
@@ -105,18 +105,6 @@ def start_states(mission: Mission) -> tuple[dict[str, PlantLimits], dict[str, Ki
             north_m=north, east_m=east, down_m=down, vn_m_s=vn, ve_m_s=ve, yaw_rad=enu_heading_to_ned_yaw(h)),
             limits[v.name])
     return limits, states
-
-
-SIGHT_NEAR_MARGIN_M = 200.0  # see VehiclePlanner.sight_near_m; chosen on seed 11
-
-
-def sight_near_m(mission: Mission, timed_routes: "dict[str, TimedRoute]", name: str) -> float | None:
-    """Where a lower vehicle's sightline term acts when it tracks a timed route: within the
-    planned closest approach to the first vehicle plus a margin (None: everywhere)."""
-    first = mission.by_priority[0].name
-    if name == first or name not in timed_routes or first not in timed_routes:
-        return None
-    return closest_approach_m(timed_routes[first], timed_routes[name]) + SIGHT_NEAR_MARGIN_M
 
 
 def simulate(mission: Mission, variant: str | None = None, *,

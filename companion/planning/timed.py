@@ -15,10 +15,14 @@ positions), so a dynamic window can score a whole batch of rollouts against the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from companion.planning.errors import PlanningError
+
+if TYPE_CHECKING:
+    from uav_model.mission import Mission
 
 _WAIT_SPEED_M_S = 1e-6  # slower than this, a planned segment is a wait
 
@@ -272,3 +276,15 @@ class PriorityClocks:
     def now(self, name: str, t_s: float) -> float:
         clock = self._clocks.get(name)
         return t_s if clock is None else clock.now(t_s)
+
+
+SIGHT_NEAR_MARGIN_M = 200.0  # see VehiclePlanner.sight_near_m; chosen on seed 11
+
+
+def sight_near_m(mission: "Mission", timed_routes: dict[str, TimedRoute], name: str) -> float | None:
+    """Where a lower vehicle's sightline term acts when it tracks a timed route: within the
+    planned closest approach to the first vehicle plus a margin (None: everywhere)."""
+    first = mission.by_priority[0].name
+    if name == first or name not in timed_routes or first not in timed_routes:
+        return None
+    return closest_approach_m(timed_routes[first], timed_routes[name]) + SIGHT_NEAR_MARGIN_M
