@@ -7,6 +7,7 @@ own modules and read the same context.
 from __future__ import annotations
 
 import asyncio
+import math
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -15,7 +16,6 @@ from typing import TYPE_CHECKING
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.timed import ScheduleClock
 from companion.vehicle.port import PoseSample, Vehicle
 
 if TYPE_CHECKING:
@@ -80,8 +80,12 @@ class FlightContext:
         self.barrier = asyncio.Barrier(len(self.vehicles))
         self.arrived: set[str] = set()  # vehicles parked at their station: others drop the sightline term
         self.departure_sim_s: float | None = None  # the common departure (t = 0 of the schedule), set by the first pilot
-        coordinated = plan.coordinated  # computed before the flight (companion run, readiness)
-        self.schedule = None if coordinated is None or not shared_clock else ScheduleClock(coordinated.timed)
+        # Every vehicle's planner and the timed routes' clocks, built as the headless runner builds them.
+        self.fleet = plan.fleet()
+        self.clocks = self.fleet.clocks if shared_clock else None  # unrelated clocks: no common schedule
+        self.off_schedule: set[str] = set()  # no longer flying its plan (failed, stood down): holds nobody back
+        self.worst_lag_s = 0.0  # how far behind sim time a schedule clock fell, at most
+        self._observed: dict[str, float] = {}  # per vehicle: the sim time of its last sample given to the clocks
         self.rank = {v.name: i for i, v in enumerate(plan.mission.by_priority)}
         # ADS-B callsigns hold 8 characters: match them to the mission's moving obstacles.
         moving = [o.id for o in plan.mission.world.moving_obstacles]
@@ -100,19 +104,36 @@ class FlightContext:
         return t_sim_s - (pilot.outcome.t_depart_sim_s or 0.0)
 
     def schedule_time(self, pilot: "Pilot", pose: PoseSample) -> float:
-        """The planner's clock. On the shared sim clock (the one the obstacles and the other
-        vehicles live in): seconds since the common departure, as the timed routes are planned,
-        held back while a vehicle lags its timed route (:class:`ScheduleClock`). Per vehicle since
-        its own departure when the vehicles' clocks are unrelated."""
+        """The time ``pilot`` reads its timed route at. On the shared sim clock (the one the
+        obstacles and the other vehicles live in): seconds since the common departure, as the
+        timed routes are planned, read at the clocks the headless runner reads them at
+        (``fleet.clocks``: for a lower vehicle, held back while the vehicles above it lag their
+        plans), after every vehicle's latest sample has been given to them. Per vehicle since its
+        own departure when the vehicles' clocks are unrelated."""
         if not (self.shared_clock and self.departure_sim_s is not None):
             return pose.t_sim_s - (pilot.outcome.t_depart_sim_s or pose.t_sim_s)
         t = pose.t_sim_s - self.departure_sim_s
-        if self.schedule is None:
+        if self.clocks is None:
             return t
-        for name in self.arrived:
-            self.schedule.done(name)
-        self.schedule.observe(pilot.name, (pose.x_east_m, pose.y_north_m), t)
-        return self.schedule.now(t)
+        self._observe_fleet()
+        tau = self.clocks.now(pilot.name, t)
+        self.worst_lag_s = max(self.worst_lag_s, t - tau)
+        return tau
+
+    def _observe_fleet(self) -> None:
+        """Give the clocks each vehicle's newest position sample, at that sample's own sim time
+        (the vehicles report asynchronously), as the headless runner gives them every flying
+        vehicle's position each tick; a vehicle that has arrived or left its plan is done."""
+        assert self.clocks is not None and self.departure_sim_s is not None
+        for name, vehicle in self.vehicles.items():
+            if name in self.arrived or name in self.off_schedule:
+                self.clocks.done(name)
+                continue
+            pose = vehicle.latest_pose()
+            if pose is None or pose.t_sim_s <= self._observed.get(name, -math.inf):
+                continue  # nothing new: a stale vehicle holds the clocks back no longer than they allow
+            self._observed[name] = pose.t_sim_s
+            self.clocks.observe(name, (pose.x_east_m, pose.y_north_m), pose.t_sim_s - self.departure_sim_s)
 
 
 def wall_for_sim(vehicle: Vehicle, sim_s: float, slack_s: float = 5.0) -> float:

@@ -19,6 +19,7 @@ from uav_model.mission import Mission, VehicleSpec, mission_error
 from companion.planning.certificate import OcclusionCertificate, mission_certificate
 from companion.planning.coordination import CoordinatedPlan, plan_coordinated
 from companion.planning.errors import NoPath
+from companion.planning.fleet_setup import Fleet, build_fleet
 from companion.planning.timed import TimedRoute
 from companion.planning.vehicle_planner import VARIANTS, variant_needs_route, variant_nodes
 from companion.vehicle.port import GeoWaypoint
@@ -57,6 +58,13 @@ class FlightPlan:
     def timed_route(self, name: str) -> TimedRoute | None:
         """The vehicle's route with arrival times (timed variants only)."""
         return None if self.coordinated is None else self.coordinated.timed.get(name)
+
+    def fleet(self) -> Fleet:
+        """Fresh planners for every vehicle and the timed routes' clocks, built as the headless
+        runner builds them (:func:`companion.planning.fleet_setup.build_fleet`), on the
+        coordinated plan computed before (:attr:`coordinated`)."""
+        return build_fleet(self.mission, self.routes, self.variant,
+                           None if self.coordinated is None else self.coordinated.timed)
 
     def nodes_enu_m(self, vehicle: VehicleSpec) -> np.ndarray:
         """The local goals the vehicle's planner follows, start first (what gets uploaded)."""

@@ -37,8 +37,6 @@ from companion.app.steering import Steering
 from companion.errors import (CommandRefused, CompanionError, MissionAborted, MissionUploadError, TelemetryLost,
                               primary_error)
 from uav_model.mission import VehicleSpec
-from companion.planning.vehicle_planner import VehiclePlanner
-from companion.planning.routes import higher_routes
 from companion.vehicle.port import HOVER, FlightMode, LandedState, PoseSample, VelocityYawRateSetpoint
 
 __all__ = ["FlightContext", "Pilot", "PilotOutcome", "RunSettings", "wall_for_sim"]
@@ -55,9 +53,7 @@ class Pilot(Departure, Steering):
         self.spec = spec
         self.name = spec.name
         self.vehicle = ctx.vehicles[spec.name]
-        self.planner = VehiclePlanner.build(ctx.mission, spec, ctx.plan.routes.get(spec.name), ctx.plan.variant,
-                                            earlier=higher_routes(ctx.mission, ctx.plan.routes, spec.name),
-                                            timed_route=ctx.plan.timed_route(spec.name))
+        self.planner = ctx.fleet.planners[spec.name]  # built with the others (FlightPlan.fleet)
         self.outcome = PilotOutcome(spec.name)
         self.setpoint: VelocityYawRateSetpoint = HOVER
         self._offboard_live = False  # the keep-alive resends only while this is set
@@ -82,6 +78,7 @@ class Pilot(Departure, Steering):
             return self.outcome
         except BaseException as exc:
             self.outcome.error = self.outcome.error or (str(exc) or type(exc).__name__)
+            self.ctx.off_schedule.add(self.name)  # no longer flying its plan: the others' clocks stop waiting for it
             await self._make_safe()
             raise
 

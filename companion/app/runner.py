@@ -75,7 +75,7 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
     reason: str | None = None
     message: str | None = None
     shared_clock = False
-    schedule = None
+    flight: FlightContext | None = None  # read after the flight: how far the schedule fell behind
     with FlightLog(out_dir) as log:
         try:
             async with AsyncExitStack() as stack:
@@ -93,7 +93,7 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
                 ready = await get_ready(plan, vehicles, settings, checks, report)
                 plan, shared_clock = ready.plan, ready.shared_clock
                 ctx = FlightContext(plan, settings, log, vehicles, report, shared_clock=ready.shared_clock)
-                schedule = ctx.schedule
+                flight = ctx
                 pilots = [Pilot(ctx, spec) for spec in mission.by_priority]
                 outcomes = {p.name: p.outcome for p in pilots}
                 try:
@@ -124,7 +124,8 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
         if plan.coordinated is not None:  # the timed variant's schedule, and how far the flight fell behind it
             doc["live"]["schedule"] = {"departure_hold_s": round(plan.coordinated.hold_s, 3),
                                        "blocking": {n: b.value for n, b in plan.coordinated.blocking.items()},
-                                       "worst_lag_s": None if schedule is None else round(schedule.worst_lag_s, 3)}
+                                       "worst_lag_s": None if flight is None or flight.clocks is None
+                                       else round(flight.worst_lag_s, 3)}
         # Seconds of pure numpy, once the vehicles are done with. Not in a worker thread: beside the
         # in-process fleet's busy loop, the GIL hand-offs of numpy calls stalled it for minutes.
         doc["occlusion_certificate"] = _certificate_doc(plan)

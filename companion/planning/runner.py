@@ -30,13 +30,11 @@ from uav_model.mission import Mission
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.fleet import Neighbour, react_to
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.coordination import plan_coordinated
-from companion.planning.vehicle_planner import VARIANTS as PLANNER_VARIANTS
-from companion.planning.vehicle_planner import TickResult, VehiclePlanner, variant_needs_route
+from companion.planning.fleet_setup import build_fleet
+from companion.planning.vehicle_planner import TickResult, variant_needs_route
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
-from companion.planning.routes import Route, higher_routes, plan_routes
-from companion.planning.timed import PriorityClocks, sight_near_m
+from companion.planning.routes import Route, plan_routes
 from uav_model.plant import (HOVER, KinematicState, PlantLimits, VelocityCommand, VelocityFrame, initial_state,
                              limits_for, step_for)
 
@@ -127,15 +125,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
     if routes is None:
         routes = plan_routes(mission) if variant_needs_route(variant) else {}
     vehicles = mission.by_priority
-    if timed_routes is None and PLANNER_VARIANTS[variant].timed and routes:
-        timed_routes = plan_coordinated(mission, routes).timed  # the space-time plan (docs/design.md)
-    timed_routes = timed_routes or {}
-    clocks = PriorityClocks(timed_routes, [v.name for v in vehicles]) if PLANNER_VARIANTS[variant].timed else None
-    planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
-                                             earlier=higher_routes(mission, routes, v.name),
-                                             timed_route=timed_routes.get(v.name),
-                                             sight_near_m=sight_near_m(mission, timed_routes, v.name))
-                for v in vehicles}
+    fleet = build_fleet(mission, routes, variant, timed_routes)  # the live companion builds the same
+    planners, clocks = fleet.planners, fleet.clocks
     step = step_for(mission.plant)
     limits, states = start_states(mission)
     field = ObstacleField.from_world(mission.world)

@@ -1,0 +1,64 @@
+"""One mission's planners and schedule clocks, built in one place for every caller that flies it.
+
+The headless runner (:func:`companion.planning.runner.simulate`), the live companion
+(``companion.app``: its flight context, and the warm-up before it) and anything else that flies a
+mission call :func:`build_fleet`, so that what a vehicle's planner is made of (its route, the
+routes above it for a detour, its timed route, where its sightline term acts) and how the timed
+routes are read in flight (:class:`companion.planning.timed.PriorityClocks`) cannot differ
+between them:
+
+    fleet = build_fleet(mission, routes, variant)
+    # every tick, for every vehicle still flying, at that vehicle's own sample time:
+    fleet.clocks.observe(name, (x, y), t)
+    fleet.clocks.done(name)               # arrived (or no longer flying): holds nobody back
+    tau = fleet.clocks.now(name, t)       # the time to read name's timed route at
+    fleet.planners[name].tick(..., schedule_t_s=tau)
+
+``clocks`` is None for the variants that fly no timed route.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from companion.planning.coordination import plan_coordinated
+from companion.planning.routes import higher_routes
+from companion.planning.timed import PriorityClocks, sight_near_m
+from companion.planning.vehicle_planner import VARIANTS, VehiclePlanner
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from uav_model.mission import Mission
+    from companion.planning.routes import Route
+    from companion.planning.timed import TimedRoute
+
+
+@dataclass(frozen=True, eq=False)
+class Fleet:
+    """Every vehicle's planner (by name, in priority order) and the clocks its timed route is read at."""
+
+    planners: dict[str, VehiclePlanner]
+    clocks: PriorityClocks | None  # None: the variant flies no timed route
+    timed: dict[str, TimedRoute]  # the timed routes flown (empty for the other variants)
+
+
+def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | None = None,
+                timed_routes: Mapping[str, TimedRoute] | None = None) -> Fleet:
+    """The planners and schedule clocks that fly ``mission`` with ``variant`` (default: the
+    mission's). ``timed_routes`` (timed variants): the routes with arrival times to fly; by default
+    the coordinated space-time plan (:func:`coordination.plan_coordinated`, seconds of numpy: a
+    caller that already has it passes it in)."""
+    variant = variant or mission.planner.variant
+    timed_variant = VARIANTS[variant].timed
+    if timed_routes is None and timed_variant and routes:
+        timed_routes = plan_coordinated(mission, routes).timed  # the space-time plan (docs/design.md)
+    timed = dict(timed_routes or {})
+    order = [v.name for v in mission.by_priority]
+    planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
+                                             earlier=higher_routes(mission, routes, v.name),
+                                             timed_route=timed.get(v.name),
+                                             sight_near_m=sight_near_m(mission, timed, v.name))
+                for v in mission.by_priority}
+    return Fleet(planners, PriorityClocks(timed, order) if timed_variant else None, timed)

@@ -1,0 +1,112 @@
+"""The live companion reads the timed routes as the headless runner does: the same planners
+(``FlightPlan.fleet`` is ``fleet_setup.build_fleet``, sight_near_m included) and the per-priority
+clocks (``timed.PriorityClocks``), fed with each vehicle's own telemetry samples.
+
+The pilots here are the real ones on real vehicle boards (the adapters' telemetry store); only the
+link is missing: samples are put on the boards as an adapter would.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from pathlib import Path
+
+import pytest
+
+from companion.app.context import FlightContext, RunSettings
+from companion.app.flight_log import FlightLog
+from companion.app.flight_plan import prepare
+from companion.app.pilot import Pilot
+from companion.planning.timed import sight_near_m
+from companion.vehicle.board import BoardReaders, VehicleBoard
+from uav_model.mission import load_mission
+
+ROOT = Path(__file__).resolve().parents[2]
+DEPARTURE_SIM_S = 100.0  # the common departure on the shared sim clock
+
+
+class BoardVehicle(BoardReaders):
+    """The Vehicle port's readers on a real board (what every adapter answers them from)."""
+
+    def __init__(self, name: str):
+        self._board = VehicleBoard(name)
+
+
+@pytest.fixture(scope="module")
+def plan():
+    plan = prepare(load_mission(ROOT / "missions" / "small_reference.yaml"), "astar-bdwa-timed")
+    assert plan.coordinated is not None and plan.coordinated.hold_s == 0.0  # a departs at t = 0
+    return plan
+
+
+def _flight(plan, tmp_path, shared_clock: bool = True):
+    vehicles = {v.name: BoardVehicle(v.name) for v in plan.mission.vehicles}
+    ctx = FlightContext(plan, RunSettings(), FlightLog(None), vehicles, report=lambda _: None,
+                        shared_clock=shared_clock)
+    ctx.departure_sim_s = DEPARTURE_SIM_S
+    pilots = {spec.name: Pilot(ctx, spec) for spec in plan.mission.by_priority}
+    for p in pilots.values():
+        p.outcome.t_depart_sim_s = DEPARTURE_SIM_S
+    return ctx, pilots, vehicles
+
+
+def _at(vehicle: BoardVehicle, xy, t_mission_s: float):
+    return asyncio.run(vehicle.board.put_pose(
+        t_sim_s=DEPARTURE_SIM_S + t_mission_s, x_east_m=float(xy[0]), y_north_m=float(xy[1]), alt_rel_m=20.0,
+        vx_east_m_s=0.0, vy_north_m_s=0.0, heading_enu_rad=math.pi / 4))
+
+
+def test_the_live_planners_are_the_headless_ones(plan, tmp_path):
+    ctx, pilots, _ = _flight(plan, tmp_path)
+    timed = plan.coordinated.timed
+    b = pilots["b"].planner
+    assert b is ctx.fleet.planners["b"] and ctx.fleet.clocks is not None
+    assert b.timed_route is timed["b"]
+    assert b.sight_near_m is not None and b.sight_near_m == pytest.approx(sight_near_m(plan.mission, timed, "b"))
+    assert pilots["a"].planner.sight_near_m is None  # the first in priority carries no sightline term
+
+
+def test_b_reads_its_plan_at_a_clock_held_back_by_a_lagging_a(plan, tmp_path):
+    ctx, pilots, vehicles = _flight(plan, tmp_path)
+    a_start = plan.mission.vehicle("a").start_enu_m
+    route_b = plan.coordinated.timed["b"]
+    # 30 s after the common departure, a is still at its station (its plan has it ~300 m on);
+    # b is where its own plan has it.
+    t = 30.0
+    pose_a = _at(vehicles["a"], a_start, t)
+    pose_b = _at(vehicles["b"], route_b.planned_position_at(t), t)
+    pilots["b"]._tick(pose_b)
+    pilots["a"]._tick(pose_a)
+    # a waits for nobody (the paper's rule): its plan is read at sim time since the departure ...
+    assert pilots["a"]._t_plan == pytest.approx(t)
+    # ... b's at a clock over a only, held back to where a's position is on a's plan (+ 2 s slack):
+    # one common clock would read b's plan at 30 s, where b is.
+    assert pilots["b"]._t_plan < 5.0, pilots["b"]._t_plan
+    assert ctx.worst_lag_s > 25.0
+
+    # a's newer sample reaches b's clock at a's own sample time, whoever ticks next.
+    a_on_plan = plan.coordinated.timed["a"].planned_position_at(20.0)
+    _at(vehicles["a"], a_on_plan, t + 0.3)
+    pilots["b"]._tick(_at(vehicles["b"], route_b.planned_position_at(t), t + 0.5))
+    assert 20.0 < pilots["b"]._t_plan < 24.0, pilots["b"]._t_plan
+
+
+@pytest.mark.parametrize("how", ["arrived", "failed"])
+def test_a_vehicle_that_stops_flying_its_plan_frees_the_clocks(plan, tmp_path, how):
+    ctx, pilots, vehicles = _flight(plan, tmp_path)
+    a_start = plan.mission.vehicle("a").start_enu_m
+    route_b = plan.coordinated.timed["b"]
+    _at(vehicles["a"], a_start, 30.0)
+    pilots["b"]._tick(_at(vehicles["b"], route_b.planned_position_at(30.0), 30.0))
+    assert pilots["b"]._t_plan < 5.0
+    (ctx.arrived if how == "arrived" else ctx.off_schedule).add("a")
+    pilots["b"]._tick(_at(vehicles["b"], route_b.planned_position_at(30.0), 31.0))
+    assert pilots["b"]._t_plan == pytest.approx(31.0)  # as headless: done() once a is no longer flying
+
+
+def test_unrelated_clocks_count_from_each_vehicles_own_departure(plan, tmp_path):
+    _, pilots, vehicles = _flight(plan, tmp_path, shared_clock=False)
+    _at(vehicles["a"], plan.mission.vehicle("a").start_enu_m, 30.0)
+    pilots["b"]._tick(_at(vehicles["b"], plan.coordinated.timed["b"].planned_position_at(30.0), 30.0))
+    assert pilots["b"]._t_plan == pytest.approx(30.0)
