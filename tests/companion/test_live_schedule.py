@@ -110,3 +110,14 @@ def test_unrelated_clocks_count_from_each_vehicles_own_departure(plan, tmp_path)
     _at(vehicles["a"], plan.mission.vehicle("a").start_enu_m, 30.0)
     pilots["b"]._tick(_at(vehicles["b"], plan.coordinated.timed["b"].planned_position_at(30.0), 30.0))
     assert pilots["b"]._t_plan == pytest.approx(30.0)
+
+
+def test_a_silent_vehicle_holds_the_clocks_back_at_most_their_limit(plan, tmp_path):
+    ctx, pilots, vehicles = _flight(plan, tmp_path)
+    _at(vehicles["a"], plan.mission.vehicle("a").start_enu_m, 30.0)  # a's last sample: nothing after it
+    route_b = plan.coordinated.timed["b"]
+    pilots["b"]._tick(_at(vehicles["b"], route_b.planned_position_at(30.0), 30.0))
+    assert pilots["b"]._t_plan < 5.0
+    pilots["b"]._tick(_at(vehicles["b"], route_b.planned_position_at(30.0), 200.0))
+    # not frozen: at most ScheduleClock's max_lag_s (120 s) behind sim time, as headless
+    assert 200.0 - 120.0 - 1e-6 <= pilots["b"]._t_plan < 200.0
