@@ -40,7 +40,7 @@ def plan():
     return plan
 
 
-def _flight(plan, tmp_path, shared_clock: bool = True):
+def _flight(plan, shared_clock: bool = True):
     vehicles = {v.name: BoardVehicle(v.name) for v in plan.mission.vehicles}
     ctx = FlightContext(plan, RunSettings(), FlightLog(None), vehicles, report=lambda _: None,
                         shared_clock=shared_clock)
@@ -57,8 +57,8 @@ def _at(vehicle: BoardVehicle, xy, t_mission_s: float):
         vx_east_m_s=0.0, vy_north_m_s=0.0, heading_enu_rad=math.pi / 4))
 
 
-def test_the_live_planners_are_the_headless_ones(plan, tmp_path):
-    ctx, pilots, _ = _flight(plan, tmp_path)
+def test_the_live_planners_are_the_headless_ones(plan):
+    ctx, pilots, _ = _flight(plan)
     timed = plan.coordinated.timed
     b = pilots["b"].planner
     assert b is ctx.fleet.planners["b"] and ctx.fleet.clocks is not None
@@ -67,8 +67,8 @@ def test_the_live_planners_are_the_headless_ones(plan, tmp_path):
     assert pilots["a"].planner.sight_near_m is None  # the first in priority carries no sightline term
 
 
-def test_b_reads_its_plan_at_a_clock_held_back_by_a_lagging_a(plan, tmp_path):
-    ctx, pilots, vehicles = _flight(plan, tmp_path)
+def test_b_reads_its_plan_at_a_clock_held_back_by_a_lagging_a(plan):
+    ctx, pilots, vehicles = _flight(plan)
     a_start = plan.mission.vehicle("a").start_enu_m
     route_b = plan.coordinated.timed["b"]
     # 30 s after the common departure, a is still at its station (its plan has it ~300 m on);
@@ -93,8 +93,8 @@ def test_b_reads_its_plan_at_a_clock_held_back_by_a_lagging_a(plan, tmp_path):
 
 
 @pytest.mark.parametrize("how", ["arrived", "failed"])
-def test_a_vehicle_that_stops_flying_its_plan_frees_the_clocks(plan, tmp_path, how):
-    ctx, pilots, vehicles = _flight(plan, tmp_path)
+def test_a_vehicle_that_stops_flying_its_plan_frees_the_clocks(plan, how):
+    ctx, pilots, vehicles = _flight(plan)
     a_start = plan.mission.vehicle("a").start_enu_m
     route_b = plan.coordinated.timed["b"]
     _at(vehicles["a"], a_start, 30.0)
@@ -105,15 +105,15 @@ def test_a_vehicle_that_stops_flying_its_plan_frees_the_clocks(plan, tmp_path, h
     assert pilots["b"]._t_plan == pytest.approx(31.0)  # as headless: done() once a is no longer flying
 
 
-def test_unrelated_clocks_count_from_each_vehicles_own_departure(plan, tmp_path):
-    _, pilots, vehicles = _flight(plan, tmp_path, shared_clock=False)
+def test_unrelated_clocks_count_from_each_vehicles_own_departure(plan):
+    _, pilots, vehicles = _flight(plan, shared_clock=False)
     _at(vehicles["a"], plan.mission.vehicle("a").start_enu_m, 30.0)
     pilots["b"]._tick(_at(vehicles["b"], plan.coordinated.timed["b"].planned_position_at(30.0), 30.0))
     assert pilots["b"]._t_plan == pytest.approx(30.0)
 
 
-def test_a_silent_vehicle_holds_the_clocks_back_at_most_their_limit(plan, tmp_path):
-    ctx, pilots, vehicles = _flight(plan, tmp_path)
+def test_a_silent_vehicle_holds_the_clocks_back_at_most_their_limit(plan):
+    ctx, pilots, vehicles = _flight(plan)
     _at(vehicles["a"], plan.mission.vehicle("a").start_enu_m, 30.0)  # a's last sample: nothing after it
     route_b = plan.coordinated.timed["b"]
     pilots["b"]._tick(_at(vehicles["b"], route_b.planned_position_at(30.0), 30.0))
