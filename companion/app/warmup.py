@@ -17,6 +17,7 @@ import time
 from companion.app.flight_plan import FlightPlan
 from companion.app.steering import clearance_here_m
 from companion.planning.dwa import OtherUav, Pose
+from companion.planning.dwa.step import warm_up_kernels
 from companion.planning.fleet import Neighbour, react_to
 from companion.planning.obstacle_field import ObstacleField
 
@@ -27,6 +28,7 @@ def warm_up_planners(plan: FlightPlan) -> float:
     vehicle at its station, its sightline term on (with a timed route it acts only near the
     others in flight: ``sight_near_m``). Returns the wall seconds it took."""
     started = time.monotonic()
+    warm_up_kernels()  # the branches a tick at the station may not take
     mission = plan.mission
     field = ObstacleField.from_world(mission.world)
     snapshot = field.from_tracks(field.tracks_at(0.0))

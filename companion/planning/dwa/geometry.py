@@ -35,7 +35,7 @@ def inflated_clearance(px: np.ndarray, py: np.ndarray, t_s: np.ndarray, snap: Ob
     compiled loops of :mod:`.kernels` compute the same numbers.
     """
     if kernels.circle_clearance is not None:
-        px, py, t_s = _one_layout(px), _one_layout(py), _one_layout(t_s)
+        px, py, t_s = one_layout(px), one_layout(py), one_layout(t_s)
         n_c = len(snap.circle_ids)
         out = np.empty((n_c + len(snap.poly_ids), len(px)))
         if n_c:
@@ -63,7 +63,7 @@ _CHUNK_BYTES = 120 * 1024
 def polygon_signed_distance(px: np.ndarray, py: np.ndarray, t_s: np.ndarray, snap: ObstacleSnapshot) -> np.ndarray:
     """Distance (P, N) from points at times t_s to each TRUE polygon, negative inside."""
     if kernels.polygon_clearance is not None:
-        px, py, t_s = _one_layout(px), _one_layout(py), _one_layout(t_s)
+        px, py, t_s = one_layout(px), one_layout(py), one_layout(t_s)
         out = np.empty((len(snap.poly_ids), len(px)))
         _compiled_polygons(px, py, t_s, snap, np.zeros(len(snap.poly_ids)), out, 0)
         return out
@@ -74,7 +74,7 @@ def polygon_signed_distance(px: np.ndarray, py: np.ndarray, t_s: np.ndarray, sna
                            for i in range(0, len(px), chunk)], axis=1)
 
 
-def _one_layout(a: np.ndarray) -> np.ndarray:
+def one_layout(a: np.ndarray) -> np.ndarray:
     """``a`` as a writable C-contiguous array (a copy only when it is not one): numba compiles,
     or loads from its cache, one signature per layout and read-only flag, at the first call with
     it. One layout keeps that to the first tick (companion.app.warmup pays it before the flight)."""

@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from companion.planning.dwa import kernels
+from companion.planning.dwa.geometry import one_layout
 from companion.planning.dwa.types import LocalGoals
 
 
@@ -53,6 +54,10 @@ def heading_from_ends(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray,
             # Contiguous copies (S floats): the ends arrive as views or as arrays by the path taken, and
             # each layout is a compiled signature of its own (loaded, or compiled, at its first call).
             return kernels.heading_toward(np.ascontiguousarray(ex), np.ascontiguousarray(ey), final_heading, tx, ty)
+    elif kernels.heading_goals is not None:  # one compiled pass, one layout per argument (see one_layout)
+        return kernels.heading_goals(one_layout(ex), one_layout(ey), one_layout(final_heading), one_layout(px),
+                                     one_layout(py), one_layout(nodes), one_layout(goals.prev_nodes_xy),
+                                     one_layout(goals.radius2_m2), bool(goals.ends_at_station), float(soonest_deg))
     else:
         gx, gy = nodes[:, 0], nodes[:, 1]
         near2 = (((px.ravel() - gx[:, None]) ** 2 + (py.ravel() - gy[:, None]) ** 2)

@@ -26,13 +26,14 @@ try:
 except ImportError:  # the numpy kernels run instead
     numba = None
 
-__all__ = ["choose", "circle_clearance", "heading_toward", "near_mask", "numpy_only", "open_clearance",
-           "polygon_clearance", "sightline_depth"]
+__all__ = ["choose", "circle_clearance", "heading_goals", "heading_toward", "near_mask", "numpy_only",
+           "obstacle_terms", "open_clearance", "polygon_clearance", "sight_frame", "sightline_depth"]
 _NAMES = ("circle_clearance", "polygon_clearance", "sightline_depth", "open_clearance", "near_mask",
-          "heading_toward", "choose")
+          "heading_toward", "choose", "heading_goals", "obstacle_terms", "sight_frame")
 
 circle_clearance = polygon_clearance = sightline_depth = open_clearance = near_mask = heading_toward = None
 choose = None
+from companion.planning.dwa.kernels_tick import heading_goals, obstacle_terms, sight_frame  # noqa: E402 (more)
 
 if numba is not None:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -119,7 +119,7 @@ def legal_rollouts(ok_by_rule: dict[Rule, np.ndarray], config: DwaConfig) -> np.
 def turn_error(pose: Pose, goals: LocalGoals, config: DwaConfig) -> float:
     """The goal's bearing off the nose (rad) when the turn-around preference applies, else NaN
     (see :func:`commit_turn`)."""
-    gx, gy = goals.nodes_xy[0]
+    gx, gy = goals.first_xy  # floats: numpy scalars would cost more than the arithmetic
     error = (math.atan2(gy - pose.y_m, gx - pose.x_m) - pose.heading_rad + math.pi) % (2.0 * math.pi) - math.pi
     return math.nan if abs(error) <= math.radians(config.turnaround_deg) else error
 

@@ -7,6 +7,7 @@ import numpy as np
 
 from companion.planning.dwa import kernels
 from companion.planning.dwa.config import DwaConfig
+from companion.planning.dwa.geometry import one_layout
 from companion.planning.dwa.sightline_slope import open_clearance
 from companion.planning.dwa.snapshot import ObstacleSnapshot
 from companion.planning.dwa.types import OtherUav, Pose
@@ -35,6 +36,8 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
     rest is a handful of elementwise operations on the (rows, S) blocks.
     """
     qx, qy = other_xy
+    if kernels.sight_frame is not None:
+        return _compiled_scores(ex, ey, float(qx), float(qy), float(t_s), snap, keep)
     dx = qx - ex
     dy = qy - ey
     n_s = len(ex)
@@ -88,6 +91,24 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
         best = np.maximum(best, d_o.max(axis=0))
     return best
 
+
+
+def _compiled_scores(ex: np.ndarray, ey: np.ndarray, qx: float, qy: float, t_s: float, snap: ObstacleSnapshot,
+                     keep: np.ndarray | None) -> np.ndarray:
+    """_sightline_scores with its operands built in one compiled pass (:func:`kernels.sight_frame`);
+    the product stays numpy's."""
+    c_xy, c_vel, c_r = snap.circle_xy_m, snap.circle_vel_m_s, snap.circle_radius_m
+    p_a, p_d, p_vel = snap.poly_a_m, snap.poly_d_m, snap.poly_vel_m_s
+    if keep is not None:
+        kc, kp = keep[:len(c_r)], keep[len(c_r):]
+        c_xy, c_vel, c_r = c_xy[kc], c_vel[kc], c_r[kc]
+        p_a, p_d, p_vel = p_a[kp], p_d[kp], p_vel[kp]
+    if p_a.ndim != 3:  # no polygons at all: (0, 0, 2) for the one signature
+        p_a = p_d = np.zeros((0, 0, 2))
+    rows, basis, len2 = kernels.sight_frame(one_layout(ex), one_layout(ey), qx, qy, t_s, one_layout(c_xy),
+                                            one_layout(c_vel), one_layout(p_a), one_layout(p_vel), one_layout(p_d))
+    n_p = len(p_a)
+    return kernels.sightline_depth(rows @ basis, len2, c_r, len(c_r), n_p, p_a.shape[1] if n_p else 0)
 
 
 def sightline_term(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig,

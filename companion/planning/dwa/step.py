@@ -7,15 +7,15 @@ from collections.abc import Sequence
 import numpy as np
 
 from companion.planning.dwa.config import DwaConfig
-from companion.planning.dwa.distance import distance_scores, no_obstacle_in_reach
+from companion.planning.dwa.distance import no_obstacle_in_reach, obstacle_and_distance
 from companion.planning.dwa.evaluate import choose, command_for
 from companion.planning.dwa.geometry import inflated_clearance
 from companion.planning.dwa.heading import heading_from_ends, single_target
 from companion.planning.dwa.legality import (Rule, binding_uavs, fence_distance, fence_ok, legal_rollouts,
-                                             obstacle_ok, separation_ok, turn_error)
+                                             separation_ok, turn_error)
 from companion.planning.dwa.recovery import no_legal_rollout
 from companion.planning.dwa.shapes import placement
-from companion.planning.dwa.sightline import sightline_term
+from companion.planning.dwa.sightline import sightline_scores, sightline_term
 from companion.planning.dwa.snapshot import ObstacleSnapshot
 from companion.planning.dwa.speed import reference_speed_m_s, speed_scores
 from companion.planning.dwa.types import Command, LocalGoals, NoLegalRollout, OtherUav, Pose
@@ -60,9 +60,8 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     if near.count:
         if config.row_of is None:
             clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)  # (O, S * (K + 1))
-            lowest = clear.min(axis=0)
-            ok_by_rule[Rule.OBSTACLE] = obstacle_ok(clear, lowest).reshape(shape)
-            distance = distance_scores(lowest, shape, config)
+            ok, distance = obstacle_and_distance(clear, shape, config.distance_saturation_m)
+            ok_by_rule[Rule.OBSTACLE] = ok.reshape(shape)
         else:  # computed on the distinct rollouts only, then spread to all
             ok_by_rule[Rule.OBSTACLE], distance, clear = _obstacle_terms(gx, gy, near, config)
     else:
@@ -87,6 +86,18 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     best, total, n_legal = choose(config, legal, turn_error(pose, goals, config), heading, distance, sightline, speed)
     return command_for(config, best, heading, distance, sightline, total, n_legal)
 
+
+
+def warm_up_kernels() -> None:
+    """Load (or compile) the compiled kernels of branches a throwaway tick at the station may not
+    take: the heading critic over a goal window, the obstacle terms and the sight lines' frame,
+    with the argument types a flight passes them (see companion.app.warmup)."""
+    px = np.zeros((2, 3))
+    goals = LocalGoals(np.array([[5.0, 0.0], [9.0, 0.0]]), (0.0, 0.0), 1.0, 1.0, ends_at_station=True)
+    heading_from_ends(px[:, -1], px[:, -1], np.zeros(2), goals, (0.0, 0.0), px, px, False, _SOONEST_DEG)
+    obstacle_and_distance(np.ones((1, 6)), (2, 3), 10.0)
+    circle = ObstacleSnapshot.build([("c", 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)], [])
+    sightline_scores(np.zeros((2, 2)), (5.0, 5.0), 1.0, circle)
 
 
 # With a speed window, an arriving rollout loses up to this much heading score for arriving late
@@ -126,11 +137,9 @@ def _obstacle_terms(gx: np.ndarray, gy: np.ndarray, near: ObstacleSnapshot,
     rollouts (gx, gy) and spread to every rollout, and their clearances (O, G * (K + 1))."""
     g_shape = gx.shape
     clear = inflated_clearance(gx.ravel(), gy.ravel(), config.geo_point_times_s, near)
-    lowest = clear.min(axis=0)
+    ok, distance = obstacle_and_distance(clear, g_shape, config.distance_saturation_m)
     row_of = config.row_of
-    ok = obstacle_ok(clear, lowest).reshape(g_shape)[row_of]
-    distance = distance_scores(lowest, g_shape, config)[row_of]
-    return ok, distance, clear
+    return ok.reshape(g_shape)[row_of], distance[row_of], clear
 
 
 def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig, ex: np.ndarray,
