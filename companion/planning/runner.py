@@ -78,15 +78,12 @@ def _xy(s: KinematicState) -> tuple[float, float]:
     return x, y
 
 
-def _pose(s: KinematicState) -> Pose:
-    return Pose(*_xy(s), ned_yaw_to_enu_heading(s.yaw_rad))
-
-
-def _other(s: KinematicState, parked: bool = False) -> OtherUav:
+def _other(s: KinematicState, xy: tuple[float, float], parked: bool = False) -> OtherUav:
+    """The vehicle in state ``s`` at ``xy`` (its :func:`_xy`) as another vehicle sees it."""
     if parked:
-        return OtherUav(*_xy(s), 0.0, 0.0, arrived=True)
+        return OtherUav(*xy, 0.0, 0.0, arrived=True)
     vx, vy, _ = ned_to_enu(s.vn_m_s, s.ve_m_s)
-    return OtherUav(*_xy(s), vx, vy)
+    return OtherUav(*xy, vx, vy)
 
 
 def start_states(mission: Mission) -> tuple[dict[str, PlantLimits], dict[str, KinematicState]]:
@@ -149,19 +146,28 @@ def simulate(mission: Mission, variant: str | None = None, *,
         t = k * dt
         snapshot = next(snapshots)
         commands = {}
+        here = dict(zip(names, rows[-1]))  # every vehicle's (x, y) now
         if clocks is not None:
             for name in active:
-                clocks.observe(name, _xy(states[name]), t)
+                clocks.observe(name, here[name], t)
+        seen: dict[tuple[str, bool], OtherUav] = {}  # each vehicle as the others see it this tick
         for name in list(active):
             own = states[name]
-            neighbours = [Neighbour(n, rank[n], _other(states[n], parked=n not in active)) for n in others[name]]
-            # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
-            reaction = react_to(*_xy(own), rank[name], neighbours)
+            neighbours = []
+            for n in others[name]:
+                # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
+                key = (n, n not in active)
+                uav = seen.get(key)
+                if uav is None:
+                    uav = seen[key] = _other(states[n], here[n], parked=key[1])
+                neighbours.append(Neighbour(n, rank[n], uav))
+            x, y = here[name]
+            reaction = react_to(x, y, rank[name], neighbours)
             planner = planners[name]
-            result = planner.tick(_pose(own), reaction.other, snapshot, t, separate_from=reaction.separate_from,
+            result = planner.tick(Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad)), reaction.other, snapshot, t,
+                                  separate_from=reaction.separate_from,
                                   schedule_t_s=None if clocks is None else clocks.now(name, t))
             if planner.replan_due:  # no progress for a while: a new route from here, at once
-                x, y = _xy(own)
                 planner.adopt_detour(planner.plan_detour(x, y), x, y, t)
             ticks[name].append(result)
             if result.arrived:
