@@ -4,13 +4,16 @@ The headless runner (:func:`companion.planning.runner.simulate`), the live compa
 (``companion.app``: its flight context, and the warm-up before it) and anything else that flies a
 mission call :func:`build_fleet`, so that what a vehicle's planner is made of (its route, the
 routes above it for a detour, its timed route, where its sightline term acts) and how the timed
-routes are read in flight (:class:`companion.planning.timed.PriorityClocks`) cannot differ
+routes are read in flight (:class:`companion.planning.replan.TimedFleet`: the per-priority clocks of
+:class:`companion.planning.timed.PriorityClocks`, and the in-flight re-plan) cannot differ
 between them:
 
     fleet = build_fleet(mission, routes, variant)
     # every tick, for every vehicle still flying, at that vehicle's own sample time:
     fleet.clocks.observe(name, (x, y), t)
     fleet.clocks.done(name)               # arrived (or no longer flying): holds nobody back
+    for other, route in fleet.clocks.update(t).items():   # re-planned (seconds: a worker thread live)
+        fleet.planners[other].adopt_timed(route, fleet.clocks.sight_near_m(other))
     tau = fleet.clocks.now(name, t)       # the time to read name's timed route at
     fleet.planners[name].tick(..., schedule_t_s=tau)
 
@@ -24,7 +27,8 @@ from typing import TYPE_CHECKING
 
 from companion.planning.coordination import plan_coordinated
 from companion.planning.routes import higher_routes
-from companion.planning.timed import PriorityClocks, sight_near_m
+from companion.planning.replan import TimedFleet
+from companion.planning.timed import sight_near_m
 from companion.planning.vehicle_planner import VARIANTS, VehiclePlanner
 
 if TYPE_CHECKING:
@@ -40,7 +44,7 @@ class Fleet:
     """Every vehicle's planner (by name, in priority order) and the clocks its timed route is read at."""
 
     planners: dict[str, VehiclePlanner]
-    clocks: PriorityClocks | None  # None: the variant flies no timed route
+    clocks: TimedFleet | None  # None: the variant flies no timed route
     timed: dict[str, TimedRoute]  # the timed routes flown (empty for the other variants)
 
 
@@ -52,13 +56,14 @@ def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | No
     caller that already has it passes it in)."""
     variant = variant or mission.planner.variant
     timed_variant = VARIANTS[variant].timed
+    blocking = None  # what each plan keeps: an in-flight re-plan must keep it at least as well
     if timed_routes is None and timed_variant and routes:
-        timed_routes = plan_coordinated(mission, routes).timed  # the space-time plan (docs/design.md)
+        plan = plan_coordinated(mission, routes)  # the space-time plan (docs/design.md)
+        timed_routes, blocking = plan.timed, plan.blocking
     timed = dict(timed_routes or {})
-    order = [v.name for v in mission.by_priority]
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
                                              earlier=higher_routes(mission, routes, v.name),
                                              timed_route=timed.get(v.name),
                                              sight_near_m=sight_near_m(mission, timed, v.name))
                 for v in mission.by_priority}
-    return Fleet(planners, PriorityClocks(timed, order) if timed_variant else None, timed)
+    return Fleet(planners, TimedFleet(mission, timed, blocking=blocking) if timed_variant else None, timed)

@@ -150,6 +150,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
         if clocks is not None:
             for name in active:
                 clocks.observe(name, here[name], t)
+            for name, route in clocks.update(t).items():  # a lower vehicle far behind its plan: re-planned
+                planners[name].adopt_timed(route, clocks.sight_near_m(name))
         seen: dict[tuple[str, bool], OtherUav] = {}  # each vehicle as the others see it this tick
         for name in list(active):
             own = states[name]
@@ -201,7 +203,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
         planner_holds={n: sum(r.command is None and not r.arrived for r in ticks[n]) for n in names},
         planner_escapes={n: sum(r.escape_reason is not None for r in ticks[n]) for n in names},
         planner_recoveries={n: sum(r.recovery_reason is not None for r in ticks[n]) for n in names},
-        planner_replans={n: planners[n].replans for n in names})
+        planner_replans={n: planners[n].replans for n in names},
+        timed_replans={} if clocks is None else dict(clocks.replans))
     return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started)
 
 

@@ -119,9 +119,12 @@ class TimedRoute:
         """How far along the route (m, ...) the plan is at ``t_s``."""
         return np.interp(np.asarray(t_s, dtype=float), self.t_s, self._along_m)
 
-    def progress_at(self, xy_enu_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def progress_at(self, xy_enu_m: np.ndarray, near_along_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(along, off) (...,) m: how far along the route the nearest route point to each of
-        ``xy_enu_m`` (..., 2) is, and how far the position is from it."""
+        ``xy_enu_m`` (..., 2) is, and how far the position is from it. ``near_along_m``: where
+        along the route the vehicle was last (see :func:`progress_window`): only the route within
+        that window counts, so a path that passes near itself (out and back round a shadow, a wait
+        beside a later leg) cannot throw the vehicle hundreds of metres ahead or behind."""
         xy = np.asarray(xy_enu_m, dtype=float)[..., None, :]
         if len(self.t_s) == 1:
             return np.zeros(xy.shape[:-2]), np.hypot(*np.moveaxis(xy[..., 0, :] - self.xy_enu_m[0], -1, 0))
@@ -129,26 +132,40 @@ class TimedRoute:
         len2 = np.einsum("ij,ij->i", d, d)
         u = np.clip(np.einsum("...ij,ij->...i", xy - a, d) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
         dist = np.hypot(*np.moveaxis(a + d * u[..., None] - xy, -1, 0))
+        if near_along_m is not None:
+            lo, hi = progress_window(near_along_m)
+            inside = (self._along_m[1:] >= lo) & (self._along_m[:-1] <= hi)
+            if inside.any():
+                dist = np.where(inside, dist, np.inf)
         i = np.argmin(dist, axis=-1)[..., None]
         along = self._along_m[:-1] + u * np.sqrt(len2)
         return np.take_along_axis(along, i, -1)[..., 0], np.take_along_axis(dist, i, -1)[..., 0]
 
-    def lead_m(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float) -> np.ndarray:
+    def lead_m(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, near_along_m: float | None = None) -> np.ndarray:
         """How far (m, ...) a vehicle at ``xy_enu_m`` is ahead of the plan at ``t_s`` along the
-        route (negative: it lags)."""
-        along, _ = self.progress_at(xy_enu_m)
+        route (negative: it lags); ``near_along_m`` as for :meth:`progress_at`."""
+        along, _ = self.progress_at(xy_enu_m, near_along_m)
         return along - self.planned_along_at(t_s)
 
     def target_speed_at(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, max_speed_m_s: float,
-                        lookahead_s: float = 5.0) -> np.ndarray:
+                        lookahead_s: float = 5.0, near_along_m: float | None = None) -> np.ndarray:
         """The speed (...,) that takes a vehicle at ``xy_enu_m`` (..., 2) to where the plan will be
         ``lookahead_s`` later, measured along the route (plus its distance off it), capped at
         ``max_speed_m_s``: cruise when it lags, slower when it is ahead, 0 when it is as far along
         as the plan will be ``lookahead_s`` later (a scheduled wait, or running early: it waits
-        for the plan, however far ahead it is)."""
-        along, off = self.progress_at(xy_enu_m)
+        for the plan, however far ahead it is). ``near_along_m`` as for :meth:`progress_at`."""
+        along, off = self.progress_at(xy_enu_m, near_along_m)
         gap = self.planned_along_at(np.asarray(t_s, dtype=float) + lookahead_s) - along
         return np.where(gap > 0, np.minimum(np.hypot(gap, off) / lookahead_s, max_speed_m_s), 0.0)
+
+
+PROGRESS_BACK_M, PROGRESS_AHEAD_M = 30.0, 60.0  # a vehicle flies ~5 m a tick; see progress_window
+
+
+def progress_window(near_along_m: float) -> tuple[float, float]:
+    """The stretch of a route (m along it) a vehicle last seen ``near_along_m`` along can be on
+    a tick later: a little behind (it drifts back while it waits, or turns), more ahead."""
+    return near_along_m - PROGRESS_BACK_M, near_along_m + PROGRESS_AHEAD_M
 
 
 def closest_approach_m(first: TimedRoute, second: TimedRoute, step_s: float = 0.5) -> float:
@@ -211,13 +228,13 @@ class ScheduleClock:
     """
 
     def __init__(self, routes: "dict[str, TimedRoute]", *, slack_s: float = 2.0, max_lag_s: float = 120.0,
-                 window_s: float = 60.0, step_s: float = 0.5, tolerance_m: float = 1.0):
+                 window_s: float = 60.0, step_s: float = 0.5, tolerance_m: float = 1.0, start_s: float = 0.0):
         self.routes = dict(routes)
         self.slack_s, self.max_lag_s, self.tolerance_m = slack_s, max_lag_s, tolerance_m
         self._offsets = np.arange(0.0, window_s + step_s / 2, step_s)
-        self._reach = {name: 0.0 for name in self.routes}
+        self._reach = {name: start_s for name in self.routes}  # start_s: a clock started mid-flight
         self._done: set[str] = set()
-        self._tau = 0.0
+        self._tau = start_s
         self.worst_lag_s = 0.0  # how far behind sim time the schedule fell, at most
 
     def observe(self, name: str, xy_enu_m, t_s: float) -> None:
@@ -262,14 +279,25 @@ class PriorityClocks:
     """
 
     def __init__(self, routes: "dict[str, TimedRoute]", order: "list[str]", **clock_options: float):
+        self._options = clock_options
         self._clocks = {name: ScheduleClock({m: routes[m] for m in order[:i] if m in routes}, **clock_options)
                         for i, name in enumerate(order) if i > 0 and name in routes}
+        self._done: set[str] = set()
+
+    def retime(self, name: str, above: "dict[str, TimedRoute]", start_s: float) -> None:
+        """``name`` was re-planned at ``start_s`` against ``above`` (the vehicles above it,
+        re-forecast from where they were then): its clock is now theirs, from ``start_s`` on."""
+        clock = ScheduleClock(above, **{**self._options, "start_s": start_s})
+        for gone in self._done:
+            clock.done(gone)
+        self._clocks[name] = clock
 
     def observe(self, name: str, xy_enu_m, t_s: float) -> None:
         for clock in self._clocks.values():
             clock.observe(name, xy_enu_m, t_s)
 
     def done(self, name: str) -> None:
+        self._done.add(name)
         for clock in self._clocks.values():
             clock.done(name)
 

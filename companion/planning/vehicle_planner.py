@@ -133,6 +133,10 @@ class TickResult:
 
 
 _AIM_FRACTION = 0.5  # of the arrival radius, aimed at by a speed window (see VehiclePlanner)
+# A vehicle this far behind its timed plan flies it without the sightline term: the term had
+# it hover where the line was blocked while the plan moved on (seed 11: 40-60 s stalls, b
+# hundreds of metres behind its plan, and the real closest approach then where no plan had it).
+SIGHT_LAG_M = 50.0
 _PROGRESS_M = 20.0  # the remaining route must shorten by more than this to count as progress
 
 
@@ -182,6 +186,8 @@ class VehiclePlanner:
         # out it pulled b hundreds of metres off its timed path to hide from a distant a, and the
         # plan's timing was lost where it mattered (seed 11).
         self.sight_near_m = sight_near_m
+        self._along_m: float | None = None  # how far along its timed path it is (windowed: timed.progress_window)
+        self.lead_m = 0.0  # how far ahead of its timed plan it is (negative: it lags)
         self._unsighted = None if sight_near_m is None or config.w_s <= 0 else replace(config, w_s=0.0)
         self.arrived = False
         self.replanning = replanning if replanning is not None and replanning.after_s > 0 else None
@@ -257,6 +263,19 @@ class VehiclePlanner:
         self._progress = (self.tracker.remaining_m(x_m, y_m), t_s)
         return adopted
 
+    def adopt_timed(self, route: "TimedRoute", sight_near_m: float | None) -> None:
+        """Track ``route`` from now on (an in-flight re-plan, :class:`replan.TimedFleet`): its
+        path's nodes as local goals, its times for the speed, its closest approach for where the
+        sightline term acts. A planner that tracks no timed route (another variant) ignores it."""
+        if self.timed_route is None or len(route.path_xy) < 2:
+            return
+        self.timed_route = route
+        self._along_m, self.lead_m = None, 0.0
+        self.tracker = LocalGoalTracker(route.path_xy, self.tracker.acceptance_radius_m)
+        if self._unsighted is not None and sight_near_m is not None:
+            self.sight_near_m = sight_near_m
+        self._progress = None
+
     def _watch_progress(self, x_m: float, y_m: float, t_s: float, on_schedule: bool) -> None:
         """Flag a re-plan after ``after_s`` without progress. Time the schedule holds the vehicle
         back (a scheduled wait, or the plan ahead of it) is not a stall: the clock restarts."""
@@ -274,8 +293,10 @@ class VehiclePlanner:
         if route is None:
             return None, False
         xy = np.array([own.x_m, own.y_m])
-        speed = float(route.target_speed_at(xy, t_s, self.config.speed_m_s))
-        held = bool(route.is_waiting_at(t_s)) or float(route.lead_m(xy, t_s)) > 0.0
+        self._along_m = float(route.progress_at(xy, self._along_m)[0])  # where it is along its path
+        speed = float(route.target_speed_at(xy, t_s, self.config.speed_m_s, near_along_m=self._along_m))
+        self.lead_m = self._along_m - float(route.planned_along_at(t_s))
+        held = bool(route.is_waiting_at(t_s)) or self.lead_m > 0.0
         return speed, held
 
     @property
@@ -305,7 +326,8 @@ class VehiclePlanner:
             self._watch_progress(own.x_m, own.y_m, t_s, held)
         config, aim_m = self.config, self._aim_radius_m
         if self._unsighted is not None and self.timed_route is not None and other is not None and \
-                math.hypot(other.x_m - own.x_m, other.y_m - own.y_m) > self.sight_near_m:
+                (math.hypot(other.x_m - own.x_m, other.y_m - own.y_m) > self.sight_near_m
+                 or self.lead_m < -SIGHT_LAG_M):
             config = self._unsighted
         if to_station_m <= self._approach_radius_m:
             config, aim_m = self.approach, self.arrival_radius_m * _AIM_FRACTION
