@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan
 from companion.planning.obstacle_field import ObstacleField
+from companion.planning.replan import ReplanJob, Replanned
 from companion.vehicle.port import PoseSample, Vehicle
 
 if TYPE_CHECKING:
@@ -86,6 +87,10 @@ class FlightContext:
         self.off_schedule: set[str] = set()  # no longer flying its plan (failed, stood down): holds nobody back
         self.worst_lag_s = 0.0  # how far behind sim time a schedule clock fell, at most
         self._observed: dict[str, float] = {}  # per vehicle: the sim time of its last sample given to the clocks
+        self.replan_task: asyncio.Task | None = None  # the in-flight re-plan of a lagging vehicle: at most one
+        self.replan_errors = 0  # re-plans that raised (the vehicles flew on with their old plans)
+        # In-process vehicles: their sim clock follows the event loop, so a re-plan inline costs no sim time.
+        self._inline = all(getattr(v, "clock_follows_event_loop", False) for v in self.vehicles.values())
         self.rank = {v.name: i for i, v in enumerate(plan.mission.by_priority)}
         # ADS-B callsigns hold 8 characters: match them to the mission's moving obstacles.
         moving = [o.id for o in plan.mission.world.moving_obstacles]
@@ -116,6 +121,7 @@ class FlightContext:
         if self.clocks is None:
             return t
         self._observe_fleet()
+        self._start_replan(t)
         tau = self.clocks.now(pilot.name, t)
         self.worst_lag_s = max(self.worst_lag_s, t - tau)
         return tau
@@ -134,6 +140,48 @@ class FlightContext:
                 continue  # nothing new: a stale vehicle holds the clocks back no longer than they allow
             self._observed[name] = pose.t_sim_s
             self.clocks.observe(name, (pose.x_east_m, pose.y_north_m), pose.t_sim_s - self.departure_sim_s)
+
+    def _start_replan(self, t_s: float) -> None:
+        """Re-plan a lower vehicle that lags its plan (:class:`companion.planning.replan.TimedFleet`,
+        as the headless runner does each tick): the cheap check here, the planning (seconds of
+        CPU) in a worker thread, the new routes adopted back on the loop when it is done. At most
+        one in flight; none outside a running loop (a pilot ticked by hand)."""
+        assert self.clocks is not None
+        if self.replan_task is not None:
+            return
+        try:
+            asyncio.get_running_loop()
+        except RuntimeError:
+            return
+        job = self.clocks.job(t_s)
+        if job is None:
+            return
+        if self._inline:
+            self._adopt(job, self.clocks.plan(job))
+        else:
+            self.replan_task = asyncio.create_task(self._replan(job), name=f"re-plan {'+'.join(job.names)}")
+
+    async def _replan(self, job: ReplanJob) -> None:
+        assert self.clocks is not None
+        try:
+            planned = await asyncio.to_thread(self.clocks.plan, job)
+        except Exception as exc:  # a bug in the planner must not end the flight: the old plan still flies
+            self.replan_errors += 1
+            self.report(f"re-plan of {'+'.join(job.names)} at t = {job.t_s:.1f} s failed ({exc!r}): "
+                        f"flying on with the old plan")
+            return
+        finally:
+            self.replan_task = None
+        self._adopt(job, planned)
+
+    def _adopt(self, job: ReplanJob, planned: "list[Replanned]") -> None:
+        """Install a re-plan's routes on the loop; one for a vehicle no longer flying is dropped."""
+        assert self.clocks is not None
+        flying = [p for p in planned if p.name not in self.arrived and p.name not in self.off_schedule]
+        for name, route in self.clocks.adopt(job, flying).items():
+            self.fleet.planners[name].adopt_timed(route, self.clocks.sight_near_m(name))
+            self.report(f"{name}: behind its plan: re-planned from t = {job.t_s:.1f} s, "
+                        f"arrives at {route.t_s[-1]:.1f} s")
 
 
 def wall_for_sim(vehicle: Vehicle, sim_s: float, slack_s: float = 5.0) -> float:

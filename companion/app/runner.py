@@ -126,6 +126,10 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
                                        "blocking": {n: b.value for n, b in plan.coordinated.blocking.items()},
                                        "worst_lag_s": None if flight is None or flight.clocks is None
                                        else round(flight.worst_lag_s, 3)}
+            if flight is not None and flight.clocks is not None:  # in-flight re-plans of a lagging vehicle
+                doc["live"]["schedule"].update(replans=dict(flight.clocks.replans),
+                                               replan_tries=dict(flight.clocks.tries),
+                                               replan_errors=flight.replan_errors)
         # Seconds of pure numpy, once the vehicles are done with. Not in a worker thread: beside the
         # in-process fleet's busy loop, the GIL hand-offs of numpy calls stalled it for minutes.
         doc["occlusion_certificate"] = _certificate_doc(plan)

@@ -21,8 +21,17 @@ catch), and its clock restarts at the re-plan's time.
         planners[name].adopt_timed(route, fleet.sight_near_m(name))
     tau = fleet.now("b", t)                                        # the time to track b's route at
 
-Pure: no I/O and no clocks of its own; a re-plan costs what a pre-flight plan of one vehicle
-costs (about 0.3-2 s at 10 m cells), so a live caller runs :meth:`update` in a worker thread.
+Pure: no I/O and no clocks of its own. A re-plan costs what a pre-flight plan of one vehicle
+costs (about 0.3-2 s at 10 m cells), so a live caller takes :meth:`update`'s three steps apart and
+runs only the middle one in a worker thread, one re-plan at a time (``companion.app.context``):
+
+    job = fleet.job(t)                        # on the loop, cheap: None, or the inputs copied
+    planned = await asyncio.to_thread(fleet.plan, job)   # seconds; reads the job, not the fleet
+    for name, route in fleet.adopt(job, planned).items():  # on the loop: routes, clocks, counters
+        planners[name].adopt_timed(route, fleet.sight_near_m(name))
+
+:meth:`observe`, :meth:`done` and :meth:`now` may run meanwhile: :meth:`plan` touches none of
+their state.
 """
 
 from __future__ import annotations
@@ -54,6 +63,30 @@ class ReplanRule:
     lag_m: float = 100.0
     every_s: float = 30.0
     most: int = 6
+
+
+@dataclass(frozen=True)
+class ReplanJob:
+    """One re-plan's inputs, copied when it was found due (:meth:`TimedFleet.job`): the vehicles
+    to plan (the one due first, then every flying one below it), where each was, and where every
+    vehicle above the last of them will be, all at ``t_s``."""
+
+    t_s: float
+    names: tuple[str, ...]
+    xy: "dict[str, tuple[float, float]]"
+    forecasts: "dict[str, TimedRoute]"
+    blocking: "dict[str, Blocking]"  # what each plan kept when the job was made
+
+
+@dataclass(frozen=True)
+class Replanned:
+    """One vehicle's new plan (:meth:`TimedFleet.plan`), not yet adopted: what it keeps, and the
+    forecasts above it that it was made against."""
+
+    name: str
+    route: TimedRoute
+    level: Blocking
+    above: "dict[str, TimedRoute]"
 
 
 def closest_approach_s(first: TimedRoute, second: TimedRoute, step_s: float = 0.5) -> float:
@@ -122,62 +155,81 @@ class TimedFleet:
 
     def update(self, t_s: float) -> "dict[str, TimedRoute]":
         """Re-plan the first lower vehicle due (:meth:`strayed`) and every flying one below it;
-        the new routes adopted, by name (empty: nothing changed)."""
+        the new routes adopted, by name (empty: nothing changed). The three steps at once, as
+        the headless runner takes them; a live caller takes them apart (module doc)."""
+        job = self.job(t_s)
+        return {} if job is None else self.adopt(job, self.plan(job))
+
+    def job(self, t_s: float) -> ReplanJob | None:
+        """Step 1 (cheap, the caller's side): the re-plan due at ``t_s``, its inputs copied (None:
+        nothing due). Counts it as tried: ``every_s`` and ``most`` hold from now, adopted or not."""
         due = next((n for n in self.order[1:] if self.strayed(n, t_s)), None)
         if due is None:
-            return {}
-        adopted: dict[str, TimedRoute] = {}
-        for name in self.order[self.order.index(due):]:
-            if name in self._done or name not in self._xy:
-                continue
-            route = self._replan(name, t_s)
-            if route is not None:
-                adopted[name] = route
-        return adopted
+            return None
+        names = tuple(n for n in self.order[self.order.index(due):] if n not in self._done and n in self._xy)
+        for name in names:
+            self._last[name] = t_s
+            self.tries[name] += 1
+        above = self.order[:self.order.index(names[-1])]
+        return ReplanJob(t_s, names, {n: (float(self._xy[n][0]), float(self._xy[n][1])) for n in names},
+                         {o: self._forecast(o, t_s) for o in above}, dict(self.blocking))
 
-    def _replan(self, name: str, t_s: float) -> TimedRoute | None:
-        self._last[name] = t_s
-        self.tries[name] += 1
-        above = self._forecasts_above(name, t_s)
+    def plan(self, job: ReplanJob) -> "list[Replanned]":
+        """Step 2 (seconds of CPU; a worker thread live): plan ``job``'s vehicles in priority order,
+        each against the forecasts above it and the new plans above it in this job. Reads only
+        ``job`` and the immutable mission; writes only the planning caches (grid, shadows, memo),
+        which nothing else touches: safe beside :meth:`observe` / :meth:`now`, one job at a time."""
         if self._grid is None:
             self._grid = rasterise(self.mission.world, self.mission.planner.grid_resolution_m)
         if self._shadows is None:
             self._shadows = SightShadows(self.mission.world, self._grid)
-        xy = self._xy[name]
-        found = plan_vehicle(self.mission, name, tuple(above.values()), self._grid, self._shadows, self._memo,
-                             from_xy=(float(xy[0]), float(xy[1])), t0_s=t_s)
-        if found is None:
-            return None
-        route, level, _ = found
-        old = self.blocking.get(name)
-        if old is not None and _STRICTNESS[level] < _STRICTNESS[old]:
-            return None
-        self.routes[name], self.blocking[name] = route, level
-        self._along.pop(name, None)
-        self._above[name] = above
-        self.clocks.retime(name, above, t_s)
-        self._ca_s[name] = self._closest_s(name)
-        self.replans[name] += 1
-        return route
-
-    def _forecasts_above(self, name: str, t_s: float) -> "dict[str, TimedRoute]":
-        """Where the vehicles above ``name`` will be from ``t_s``: the first (it waits for
-        nobody) at cruise along the rest of its route from where it is; every other on its own
-        plan, shifted by how far its clock is behind sim time; an arrived one parked."""
-        out = {}
-        for other in self.order[:self.order.index(name)]:
-            route = self.routes[other]
-            if other in self._done or other not in self._xy:
-                out[other] = TimedRoute(other, np.array([t_s]), route.xy_enu_m[-1:])
-            elif other == self.order[0] and t_s < route.departure_s:
-                out[other] = route  # still holding: it departs on its schedule (sim time)
-            elif other == self.order[0]:
-                v = self.mission.vehicle(other)
-                out[other] = forecast_from(other, route.path_xy, tuple(self._xy[other]), t_s, v.speed_m_s)
-            else:
-                lag = t_s - self.now(other, t_s)
-                out[other] = TimedRoute(other, route.t_s + lag, route.xy_enu_m)
+        forecasts = dict(job.forecasts)
+        out: list[Replanned] = []
+        for name in job.names:
+            above = {o: forecasts[o] for o in self.order[:self.order.index(name)]}
+            found = plan_vehicle(self.mission, name, tuple(above.values()), self._grid, self._shadows, self._memo,
+                                 from_xy=job.xy[name], t0_s=job.t_s)
+            if found is None:
+                continue
+            route, level, _ = found
+            old = job.blocking.get(name)
+            if old is not None and _STRICTNESS[level] < _STRICTNESS[old]:
+                continue  # keeps the sight line less well than the old plan meant to
+            out.append(Replanned(name, route, level, above))
+            # As a forecast for those below: its clock, restarted at t_s (adopt), reads t_s: no shift.
+            forecasts[name] = route
         return out
+
+    def adopt(self, job: ReplanJob, planned: "list[Replanned]") -> "dict[str, TimedRoute]":
+        """Step 3 (cheap, the caller's side): install ``planned`` (clocks restarted at the job's
+        time); a vehicle done meanwhile keeps what it had. The routes adopted, by name."""
+        adopted: dict[str, TimedRoute] = {}
+        for new in planned:
+            name = new.name
+            if name in self._done:
+                continue
+            self.routes[name], self.blocking[name] = new.route, new.level
+            self._along.pop(name, None)
+            self._above[name] = new.above
+            self.clocks.retime(name, new.above, job.t_s)
+            self._ca_s[name] = self._closest_s(name)
+            self.replans[name] += 1
+            adopted[name] = new.route
+        return adopted
+
+    def _forecast(self, other: str, t_s: float) -> TimedRoute:
+        """Where vehicle ``other`` will be from ``t_s``, for those below it: the first (it waits
+        for nobody) at cruise along the rest of its route from where it is; every other on its
+        own plan, shifted by how far its clock is behind sim time; an arrived one parked."""
+        route = self.routes[other]
+        if other in self._done or other not in self._xy:
+            return TimedRoute(other, np.array([t_s]), route.xy_enu_m[-1:])
+        if other == self.order[0] and t_s < route.departure_s:
+            return route  # still holding: it departs on its schedule (sim time)
+        if other == self.order[0]:
+            v = self.mission.vehicle(other)
+            return forecast_from(other, route.path_xy, tuple(self._xy[other]), t_s, v.speed_m_s)
+        return TimedRoute(other, route.t_s + (t_s - self.now(other, t_s)), route.xy_enu_m)
 
     def _closest_s(self, name: str) -> float:
         """The latest planned closest approach of ``name`` to a vehicle above it."""

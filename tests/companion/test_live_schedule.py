@@ -52,9 +52,13 @@ def _flight(plan, shared_clock: bool = True):
 
 
 def _at(vehicle: BoardVehicle, xy, t_mission_s: float):
-    return asyncio.run(vehicle.board.put_pose(
+    return asyncio.run(_put(vehicle, xy, t_mission_s))
+
+
+async def _put(vehicle: BoardVehicle, xy, t_mission_s: float):
+    return await vehicle.board.put_pose(
         t_sim_s=DEPARTURE_SIM_S + t_mission_s, x_east_m=float(xy[0]), y_north_m=float(xy[1]), alt_rel_m=20.0,
-        vx_east_m_s=0.0, vy_north_m_s=0.0, heading_enu_rad=math.pi / 4))
+        vx_east_m_s=0.0, vy_north_m_s=0.0, heading_enu_rad=math.pi / 4)
 
 
 def test_the_live_planners_are_the_headless_ones(plan):
@@ -121,3 +125,61 @@ def test_a_silent_vehicle_holds_the_clocks_back_at_most_their_limit(plan):
     pilots["b"]._tick(_at(vehicles["b"], route_b.planned_position_at(30.0), 200.0))
     # not frozen: at most ScheduleClock's max_lag_s (120 s) behind sim time, as headless
     assert 200.0 - 120.0 - 1e-6 <= pilots["b"]._t_plan < 200.0
+
+
+async def _lagging_b(plan, vehicles, t: float = 30.0):
+    """a on its plan at ``t``; b still at its station, ~300 m behind its own plan, before the
+    planned closest approach (49.5 s): over the re-plan rule's lag (100 m)."""
+    await _put(vehicles["a"], plan.coordinated.timed["a"].planned_position_at(t), t)
+    return await _put(vehicles["b"], plan.mission.vehicle("b").start_enu_m, t)
+
+
+async def _turns_until_done(ctx) -> int:
+    """Turns of the event loop while the re-plan is in flight (0: it never left the loop)."""
+    turns = 0
+    while ctx.replan_task is not None:
+        turns += 1
+        await asyncio.sleep(0.001)
+    return turns
+
+
+def test_a_lagging_lower_vehicle_is_replanned_in_flight_beside_the_loop(plan):
+    ctx, pilots, vehicles = _flight(plan)
+    old = pilots["b"].planner.timed_route
+
+    async def fly() -> int:
+        pilots["b"]._tick(await _lagging_b(plan, vehicles))
+        assert ctx.replan_task is not None  # the tick returned with the re-plan still running
+        pilots["b"]._tick(await _put(vehicles["b"], plan.mission.vehicle("b").start_enu_m, 30.2))
+        return await _turns_until_done(ctx)
+
+    turns = asyncio.run(fly())
+    assert turns > 10, turns  # the loop kept turning while the thread planned
+    new = pilots["b"].planner.timed_route
+    assert new is not old and new is ctx.clocks.routes["b"]
+    assert new.t_s[0] == pytest.approx(30.0)  # from where b was, at the time it was there
+    assert new.xy_enu_m[0] == pytest.approx(plan.mission.vehicle("b").start_enu_m[:2], abs=1e-6)
+    assert ctx.clocks.replans == {"a": 0, "b": 1} and ctx.clocks.tries["b"] == 1  # one in flight at a time
+    assert ctx.replan_errors == 0
+
+
+@pytest.mark.parametrize("how", ["stood down", "raised"])
+def test_a_late_or_failed_replan_leaves_the_old_plan_flying(plan, how, monkeypatch):
+    ctx, pilots, vehicles = _flight(plan)
+    old = pilots["b"].planner.timed_route
+    if how == "raised":
+        def broken(job):
+            raise RuntimeError("planner bug")
+        monkeypatch.setattr(ctx.clocks, "plan", broken)
+
+    async def fly() -> int:
+        pilots["b"]._tick(await _lagging_b(plan, vehicles))
+        assert ctx.replan_task is not None
+        if how == "stood down":
+            ctx.off_schedule.add("b")  # no longer flying its plan when the result comes back
+        return await _turns_until_done(ctx)
+
+    asyncio.run(fly())
+    assert pilots["b"].planner.timed_route is old and ctx.clocks.routes["b"] is old
+    assert ctx.clocks.replans["b"] == 0
+    assert ctx.replan_errors == (1 if how == "raised" else 0)
