@@ -47,8 +47,11 @@ def test_reference_mission(sitl, companion, tmp_path, reference_headless):
 
     # The companion's own outputs of the same flight.
     ticks = [r for r in run.flight_log() if r["vehicle"] == "a" and r["action"] == "fly"]
-    assert len(ticks) > 800  # one tick per 0.5 s of sim time over ~480 s
-    assert max(abs(float(r["cmd_yaw_rate_deg_s"])) for r in ticks) <= math.degrees(10.0 / 30.0) + 1e-6
+    # One tick per 0.5 s of sim over ~480 s is ~960; a loaded machine at 20x makes the pilot skip
+    # the ticks it is late for (it never flies a stale one), so the bound leaves room for that.
+    assert len(ticks) > 600, f"{len(ticks)} planner ticks of a over ~480 s of sim"
+    # flight.csv keeps 3 decimals: a command at the limit (19.0986 deg/s) reads 19.099
+    assert max(abs(float(r["cmd_yaw_rate_deg_s"])) for r in ticks) <= math.degrees(10.0 / 30.0) + 5e-4
     assert (run.out_dir / "trajectory.png").stat().st_size > 10_000
     assert "SUCCESS" in run.stdout and "a: arrived" in run.stdout
     tlogs = list((tmp_path / "tlog").glob("*.tlog"))

@@ -33,5 +33,6 @@ def test_reference_mission_in_process_matches_the_headless_runner(run_in_process
     rows = list(csv.DictReader((out / "flight.csv").read_text().splitlines()))
     ticks = [r for r in rows if r["vehicle"] == "a" and r["action"] == "fly"]
     assert len(ticks) > 800  # one tick per 0.5 s of sim time over ~480 s
-    assert max(abs(float(r["cmd_yaw_rate_deg_s"])) for r in ticks) <= math.degrees(10.0 / 30.0) + 1e-6
+    # flight.csv keeps 3 decimals: a command at the limit (19.0986 deg/s) reads 19.099
+    assert max(abs(float(r["cmd_yaw_rate_deg_s"])) for r in ticks) <= math.degrees(10.0 / 30.0) + 5e-4
     assert (out / "trajectory.png").stat().st_size > 10_000
