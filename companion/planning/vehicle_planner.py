@@ -25,7 +25,7 @@ from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.routes import detour_route
 from uav_model.mission import Normalisation, SightlineCritic
 from uav_model.world import World
-from uav_model.plant import Plant, tracking_margin_m
+from uav_model.plant import TRACKING_LAG_S, Plant, tracking_margin_m
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission, VehicleSpec
@@ -224,7 +224,7 @@ class VehiclePlanner:
         if not sightline:
             del window["w_s"]  # the first in priority flies without the term
         config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline, fence_m=fence,
-                                         **window)
+                                         tracking_lag_s=TRACKING_LAG_S[mission.plant], **window)
         tracker = LocalGoalTracker(nodes, mission.planner.acceptance_radius_m)
         replanning = None if goals_from is GoalSource.STATION else Replanning(
             mission.planner.replan_after_s, mission.world, mission.planner.grid_resolution_m,

@@ -63,6 +63,10 @@ class DwaConfig:
     w_v: float = 0.0
     sightline_slope: bool = False
     fixed_scale: bool = False
+    # How long the plant trails a command (s; uav_model.plant.TRACKING_LAG_S): commanded to hover
+    # at cruise it carries on about this long along its heading, and a spin recovery gets going
+    # this much after its yaw (see recovery.hover_check). 0: the plant flies the rollouts exactly.
+    tracking_lag_s: float = 0.0
 
     # S below is the number of rollouts: yaw_rate samples x speed_samples (speeds outer).
     count: int = field(init=False, repr=False)  # S
@@ -169,6 +173,11 @@ class DwaConfig:
         )
         values.update(overrides)
         return cls(**values)
+
+    @property
+    def stop_drift_m(self) -> float:
+        """How far the plant carries on along its heading after a hover command at cruise."""
+        return self.tracking_lag_s * self.speed_m_s
 
     @property
     def spin_time_s(self) -> float:

@@ -13,6 +13,13 @@ In this order (:func:`no_legal_rollout`):
    inflation margin is the reserve an emergency may use); else
 4. the rollout from the current heading that stays clear of the true footprints longest,
    if it lasts longer than hovering (the escape); else hold.
+
+A plant that lags its commands (``config.tracking_lag_s`` > 0, the multicopter) does not stop
+where it is, nor get going at once after a yaw: the hover is judged on its braking segment,
+until the lag after the spin (:func:`hover_check`), and when that stopping point is going to
+be hit, a rollout at speed that stays clear of the true footprints for the whole horizon is
+flown before step 3 (stopping, yawing and accelerating again in a moving obstacle's path is
+what the recovery cannot promise on such a plant).
 """
 
 from __future__ import annotations
@@ -67,6 +74,11 @@ def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snap
             if legal is None:  # between the two recoveries: a hover that stays clear is the better wait
                 if hover.inflated[-1]:
                     return NoLegalRollout(f"{reason}; holding: no heading has a legal rollout")
+                if config.tracking_lag_s > 0.0 and not hover.true[-1]:
+                    # Stopping here will be hit: a lagging plant flies on rather than stop, yaw and restart.
+                    flying = escape(config, near, ok_by_rule, heading, clear, hover, reason, whole_horizon=True)
+                    if flying is not None:
+                        return flying
                 continue
             if legal.any():
                 return spin_recovery(pose, goals, other, snapshot, config, pts, legal, distance, f"{reason}; {how}")
@@ -78,9 +90,17 @@ def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snap
 def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: ObstacleSnapshot,
                 config: DwaConfig) -> HoverCheck:
     """The hover point over a spin plus a horizon, inflated and true, against the obstacles and
-    every UAV of ``separate_from``; separation is never relaxed."""
+    every UAV of ``separate_from``; separation is never relaxed.
+
+    A plant that lags (``config.tracking_lag_s``) does not hover where it is: the multicopter
+    commanded to hover at cruise carries on ~18 m along its heading (``config.stop_drift_m``),
+    and gets going again that lag after its yaw. The obstacles are judged on the whole braking
+    segment (the worst point of it at every time) and over the spin plus the lag plus a horizon,
+    so that a recovery never parks the vehicle in the path of a moving obstacle that only misses
+    the pose (seed 7 i015: a shuttling disc reversed, the vehicle stopped 7 m inside its path to
+    yaw 105 deg, and was hit while it yawed)."""
     dt = config.dt_s
-    hover_steps = config.steps + round(config.spin_time_s / dt)
+    hover_steps = config.steps + round((config.spin_time_s + config.tracking_lag_s) / dt)
     t_hover = dt * np.arange(hover_steps + 1)
     field_h = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, float(t_hover[-1]))
     margins = np.concatenate([field_h.circle_margin_m, field_h.poly_margin_m])[:, None]
@@ -88,7 +108,12 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
     hover_true = hover_inf.copy()
     floor_inf = floor_true = None
     if field_h.count:
-        hc = inflated_clearance(np.full(hover_steps + 1, pose.x_m), np.full(hover_steps + 1, pose.y_m), t_hover, field_h)
+        ahead = np.linspace(0.0, config.stop_drift_m, 1 + math.ceil(config.stop_drift_m / _DRIFT_STEP_M))
+        sx = np.repeat(pose.x_m + ahead * math.cos(pose.heading_rad), hover_steps + 1)
+        sy = np.repeat(pose.y_m + ahead * math.sin(pose.heading_rad), hover_steps + 1)
+        hc = inflated_clearance(sx, sy, np.tile(t_hover, len(ahead)), field_h)
+        if len(ahead) > 1:  # the worst point of the braking segment at each time; the floor is the pose's
+            hc = np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(ahead), -1).min(axis=1)[:, 1:]], axis=1)
         floor_inf = np.minimum(hc[:, 0:1], 0.0)
         floor_true = np.minimum(hc[:, 0:1] + margins, 0.0)
         hover_inf &= (hc >= floor_inf - 1e-9).all(axis=0)
@@ -105,6 +130,10 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
                       field_h, margins, floor_inf, floor_true, sep_from, sep_limit2)
 
 
+# Spacing of the points a braking segment is judged on (m): far below any obstacle's size.
+_DRIFT_STEP_M = 2.0
+
+
 def spin_candidates(pose: Pose, config: DwaConfig, hover: HoverCheck) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The recovery rollouts placed at the pose (R, K + 1, 2), which of them are legal on the
     inflated and on the true footprints (R,) each, and their distance critic (R,)."""
@@ -114,7 +143,7 @@ def spin_candidates(pose: Pose, config: DwaConfig, hover: HoverCheck) -> tuple[n
     pts += (pose.x_m, pose.y_m)
     px, py = pts[..., 0], pts[..., 1]
     n_r = len(pts)
-    delay_k = np.rint(config.rec_delay_s / dt).astype(int)
+    delay_k = np.rint((config.rec_delay_s + config.tracking_lag_s) / dt).astype(int)  # hovers until it gets going
     ok_inf = hover.inflated[delay_k]
     ok_true = hover.true[delay_k]
     if hover.field.count:
@@ -155,9 +184,11 @@ def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapsho
 
 
 def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.ndarray], heading: np.ndarray,
-           clear: np.ndarray | None, hover: HoverCheck, reason: str) -> NoLegalRollout:
+           clear: np.ndarray | None, hover: HoverCheck, reason: str,
+           whole_horizon: bool = False) -> NoLegalRollout | None:
     """Hovering will be hit and no heading helps: fly what stays clear of the true footprints
-    longest, if that outlasts hovering; else hold."""
+    longest, if that outlasts hovering; else hold. ``whole_horizon``: only a rollout clear of
+    them for the whole horizon, else None."""
     dt, steps, hover_steps = config.dt_s, config.steps, hover.steps
     ok_pts = np.ones((config.count, steps + 1), dtype=bool)
     for rule, ok in ok_by_rule.items():
@@ -168,8 +199,12 @@ def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.
         ok_pts &= (true_clear >= np.minimum(true_clear[:, 0:1], 0.0) - 1e-9).all(axis=0).reshape(ok_pts.shape)
     # legal steps flown; a rollout clear for the whole horizon outlasts any hover
     lasts = np.where(ok_pts[:, 1:].all(axis=1), hover_steps + 1, np.argmin(ok_pts[:, 1:], axis=1))
+    if whole_horizon:  # flying on: a hover rollout would stop after all
+        lasts = np.where(config.speeds_m_s > 0.0, lasts, 0)
     hold_lasts = hover_steps if hover.true[-1] else int(np.argmin(hover.true[1:]))
     best_last = int(lasts.max())
+    if whole_horizon and best_last <= hover_steps:
+        return None
     if best_last <= hold_lasts:
         return NoLegalRollout(f"{reason}; holding: nothing lasts longer than hovering ({hold_lasts * dt:g} s)")
     i = int(np.argmax(np.where(lasts == best_last, heading, -np.inf)))
