@@ -48,12 +48,7 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
     basis[1, :n_s] = dx * inv_len
     basis[0, n_s:] = dx
     basis[1, n_s:] = dy
-    c_xy, c_vel, c_r = snap.circle_xy_m, snap.circle_vel_m_s, snap.circle_radius_m
-    p_a, p_d, p_vel = snap.poly_a_m, snap.poly_d_m, snap.poly_vel_m_s
-    if keep is not None:
-        kc, kp = keep[:len(c_r)], keep[len(c_r):]
-        c_xy, c_vel, c_r = c_xy[kc], c_vel[kc], c_r[kc]
-        p_a, p_d, p_vel = p_a[kp], p_d[kp], p_vel[kp]
+    c_xy, c_vel, c_r, p_a, p_d, p_vel = _kept(snap, keep)
     n_c, n_p = len(c_r), len(p_a)
     parts = []
     if n_c:
@@ -92,17 +87,22 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
     return best
 
 
+def _kept(snap: ObstacleSnapshot, keep: np.ndarray | None) -> tuple[np.ndarray, ...]:
+    """The snapshot's circles (xy, velocity, radius) and polygons (vertices, edge vectors,
+    velocity), only those ``keep`` marks (circles first, then polygons) when given."""
+    c_xy, c_vel, c_r = snap.circle_xy_m, snap.circle_vel_m_s, snap.circle_radius_m
+    p_a, p_d, p_vel = snap.poly_a_m, snap.poly_d_m, snap.poly_vel_m_s
+    if keep is None:
+        return c_xy, c_vel, c_r, p_a, p_d, p_vel
+    kc, kp = keep[:len(c_r)], keep[len(c_r):]
+    return c_xy[kc], c_vel[kc], c_r[kc], p_a[kp], p_d[kp], p_vel[kp]
+
 
 def _compiled_scores(ex: np.ndarray, ey: np.ndarray, qx: float, qy: float, t_s: float, snap: ObstacleSnapshot,
                      keep: np.ndarray | None) -> np.ndarray:
     """_sightline_scores with its operands built in one compiled pass (:func:`kernels.sight_frame`);
     the product stays numpy's."""
-    c_xy, c_vel, c_r = snap.circle_xy_m, snap.circle_vel_m_s, snap.circle_radius_m
-    p_a, p_d, p_vel = snap.poly_a_m, snap.poly_d_m, snap.poly_vel_m_s
-    if keep is not None:
-        kc, kp = keep[:len(c_r)], keep[len(c_r):]
-        c_xy, c_vel, c_r = c_xy[kc], c_vel[kc], c_r[kc]
-        p_a, p_d, p_vel = p_a[kp], p_d[kp], p_vel[kp]
+    c_xy, c_vel, c_r, p_a, p_d, p_vel = _kept(snap, keep)
     if p_a.ndim != 3:  # no polygons at all: (0, 0, 2) for the one signature
         p_a = p_d = np.zeros((0, 0, 2))
     rows, basis, len2 = kernels.sight_frame(one_layout(ex), one_layout(ey), qx, qy, t_s, one_layout(c_xy),
