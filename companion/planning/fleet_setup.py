@@ -25,7 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from companion.planning.coordination import plan_coordinated
+from companion.planning.coordination import Blocking, plan_coordinated
 from companion.planning.routes import higher_routes
 from companion.planning.replan import TimedFleet
 from companion.planning.timed import sight_near_m
@@ -49,14 +49,15 @@ class Fleet:
 
 
 def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | None = None,
-                timed_routes: Mapping[str, TimedRoute] | None = None) -> Fleet:
+                timed_routes: Mapping[str, TimedRoute] | None = None,
+                blocking: Mapping[str, Blocking] | None = None) -> Fleet:
     """The planners and schedule clocks that fly ``mission`` with ``variant`` (default: the
     mission's). ``timed_routes`` (timed variants): the routes with arrival times to fly; by default
     the coordinated space-time plan (:func:`coordination.plan_coordinated`, seconds of numpy: a
-    caller that already has it passes it in)."""
+    caller that already has it passes it in, with its ``blocking``: what each plan keeps, which an
+    in-flight re-plan must keep at least as well; unknown, any re-plan is adopted)."""
     variant = variant or mission.planner.variant
     timed_variant = VARIANTS[variant].timed
-    blocking = None  # what each plan keeps: an in-flight re-plan must keep it at least as well
     if timed_routes is None and timed_variant and routes:
         plan = plan_coordinated(mission, routes)  # the space-time plan (docs/design.md)
         timed_routes, blocking = plan.timed, plan.blocking

@@ -69,6 +69,8 @@ def test_the_live_planners_are_the_headless_ones(plan):
     assert b.timed_route is timed["b"]
     assert b.sight_near_m is not None and b.sight_near_m == pytest.approx(sight_near_m(plan.mission, timed, "b"))
     assert pilots["a"].planner.sight_near_m is None  # the first in priority carries no sightline term
+    # What each plan keeps, as headless knows it: an in-flight re-plan must keep it at least as well.
+    assert ctx.fleet.clocks.blocking == plan.coordinated.blocking and plan.coordinated.blocking
 
 
 def test_b_reads_its_plan_at_a_clock_held_back_by_a_lagging_a(plan):
