@@ -35,6 +35,7 @@ SCRIPT = PX4_SIH / "characterise.py"
 PX4_LOG = PX4_SIH / "characterisation" / "px4_sih_1x.log"
 SPEEDUP = 4.0  # 160 s of the 1x script in ~40 s
 MAX_SLIP_S = 5.0
+ATTEMPTS = 3
 
 # Runs the script with its clock sped up; argv: script, speedup, then the script's own arguments.
 FAST_CLOCK = """
@@ -65,8 +66,8 @@ KNOWN_DIFFERENT = {
 }
 
 
-async def run_script_against_stub(out_prefix: Path) -> str:
-    """The script's step log from a run against a fresh stub on a free port."""
+async def run_script_against_stub(out_prefix: Path) -> tuple[str, float]:
+    """The script's step log from a run against a fresh stub on a free port, and how far the stub slipped."""
     (port,) = free_udp_ports(1)
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-c", FAST_CLOCK, str(SCRIPT), str(SPEEDUP), str(port), str(out_prefix),
@@ -81,14 +82,12 @@ async def run_script_against_stub(out_prefix: Path) -> str:
             async with asyncio.timeout(100.0):
                 while line := await proc.stdout.readline():
                     lines.append(line)
-            # A stalled stub slips (it does not jump), so the steps, timed in sim time, survive a few
-            # seconds of it over the ~160 s run; beyond that the script outran the vehicle.
-            assert sim.slipped_s < MAX_SLIP_S, f"the stub fell behind by {sim.slipped_s:.1f} s: a slower run's log"
+            slipped_s = sim.slipped_s
     finally:
         if proc.returncode is None:
             proc.kill()
         await proc.wait()
-    return b"".join(lines).decode(errors="replace")
+    return b"".join(lines).decode(errors="replace"), slipped_s
 
 
 def test_known_differences_are_all_steps():
@@ -97,12 +96,50 @@ def test_known_differences_are_all_steps():
     assert len(names) == len(STEPS)
 
 
+def arms_before_healthy(log_text: str) -> bool:
+    """Whether the script's first arm was answered before the vehicle reported itself healthy.
+
+    On PX4 it was (3.70 s against 4.20 s sim): the script reads 20 parameters first, which took
+    0.5 s there. On a loaded machine the stub's round trips, four times compressed, can take the
+    script past the 4.2 s boot settling before it arms; the stub then rightly accepts, and the run
+    cannot show the boot-time refusal that the arm steps compare.
+    """
+    log = parse_log(log_text)
+    ack = next((line.sim_s for line in log if line.text.startswith("COMMAND_ACK ARM try 1:")), None)
+    healthy = next((line.sim_s for line in log if "prearm_ok=True" in line.text), None)
+    return ack is not None and (healthy is None or ack < healthy)
+
+
 @pytest.mark.skipif(not SCRIPT.exists(), reason=f"PX4 reference not found: {SCRIPT} (set PX4_SIH_DIR)")
+@pytest.mark.timeout(360)
 def test_characterise_script_on_the_stub_matches_px4_step_by_step(tmp_path):
-    log_text = asyncio.run(run_script_against_stub(tmp_path / "stub"))
-    (tmp_path / "stub.log").write_text(log_text)
+    # Again only when the machine made the run unlike PX4's 1x one: a stalled stub slips (it does not
+    # jump), so the steps, timed in sim time, survive a few seconds of it over the ~160 s run, but
+    # beyond that the script outran the vehicle; and a script that arms late cannot show the refusal.
+    why = ""
+    for attempt in range(1, ATTEMPTS + 1):
+        log_text, slipped_s = asyncio.run(run_script_against_stub(tmp_path / f"stub{attempt}"))
+        (tmp_path / "stub.log").write_text(log_text)
+        if slipped_s >= MAX_SLIP_S:
+            why = f"the stub fell behind by {slipped_s:.1f} s"
+        elif not arms_before_healthy(log_text):
+            why = "the script armed only after the stub's boot settling"
+        else:
+            break
+    else:
+        pytest.fail(f"in {ATTEMPTS} runs none was like PX4's 1x run (last: {why}; the machine is too "
+                    f"slow to compare step by step); last log: {tmp_path / 'stub.log'}")
     differing = compare(parse_log(PX4_LOG.read_text()), parse_log(log_text))
     unexpected = {k: v for k, v in differing.items() if k not in KNOWN_DIFFERENT}
     now_matching = sorted(set(KNOWN_DIFFERENT) - set(differing))
     assert not unexpected, f"steps that differ from PX4 (PX4, stub): {unexpected}\nlog: {tmp_path / 'stub.log'}"
     assert not now_matching, f"steps that now match PX4: take them off KNOWN_DIFFERENT: {now_matching}"
+
+
+@pytest.mark.skipif(not PX4_LOG.exists(), reason=f"PX4 reference not found: {PX4_LOG} (set PX4_SIH_DIR)")
+def test_a_late_first_arm_is_told_apart_from_px4s_early_one():
+    assert arms_before_healthy(PX4_LOG.read_text())
+    late = ("[w   4.49 s    4.16] SYS_STATUS health=0x1000002f prearm_ok=True present=0x1000002f\n"
+            "[w   4.60 s    4.32] COMMAND_ACK ARM try 1: MAV_RESULT_ACCEPTED\n")
+    assert not arms_before_healthy(late)
+    assert not arms_before_healthy("[w   4.49 s    4.16] SYS_STATUS health=0x0 prearm_ok=False\n")
