@@ -127,11 +127,17 @@ class TruthGeometry:
             off = o.offset_at(t_s)
             cx, cy = o.center[0] + off[..., 0], o.center[1] + off[..., 1]
             blocked |= _origin_to_segment(ax - cx, ay - cy, bx - cx, by - cy) < o.size_m
-        for o in self.polygons:
+        for o, ((cx, cy), bound) in zip(self.polygons, self._p_bound):
             off = o.offset_at(t_s)
-            coords = np.stack([np.stack([ax - off[..., 0], ay - off[..., 1]], axis=-1),
-                               np.stack([bx - off[..., 0], by - off[..., 1]], axis=-1)], axis=-2)
-            blocked |= shapely.intersects(shapely.linestrings(coords), o.footprint)
+            sx, sy, ex, ey = ax - off[..., 0], ay - off[..., 1], bx - off[..., 0], by - off[..., 1]
+            # Only a segment that reaches the polygon's bounding disc (1 mm of slack for rounding)
+            # can cross it, and one already blocked stays so: shapely sees the others only.
+            test = ~blocked & (_origin_to_segment(sx - cx, sy - cy, ex - cx, ey - cy) <= bound + 1e-3)
+            if not test.any():
+                continue
+            coords = np.stack([np.stack([sx[test], sy[test]], axis=-1), np.stack([ex[test], ey[test]], axis=-1)],
+                              axis=-2)
+            blocked[test] = shapely.intersects(shapely.linestrings(coords), o.footprint)
         return blocked
 
 

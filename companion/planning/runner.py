@@ -155,19 +155,23 @@ def simulate(mission: Mission, variant: str | None = None, *,
         seen: dict[tuple[str, bool], OtherUav] = {}  # each vehicle as the others see it this tick
         for name in list(active):
             own = states[name]
-            neighbours = []
+            uavs = []
             for n in others[name]:
                 # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
                 key = (n, n not in active)
                 uav = seen.get(key)
                 if uav is None:
                     uav = seen[key] = _other(states[n], here[n], parked=key[1])
-                neighbours.append(Neighbour(n, rank[n], uav))
+                uavs.append(uav)
             x, y = here[name]
-            reaction = react_to(x, y, rank[name], neighbours)
+            if len(uavs) == 1:  # react_to's answer for one neighbour, without building it
+                other, separate_from = uavs[0], (uavs[0],)
+            else:
+                reaction = react_to(x, y, rank[name], [Neighbour(n, rank[n], u) for n, u in zip(others[name], uavs)])
+                other, separate_from = reaction.other, reaction.separate_from
             planner = planners[name]
-            result = planner.tick(Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad)), reaction.other, snapshot, t,
-                                  separate_from=reaction.separate_from,
+            result = planner.tick(Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad)), other, snapshot, t,
+                                  separate_from=separate_from,
                                   schedule_t_s=None if clocks is None else clocks.now(name, t))
             if planner.replan_due:  # no progress for a while: a new route from here, at once
                 planner.adopt_detour(planner.plan_detour(x, y), x, y, t)

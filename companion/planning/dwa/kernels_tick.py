@@ -119,10 +119,12 @@ if numba is not None:
         return ok, distance
 
     @_jit
-    def sight_frame(ex, ey, qx, qy, t_s, c_xy, c_vel, p_a, p_vel, p_d):  # noqa: F811
-        """_sightline_scores' operands for sight segments (ex, ey) -> q: the rows (circle centres,
-        polygon vertices, each predicted to t_s and relative to q, then the edge vectors) (R, 2),
-        the basis [unit left normals | segment vectors] (2, 2S) and the squared lengths (S,)."""
+    def sight_frame(ex, ey, qx, qy, t_s, c_xy, c_vel, c_r, p_a, p_vel, p_d, keep, masked):  # noqa: F811
+        """_sightline_scores' operands for sight segments (ex, ey) -> q, over the obstacles
+        ``keep`` marks (circles, then polygons; all when not ``masked``): the rows (the kept
+        circle centres, polygon vertices, each predicted to t_s and relative to q, then the edge
+        vectors) (R, 2), the basis [unit left normals | segment vectors] (2, 2S), the squared
+        lengths (S,), the kept circles' radii and how many polygons are kept."""
         n_s = len(ex)
         len2 = np.empty(n_s)
         basis = np.empty((2, 2 * n_s))
@@ -136,18 +138,33 @@ if numba is not None:
             basis[1, i] = dx * inv_len
             basis[0, n_s + i] = dx
             basis[1, n_s + i] = dy
-        n_c, n_p, n_e = len(c_xy), p_a.shape[0], p_a.shape[1]
+        n_call, n_pall, n_e = len(c_xy), p_a.shape[0], p_a.shape[1]
+        n_c = n_p = 0
+        for c in range(n_call):
+            n_c += not masked or keep[c]
+        for p in range(n_pall):
+            n_p += not masked or keep[n_call + p]
         rows = np.empty((n_c + 2 * n_p * n_e, 2))
-        for c in range(n_c):
-            rows[c, 0] = c_xy[c, 0] + (c_vel[c, 0] * t_s - qx)
-            rows[c, 1] = c_xy[c, 1] + (c_vel[c, 1] * t_s - qy)
-        for p in range(n_p):
+        radius = np.empty(n_c)
+        k = 0
+        for c in range(n_call):
+            if masked and not keep[c]:
+                continue
+            rows[k, 0] = c_xy[c, 0] + (c_vel[c, 0] * t_s - qx)
+            rows[k, 1] = c_xy[c, 1] + (c_vel[c, 1] * t_s - qy)
+            radius[k] = c_r[c]
+            k += 1
+        k = 0
+        for p in range(n_pall):
+            if masked and not keep[n_call + p]:
+                continue
             sx = p_vel[p, 0] * t_s - qx
             sy = p_vel[p, 1] * t_s - qy
             for e in range(n_e):
-                r = n_c + p * n_e + e
+                r = n_c + k * n_e + e
                 rows[r, 0] = p_a[p, e, 0] + sx
                 rows[r, 1] = p_a[p, e, 1] + sy
                 rows[r + n_p * n_e, 0] = p_d[p, e, 0]
                 rows[r + n_p * n_e, 1] = p_d[p, e, 1]
-        return rows, basis, len2
+            k += 1
+        return rows, basis, len2, radius, n_p

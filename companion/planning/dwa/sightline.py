@@ -100,15 +100,19 @@ def _kept(snap: ObstacleSnapshot, keep: np.ndarray | None) -> tuple[np.ndarray, 
 
 def _compiled_scores(ex: np.ndarray, ey: np.ndarray, qx: float, qy: float, t_s: float, snap: ObstacleSnapshot,
                      keep: np.ndarray | None) -> np.ndarray:
-    """_sightline_scores with its operands built in one compiled pass (:func:`kernels.sight_frame`);
-    the product stays numpy's."""
-    c_xy, c_vel, c_r, p_a, p_d, p_vel = _kept(snap, keep)
+    """_sightline_scores with its operands built in one compiled pass (:func:`kernels.sight_frame`,
+    which also picks the obstacles ``keep`` marks); the product stays numpy's."""
+    p_a, p_d = snap.poly_a_m, snap.poly_d_m
     if p_a.ndim != 3:  # no polygons at all: (0, 0, 2) for the one signature
         p_a = p_d = np.zeros((0, 0, 2))
-    rows, basis, len2 = kernels.sight_frame(one_layout(ex), one_layout(ey), qx, qy, t_s, one_layout(c_xy),
-                                            one_layout(c_vel), one_layout(p_a), one_layout(p_vel), one_layout(p_d))
-    n_p = len(p_a)
-    return kernels.sightline_depth(rows @ basis, len2, c_r, len(c_r), n_p, p_a.shape[1] if n_p else 0)
+    rows, basis, len2, radius, n_p = kernels.sight_frame(
+        one_layout(ex), one_layout(ey), qx, qy, t_s, one_layout(snap.circle_xy_m), one_layout(snap.circle_vel_m_s),
+        one_layout(snap.circle_radius_m), one_layout(p_a), one_layout(snap.poly_vel_m_s), one_layout(p_d),
+        _ALL if keep is None else keep, keep is not None)
+    return kernels.sightline_depth(rows @ basis, len2, radius, len(radius), n_p, p_a.shape[1] if n_p else 0)
+
+
+_ALL = np.ones(0, dtype=bool)  # the mask sight_frame is given when it keeps every obstacle (not read)
 
 
 def sightline_term(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig,

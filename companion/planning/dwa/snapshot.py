@@ -217,10 +217,11 @@ _ROW_FIELDS = {
 
 
 def assemble(values: dict) -> ObstacleSnapshot:
-    """A snapshot from every field, derived ones included (no __post_init__)."""
+    """A snapshot from every field, derived ones included (no __post_init__). The fields go
+    into the instance's __dict__ in one update (a frozen dataclass without slots), not one
+    ``object.__setattr__`` each: the headless runner makes a snapshot every tick."""
     out = object.__new__(ObstacleSnapshot)
-    for name, value in values.items():
-        object.__setattr__(out, name, value)
+    out.__dict__.update(values)
     return out
 
 
