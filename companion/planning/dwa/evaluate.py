@@ -6,6 +6,7 @@ import numpy as np
 
 from companion.planning.dwa import kernels
 from companion.planning.dwa.config import DwaConfig
+from companion.planning.dwa.geometry import one_layout
 from companion.planning.dwa.legality import commit_turn
 from companion.planning.dwa.types import Command
 
@@ -33,6 +34,23 @@ def choose(config: DwaConfig, legal: np.ndarray, turn_error: float, heading: np.
     total = evaluate(config, legal, heading, distance, sightline, n_legal == config.count, speed)
     best = int(total.argmax())
     return best, float(total[best]), n_legal
+
+
+def pick(config: DwaConfig, legal: np.ndarray, turn_error: float, ex: np.ndarray, ey: np.ndarray,
+         heading_rad: float, target_xy: tuple[float, float], distance: np.ndarray, sightline: np.ndarray | None,
+         speed: np.ndarray | None) -> Command:
+    """With numba: the heading critic toward one target (``heading.heading_from_ends``' single
+    path, prediction points (ex, ey) of a pose heading ``heading_rad``), :func:`choose` and
+    :func:`command_for` in one compiled call (:func:`kernels.pick`); the same command."""
+    saturated = distance is config.saturated_m
+    legal = legal if legal.flags.writeable else legal.copy()
+    distance = distance if distance.flags.writeable else distance.copy()
+    return Command(*kernels.pick(
+        one_layout(ex), one_layout(ey), float(heading_rad), config.final_dheading_rad, float(target_xy[0]),
+        float(target_xy[1]), legal, config.yaw_rates_rad_s, config.speeds_m_s, turn_error, config.weights, distance,
+        saturated, config.distance_saturation_m, config.saturated_sums_m, _NONE if sightline is None else sightline,
+        sightline is not None, config.sightline_slope, _NONE if speed is None else speed, speed is not None,
+        config.fixed_scale, config.sightline_cap_m))
 
 
 def evaluate(config: DwaConfig, legal: np.ndarray, heading: np.ndarray, distance: np.ndarray,

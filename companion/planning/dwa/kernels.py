@@ -27,9 +27,10 @@ except ImportError:  # the numpy kernels run instead
     numba = None
 
 __all__ = ["choose", "circle_clearance", "heading_goals", "heading_toward", "near_mask", "numpy_only",
-           "obstacle_terms", "open_clearance", "polygon_clearance", "sight_frame", "sightline_depth"]
+           "obstacle_pass", "obstacle_terms", "open_clearance", "pick", "polygon_clearance", "sight_frame",
+           "sightline_depth"]
 _NAMES = ("circle_clearance", "polygon_clearance", "sightline_depth", "open_clearance", "near_mask",
-          "heading_toward", "choose", "heading_goals", "obstacle_terms", "sight_frame")
+          "heading_toward", "choose", "heading_goals", "obstacle_terms", "sight_frame", "obstacle_pass", "pick")
 
 circle_clearance = polygon_clearance = sightline_depth = open_clearance = near_mask = heading_toward = None
 choose = None
@@ -334,6 +335,10 @@ if numba is not None:
             if best < 0 or np.isnan(v) and not np.isnan(total[best]) or v > total[best]:
                 best = i
         return best, total[best], n_legal
+
+
+# The fused kernels call the ones above (defined by now), so they are imported last.
+from companion.planning.dwa.kernels_fused import obstacle_pass, pick  # noqa: E402
 
 
 @contextmanager

@@ -8,8 +8,9 @@ import numpy as np
 
 from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.distance import no_obstacle_in_reach, obstacle_and_distance
-from companion.planning.dwa.evaluate import choose, command_for
-from companion.planning.dwa.geometry import inflated_clearance
+from companion.planning.dwa import kernels
+from companion.planning.dwa.evaluate import choose, command_for, pick
+from companion.planning.dwa.geometry import inflated_clearance, one_layout
 from companion.planning.dwa.heading import heading_from_ends, single_target
 from companion.planning.dwa.legality import (Rule, binding_uavs, fence_distance, fence_ok, legal_rollouts,
                                              separation_ok, turn_error)
@@ -56,12 +57,10 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     final_heading = pose.heading_rad + config.final_dheading_rad
 
     ok_by_rule: dict[Rule, np.ndarray] = {}  # (S, K + 1) per rule
-    clear = None
+    clear = legal = None
     if near.count:
-        if config.row_of is None:
-            clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)  # (O, S * (K + 1))
-            ok, distance = obstacle_and_distance(clear, shape, config.distance_saturation_m)
-            ok_by_rule[Rule.OBSTACLE] = ok.reshape(shape)
+        if config.row_of is None:  # (O, S * (K + 1)); the rule per rollout too when compiled
+            clear, ok_by_rule[Rule.OBSTACLE], distance, legal = _obstacle_rule(px, py, near, config, shape)
         else:  # computed on the distinct rollouts only, then spread to all
             ok_by_rule[Rule.OBSTACLE], distance, clear = _obstacle_terms(gx, gy, near, config)
     else:
@@ -71,33 +70,63 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     if fence_here is not None:
         ok_by_rule[Rule.GEOFENCE] = fence_ok(px, py, config.fence_m, fence_here)
 
-    legal = legal_rollouts(ok_by_rule, config)
-    heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single,
-                                soonest_deg=_SOONEST_DEG if config.count > config.samples else 0.0)
+    if legal is None or len(ok_by_rule) > 1:
+        legal = legal_rollouts(ok_by_rule, config)
     if not np.count_nonzero(legal) or _only_hover(legal, config, scheduled_speed_m_s):
         if clear is not None and config.row_of is not None:  # the escape reads every rollout's
             clear = clear.reshape(len(clear), *gx.shape)[:, config.row_of].reshape(len(clear), -1)
+        heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single, _soonest(config))
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear, separate_from)
 
     sightline = _sightline(pose, other, snapshot, config, ex, ey, None if px is None else (gx, gy))
     speed = None
     if config.count > config.samples:
         speed = speed_scores(config, reference_speed_m_s(pose, goals, config, scheduled_speed_m_s))
+    if single and kernels.pick is not None:  # the heading critic, the choice and the command in one call
+        return pick(config, legal, turn_error(pose, goals, config), ex, ey, pose.heading_rad, goals.first_xy,
+                    distance, sightline, speed)
+    heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single, _soonest(config))
     best, total, n_legal = choose(config, legal, turn_error(pose, goals, config), heading, distance, sightline, speed)
     return command_for(config, best, heading, distance, sightline, total, n_legal)
+
+
+def _soonest(config: DwaConfig) -> float:
+    return _SOONEST_DEG if config.count > config.samples else 0.0
+
+
+def _obstacle_rule(px: np.ndarray, py: np.ndarray, near: ObstacleSnapshot, config: DwaConfig,
+                   shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The clearances (O, S * (K + 1)) of the rollouts to the obstacles ``near``, the obstacle
+    rule (S, K + 1), the distance critic (S,), and, compiled, the rule per rollout (S,)
+    (:func:`kernels.obstacle_pass`: otherwise None, and legal_rollouts works it out)."""
+    if kernels.obstacle_pass is None:
+        clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)
+        ok, distance = obstacle_and_distance(clear, shape, config.distance_saturation_m)
+        return clear, ok.reshape(shape), distance, None
+    clear, ok, distance, legal = kernels.obstacle_pass(
+        one_layout(px.ravel()), one_layout(py.ravel()), config.point_times_s, near.circle_xy_m, near.circle_vel_m_s,
+        near.circle_radius_m, near.circle_margin_m, near.poly_a_m, near.poly_b_m, near.poly_d_m, near.poly_inv_len2,
+        near.poly_dx_per_dy, near.poly_vel_m_s, near.poly_margin_m, shape[1], config.distance_saturation_m)
+    return clear, ok.reshape(shape), distance, legal
 
 
 
 def warm_up_kernels() -> None:
     """Load (or compile) the compiled kernels of branches a throwaway tick at the station may not
     take: the heading critic over a goal window, the obstacle terms and the sight lines' frame,
-    with the argument types a flight passes them (see companion.app.warmup)."""
+    and the fused obstacle pass and choice near an obstacle, with the argument types a flight
+    passes them (see companion.app.warmup)."""
     px = np.zeros((2, 3))
     goals = LocalGoals(np.array([[5.0, 0.0], [9.0, 0.0]]), (0.0, 0.0), 1.0, 1.0, ends_at_station=True)
     heading_from_ends(px[:, -1], px[:, -1], np.zeros(2), goals, (0.0, 0.0), px, px, False, _SOONEST_DEG)
     obstacle_and_distance(np.ones((1, 6)), (2, 3), 10.0)
     circle = ObstacleSnapshot.build([("c", 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)], [])
     sightline_scores(np.zeros((2, 2)), (5.0, 5.0), 1.0, circle)
+    config = DwaConfig(speed_m_s=10.0, max_yaw_rate_rad_s=0.3, samples=3, dt_s=0.5, prediction_time_s=1.0, w_h=1.0,
+                       w_d=1.0, w_s=1.0, sightline_cap_m=50.0)
+    plan_step(Pose(0.0, 0.0, 0.0), (100.0, 0.0), OtherUav(0.0, 50.0, 0.0, 0.0), ObstacleSnapshot.build(
+        [("c", 10.0, 20.0, 5.0, 1.0, 0.0, 0.0)], [("p", np.array([[0.0, 30.0], [9.0, 30.0], [9.0, 40.0]]), 1.0, 0.0,
+                                                  0.0)]), config)
 
 
 # With a speed window, an arriving rollout loses up to this much heading score for arriving late
