@@ -50,9 +50,8 @@ class LocalGoalTracker:
         key = (i, count, station_radius_m)
         goals = self._windows.get(key)
         if goals is None:  # a few distinct windows per flight: built once each
-            goals = self._windows[key] = LocalGoals(
-                self.nodes[i:i + count], self._xy[i - 1], self.acceptance_radius_m, station_radius_m,
-                ends_at_station=i + count == len(self._xy))
+            goals = self._windows[key] = LocalGoals.along(self.nodes, i, count, self.acceptance_radius_m,
+                                                          station_radius_m)
         return goals
 
     def remaining_m(self, x_m: float, y_m: float) -> float:

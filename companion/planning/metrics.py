@@ -145,7 +145,9 @@ def _origin_to_segment(ax, ay, bx, by):
     """Distance from the origin to segments a-b (arrays)."""
     dx, dy = bx - ax, by - ay
     len2 = dx * dx + dy * dy
-    u = np.clip(-(ax * dx + ay * dy) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
+    # np.clip's result, at a third of its cost per call (it runs per obstacle per safety batch);
+    # only the sign of a zero u can differ, which np.hypot does not see.
+    u = np.minimum(np.maximum(-(ax * dx + ay * dy) / np.where(len2 > 0, len2, 1.0), 0.0), 1.0)
     return np.hypot(ax + u * dx, ay + u * dy)
 
 

@@ -1,7 +1,8 @@
 """The fused compiled kernels (:mod:`companion.planning.dwa.kernels_fused`) give bit for bit what
 the numpy code they stand for gives: the obstacle pass (clearances, the rule per point and per
 rollout, the distance critic) on random worlds and rollouts, and the fused choice (heading
-critic toward one target, choice, command) on random windows and critics."""
+critic toward one target, choice, command) on random windows and critics; and the goal windows
+the tracker now builds from views of its route hold what the constructor derives."""
 
 from __future__ import annotations
 
@@ -70,3 +71,21 @@ def test_fused_choice_matches_numpy(case, seed: int, tx: float, ty: float, headi
     for name in ("yaw_rate_rad_s", "speed_m_s", "heading_score", "distance_score", "sightline_score", "eval_score"):
         assert same_bits(np.float64(getattr(got, name)), np.float64(getattr(reference, name))), name
     assert type(got.legal_count) is int
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**31), st.integers(2, 40), st.data())
+def test_route_window_is_the_constructors(seed: int, n: int, data) -> None:
+    """LocalGoals.along (the tracker's windows, their arrays views of the route) holds, to the
+    last bit, what the constructor derives (the heading critic reads these arrays)."""
+    nodes = np.random.default_rng(seed).uniform(-900.0, 900.0, (n, 2))
+    i = data.draw(st.integers(1, n - 1))
+    count = data.draw(st.integers(1, n - i))
+    acceptance, station = data.draw(st.sampled_from([0.0, 10.0, 30.0])), data.draw(st.sampled_from([5.0, 20.0]))
+    got = LocalGoals.along(nodes, i, count, acceptance, station)
+    reference = LocalGoals(nodes[i:i + count], (float(nodes[i - 1, 0]), float(nodes[i - 1, 1])), acceptance, station,
+                           ends_at_station=i + count == n)
+    for name in ("nodes_xy", "prev_nodes_xy", "radius2_m2"):
+        assert same_bits(getattr(got, name), getattr(reference, name)), name
+    for name in ("prev_xy", "acceptance_radius_m", "station_radius_m", "ends_at_station", "first_xy"):
+        assert getattr(got, name) == getattr(reference, name), name

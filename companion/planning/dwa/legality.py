@@ -64,6 +64,8 @@ def obstacle_ok(clear: np.ndarray, lowest: np.ndarray) -> np.ndarray:
 
 def binding_uavs(pose: Pose, others: Sequence[OtherUav], config: DwaConfig) -> tuple[OtherUav, ...]:
     """The UAVs of ``others`` whose predicted path can come within the separation of a rollout."""
+    if len(others) == 1:  # two vehicles flying: every tick, without a generator
+        return tuple(others) if separation_can_bind(pose, others[0], config) else ()
     return tuple(o for o in others if separation_can_bind(pose, o, config))
 
 

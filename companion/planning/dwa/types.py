@@ -92,6 +92,24 @@ class LocalGoals:
         object.__setattr__(self, "first_xy", (float(nodes[0, 0]), float(nodes[0, 1])))
 
     @classmethod
+    def along(cls, nodes_xy: np.ndarray, i: int, count: int, acceptance_radius_m: float,
+              station_radius_m: float) -> "LocalGoals":
+        """The window ``nodes_xy[i:i + count]`` of a route's nodes (float (N, 2), i >= 1), after
+        ``nodes_xy[i - 1]``; what the constructor makes, its node arrays as views of the route's
+        (a raw A* route's vehicle builds a window every other tick)."""
+        nodes = nodes_xy[i:i + count]
+        out = object.__new__(cls)
+        radius = np.full(count, acceptance_radius_m)
+        ends = i + count == len(nodes_xy)
+        if ends:
+            radius[-1] = station_radius_m
+        out.__dict__.update(nodes_xy=nodes, prev_xy=(float(nodes_xy[i - 1, 0]), float(nodes_xy[i - 1, 1])),
+                            acceptance_radius_m=acceptance_radius_m, station_radius_m=station_radius_m,
+                            ends_at_station=ends, prev_nodes_xy=nodes_xy[i - 1:i - 1 + count],
+                            radius2_m2=radius * radius, first_xy=(float(nodes[0, 0]), float(nodes[0, 1])))
+        return out
+
+    @classmethod
     def single(cls, goal_xy: tuple[float, float]) -> "LocalGoals":
         """One goal and nothing after it: the paper's heading critic exactly."""
         return cls(np.asarray([goal_xy], dtype=float), (float(goal_xy[0]), float(goal_xy[1])),
