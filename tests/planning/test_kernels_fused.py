@@ -46,8 +46,18 @@ def test_obstacle_pass_matches_numpy(snap: ObstacleSnapshot, seed: int, samples:
         ref_clear, ref_ok, ref_distance, ref_legal = _obstacle_rule(px, py, snap, config, shape)
         assert ref_legal is None  # the numpy path leaves the rule per rollout to legal_rollouts
         ref_legal = legal_rollouts({Rule.OBSTACLE: ref_ok}, config)
-    assert same_bits(clear, ref_clear) and same_bits(ok, ref_ok)
-    assert same_bits(distance, ref_distance) and same_bits(legal, ref_legal)
+    assert same_bits(ok, ref_ok) and same_bits(distance, ref_distance) and same_bits(legal, ref_legal)
+    # The clearances: exact where worked out, and left out (+inf) only above the saturation.
+    raw = kernels.obstacle_pass(px.ravel(), py.ravel(), config.point_times_s, snap.circle_xy_m, snap.circle_vel_m_s,
+                                snap.circle_radius_m, snap.circle_margin_m, snap.poly_a_m, snap.poly_b_m, snap.poly_d_m,
+                                snap.poly_inv_len2, snap.poly_dx_per_dy, snap.poly_vel_m_s, snap.poly_margin_m,
+                                snap.poly_centre_m, snap.poly_bound_m, shape[1], config.distance_saturation_m)[0]
+    left_out = np.isinf(raw)
+    assert same_bits(raw[~left_out], ref_clear[~left_out])
+    assert (ref_clear[left_out] > config.distance_saturation_m).all()
+    assert (clear is None) == bool(left_out.any())
+    if clear is not None:
+        assert same_bits(clear, ref_clear)
 
 
 @needs_numba

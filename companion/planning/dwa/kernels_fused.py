@@ -4,15 +4,15 @@ called in one compiled pass, so that a tick crosses from Python into compiled co
 On this machine a compiled call costs a few microseconds before it does anything (numba types
 every argument), and the paper window's tick made about a dozen of them.
 
-- ``obstacle_pass``: the clearances of every rollout point to the culled obstacles (circles, then
-  polygons), the obstacle rule per point, the distance critic and the rule per rollout
-  (:func:`.geometry.inflated_clearance`, :func:`.distance.obstacle_and_distance` and
-  :func:`.legality.legal_rollouts` for the one rule);
+- ``obstacle_pass``: the clearances of the rollout points to the culled obstacles (circles, then
+  polygons; only where they can matter), the obstacle rule per point, the distance critic and
+  the rule per rollout (:func:`.geometry.inflated_clearance`, :func:`.distance.obstacle_and_distance`
+  and :func:`.legality.legal_rollouts` for the one rule);
 - ``pick``: the heading critic toward one target, the choice and the chosen rollout's command
   values (:func:`.heading.heading_from_ends`' single path, :func:`.evaluate.choose` and
   :func:`.evaluate.command_for`).
 
-They call the very kernels they fuse, so they compute the same numbers:
+They do the operations of the kernels they fuse, or call them, so they compute the same numbers:
 ``tests/planning/test_kernels_fused.py`` checks them bit for bit against the numpy code. None
 without numba.
 """
@@ -32,21 +32,59 @@ obstacle_pass = pick = None
 
 if numba is not None and kernels.circle_clearance is not None:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-    _circle_clearance, _polygon_clearance = kernels.circle_clearance, kernels.polygon_clearance
+    _polygon_point = kernels._polygon_point
     _heading_toward, _choose, _obstacle_terms = kernels.heading_toward, kernels.choose, kernels_tick.obstacle_terms
 
     @_jit
     def obstacle_pass(px, py, t_s, c_xy, c_vel, c_r, c_m, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy, p_vel,  # noqa: F811
-                      p_m, n_k, saturation):
+                      p_m, p_centre, p_bound, n_k, saturation):
         """Clearances (O, N) of the N = R * n_k points (px, py) at t_s to the circles and
-        polygons, the obstacle rule per point (N,), the distance critic (R,) and whether each
-        rollout obeys the rule at every point after the pose (R,)."""
+        polygons, the obstacle rule per point (N,), the distance critic (R,), whether each
+        rollout obeys the rule at every point after the pose (R,), and whether every clearance
+        is exact.
+
+        A point farther from an obstacle's bounding disc (a polygon's ``p_centre``, ``p_bound``)
+        than the saturation plus 1 m has a clearance above the saturation: it can neither break
+        the rule nor set the distance critic, so its clearance is not worked out (+inf stands for
+        it, and the rule and critic come out the same). The caller works the clearances out in
+        full when it reads them (the escape, with no legal rollout)."""
         n_c, n_p = len(c_r), p_a.shape[0]
         clear = np.empty((n_c + n_p, len(px)))
-        if n_c:
-            _circle_clearance(px, py, t_s, c_xy, c_vel, c_r, c_m, clear, 0)
-        if n_p:
-            _polygon_clearance(px, py, t_s, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy, p_vel, p_m, clear, n_c)
+        exact = True
+        beyond = (saturation if saturation > 0.0 else 0.0) + 1.0
+        for c in range(n_c):
+            cx, cy, vx, vy = c_xy[c, 0], c_xy[c, 1], c_vel[c, 0], c_vel[c, 1]
+            r, m = c_r[c], c_m[c]
+            moves = vx != 0.0 or vy != 0.0
+            lim = r + m + beyond
+            lim2 = lim * lim
+            row = clear[c]
+            for n in range(len(px)):  # kernels.circle_clearance's operations, where needed
+                dx = px[n] - cx
+                dy = py[n] - cy
+                if moves:
+                    dx -= vx * t_s[n]
+                    dy -= vy * t_s[n]
+                if dx * dx + dy * dy > lim2:
+                    row[n] = np.inf
+                    exact = False
+                else:
+                    row[n] = np.hypot(dx, dy) - r - m
+        for p in range(n_p):
+            vx, vy, m = p_vel[p, 0], p_vel[p, 1], p_m[p]
+            lim = p_bound[p] + m + beyond
+            lim2 = lim * lim
+            row = clear[n_c + p]
+            for n in range(len(px)):  # kernels.polygon_clearance's operations, where needed
+                qx = px[n] - vx * t_s[n]
+                qy = py[n] - vy * t_s[n]
+                dx = qx - p_centre[p, 0]
+                dy = qy - p_centre[p, 1]
+                if dx * dx + dy * dy > lim2:
+                    row[n] = np.inf
+                    exact = False
+                else:
+                    row[n] = _polygon_point(qx, qy, p, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy) - m
         ok, distance = _obstacle_terms(clear, n_k, saturation)
         n_r = len(px) // n_k
         legal = np.empty(n_r, dtype=np.bool_)
@@ -57,7 +95,7 @@ if numba is not None and kernels.circle_clearance is not None:
                     good = False
                     break
             legal[r] = good
-        return clear, ok, distance, legal
+        return clear, ok, distance, legal, exact
 
     @_jit
     def pick(ex, ey, heading_rad, final_dheading, tx, ty, legal, yaw_rates, speeds, turn_error, w,  # noqa: F811

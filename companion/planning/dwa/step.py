@@ -75,6 +75,8 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     if not np.count_nonzero(legal) or _only_hover(legal, config, scheduled_speed_m_s):
         if clear is not None and config.row_of is not None:  # the escape reads every rollout's
             clear = clear.reshape(len(clear), *gx.shape)[:, config.row_of].reshape(len(clear), -1)
+        elif near.count and config.row_of is None and clear is None:  # the compiled pass left some out
+            clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)
         heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single, _soonest(config))
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear, separate_from)
 
@@ -95,19 +97,21 @@ def _soonest(config: DwaConfig) -> float:
 
 
 def _obstacle_rule(px: np.ndarray, py: np.ndarray, near: ObstacleSnapshot, config: DwaConfig,
-                   shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+                   shape: tuple[int, int]) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray | None]:
     """The clearances (O, S * (K + 1)) of the rollouts to the obstacles ``near``, the obstacle
     rule (S, K + 1), the distance critic (S,), and, compiled, the rule per rollout (S,)
-    (:func:`kernels.obstacle_pass`: otherwise None, and legal_rollouts works it out)."""
+    (:func:`kernels.obstacle_pass`: otherwise None, and legal_rollouts works it out). Compiled,
+    the clearances are None when the pass left out those that cannot matter (see obstacle_pass)."""
     if kernels.obstacle_pass is None:
         clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)
         ok, distance = obstacle_and_distance(clear, shape, config.distance_saturation_m)
         return clear, ok.reshape(shape), distance, None
-    clear, ok, distance, legal = kernels.obstacle_pass(
+    clear, ok, distance, legal, exact = kernels.obstacle_pass(
         one_layout(px.ravel()), one_layout(py.ravel()), config.point_times_s, near.circle_xy_m, near.circle_vel_m_s,
         near.circle_radius_m, near.circle_margin_m, near.poly_a_m, near.poly_b_m, near.poly_d_m, near.poly_inv_len2,
-        near.poly_dx_per_dy, near.poly_vel_m_s, near.poly_margin_m, shape[1], config.distance_saturation_m)
-    return clear, ok.reshape(shape), distance, legal
+        near.poly_dx_per_dy, near.poly_vel_m_s, near.poly_margin_m, near.poly_centre_m, near.poly_bound_m, shape[1],
+        config.distance_saturation_m)
+    return clear if exact else None, ok.reshape(shape), distance, legal
 
 
 
