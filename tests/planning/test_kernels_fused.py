@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from companion.planning.dwa import DwaConfig, LocalGoals, ObstacleSnapshot, kernels
@@ -28,12 +28,14 @@ def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 @needs_numba
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(worlds(), st.integers(0, 2**31), st.sampled_from([1, 7, 31]), st.sampled_from([2, 5, 23]),
-       st.floats(-250.0, 250.0), st.floats(-250.0, 250.0), st.floats(-3.2, 3.2))
+       st.floats(-250.0, 250.0), st.floats(-250.0, 250.0), st.floats(-3.2, 3.2), st.floats(20.0, 600.0))
 def test_obstacle_pass_matches_numpy(snap: ObstacleSnapshot, seed: int, samples: int, steps: int, x: float, y: float,
-                                     heading: float) -> None:
-    """Rollouts of a real window placed anywhere among the obstacles (inside some of them too)."""
+                                     heading: float, reach: float) -> None:
+    """Rollouts of a real window placed anywhere among the obstacles (inside some of them too),
+    over the obstacles culling keeps (the compiled pass reads the snapshot through the mask, the
+    numpy code the culled subset)."""
     config = DwaConfig(speed_m_s=10.0, max_yaw_rate_rad_s=0.3, samples=samples, dt_s=0.5,
                        prediction_time_s=0.5 * (steps - 1), w_h=1.0, w_d=1.0, w_s=1.0, sightline_cap_m=50.0,
                        distance_saturation_m=float(np.random.default_rng(seed).choice([0.0, 10.0, 30.0])))
@@ -41,9 +43,12 @@ def test_obstacle_pass_matches_numpy(snap: ObstacleSnapshot, seed: int, samples:
     c, s = np.cos(heading), np.sin(heading)
     xy = np.array([[c, -s, x], [s, c, y]]) @ config.body_hom_m
     px, py = xy[0].reshape(shape), xy[1].reshape(shape)
-    clear, ok, distance, legal = _obstacle_rule(px, py, snap, config, shape)
+    keep, kept = snap.near_mask(x, y, reach, config.horizon_s)
+    assume(kept)
+    near = snap.near(x, y, reach, config.horizon_s)
+    clear, ok, distance, legal = _obstacle_rule(px, py, snap, keep, None, config, shape)
     with kernels.numpy_only():
-        ref_clear, ref_ok, ref_distance, ref_legal = _obstacle_rule(px, py, snap, config, shape)
+        ref_clear, ref_ok, ref_distance, ref_legal = _obstacle_rule(px, py, snap, None, near, config, shape)
         assert ref_legal is None  # the numpy path leaves the rule per rollout to legal_rollouts
         ref_legal = legal_rollouts({Rule.OBSTACLE: ref_ok}, config)
     assert same_bits(ok, ref_ok) and same_bits(distance, ref_distance) and same_bits(legal, ref_legal)
@@ -51,7 +56,7 @@ def test_obstacle_pass_matches_numpy(snap: ObstacleSnapshot, seed: int, samples:
     raw = kernels.obstacle_pass(px.ravel(), py.ravel(), config.point_times_s, snap.circle_xy_m, snap.circle_vel_m_s,
                                 snap.circle_radius_m, snap.circle_margin_m, snap.poly_a_m, snap.poly_b_m, snap.poly_d_m,
                                 snap.poly_inv_len2, snap.poly_dx_per_dy, snap.poly_vel_m_s, snap.poly_margin_m,
-                                snap.poly_centre_m, snap.poly_bound_m, shape[1], config.distance_saturation_m)[0]
+                                snap.poly_centre_m, snap.poly_bound_m, keep, shape[1], config.distance_saturation_m)[0]
     left_out = np.isinf(raw)
     assert same_bits(raw[~left_out], ref_clear[~left_out])
     assert (ref_clear[left_out] > config.distance_saturation_m).all()

@@ -37,28 +37,37 @@ if numba is not None and kernels.circle_clearance is not None:
 
     @_jit
     def obstacle_pass(px, py, t_s, c_xy, c_vel, c_r, c_m, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy, p_vel,  # noqa: F811
-                      p_m, p_centre, p_bound, n_k, saturation):
-        """Clearances (O, N) of the N = R * n_k points (px, py) at t_s to the circles and
-        polygons, the obstacle rule per point (N,), the distance critic (R,), whether each
-        rollout obeys the rule at every point after the pose (R,), and whether every clearance
-        is exact.
+                      p_m, p_centre, p_bound, keep, n_k, saturation):
+        """Clearances (O, N) of the N = R * n_k points (px, py) at t_s to the O circles and
+        polygons that ``keep`` marks (circles, then polygons: the culled subset's rows), the
+        obstacle rule per point (N,), the distance critic (R,), whether each rollout obeys the
+        rule at every point after the pose (R,), and whether every clearance is exact.
 
         A point farther from an obstacle's bounding disc (a polygon's ``p_centre``, ``p_bound``)
         than the saturation plus 1 m has a clearance above the saturation: it can neither break
         the rule nor set the distance critic, so its clearance is not worked out (+inf stands for
         it, and the rule and critic come out the same). The caller works the clearances out in
         full when it reads them (the escape, with no legal rollout)."""
-        n_c, n_p = len(c_r), p_a.shape[0]
+        n_call, n_pall = len(c_r), p_a.shape[0]
+        n_c = n_p = 0
+        for c in range(n_call):
+            n_c += keep[c]
+        for p in range(n_pall):
+            n_p += keep[n_call + p]
         clear = np.empty((n_c + n_p, len(px)))
         exact = True
         beyond = (saturation if saturation > 0.0 else 0.0) + 1.0
-        for c in range(n_c):
+        k = 0
+        for c in range(n_call):
+            if not keep[c]:
+                continue
             cx, cy, vx, vy = c_xy[c, 0], c_xy[c, 1], c_vel[c, 0], c_vel[c, 1]
             r, m = c_r[c], c_m[c]
             moves = vx != 0.0 or vy != 0.0
             lim = r + m + beyond
             lim2 = lim * lim
-            row = clear[c]
+            row = clear[k]
+            k += 1
             for n in range(len(px)):  # kernels.circle_clearance's operations, where needed
                 dx = px[n] - cx
                 dy = py[n] - cy
@@ -70,11 +79,14 @@ if numba is not None and kernels.circle_clearance is not None:
                     exact = False
                 else:
                     row[n] = np.hypot(dx, dy) - r - m
-        for p in range(n_p):
+        for p in range(n_pall):
+            if not keep[n_call + p]:
+                continue
             vx, vy, m = p_vel[p, 0], p_vel[p, 1], p_m[p]
             lim = p_bound[p] + m + beyond
             lim2 = lim * lim
-            row = clear[n_c + p]
+            row = clear[k]
+            k += 1
             for n in range(len(px)):  # kernels.polygon_clearance's operations, where needed
                 qx = px[n] - vx * t_s[n]
                 qy = py[n] - vy * t_s[n]

@@ -39,7 +39,15 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     if not isinstance(goals, LocalGoals):
         goals = LocalGoals.single(goals)
     shape = (config.count, config.steps + 1)
-    near = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, config.horizon_s)
+    reach = config.reach_m + config.distance_saturation_m
+    if kernels.obstacle_pass is not None and config.row_of is None:
+        # Compiled, the obstacle pass reads the snapshot through the culling mask: the culled
+        # subset (a new one each tick when a moving obstacle is in it) is built only if read.
+        keep, n_near = snapshot.near_mask(pose.x_m, pose.y_m, reach, config.horizon_s)
+        near = None
+    else:
+        near = snapshot.near(pose.x_m, pose.y_m, reach, config.horizon_s)
+        keep, n_near = None, near.count
     if separate_from is None:
         separate_from = () if other is None else (other,)
     binding = binding_uavs(pose, separate_from, config)
@@ -49,18 +57,18 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     origin = (pose.x_m, pose.y_m)
     single = single_target(goals, config.end_reach_m, origin)
     px = py = None  # (S, K + 1) each, when needed; column 0 is the pose itself
-    if near.count or binding or fence_here is not None or not single:
+    if n_near or binding or fence_here is not None or not single:
         px, py, gx, gy = _placed(place, config, shape)
         ex, ey = px[:, -1], py[:, -1]
     else:
         ex, ey = place @ config.end_hom_m  # the prediction points (S,) only
-    final_heading = pose.heading_rad + config.final_dheading_rad
 
     ok_by_rule: dict[Rule, np.ndarray] = {}  # (S, K + 1) per rule
     clear = legal = None
-    if near.count:
+    if n_near:
         if config.row_of is None:  # (O, S * (K + 1)); the rule per rollout too when compiled
-            clear, ok_by_rule[Rule.OBSTACLE], distance, legal = _obstacle_rule(px, py, near, config, shape)
+            clear, ok_by_rule[Rule.OBSTACLE], distance, legal = _obstacle_rule(px, py, snapshot, keep, near, config,
+                                                                                shape)
         else:  # computed on the distinct rollouts only, then spread to all
             ok_by_rule[Rule.OBSTACLE], distance, clear = _obstacle_terms(gx, gy, near, config)
     else:
@@ -73,10 +81,13 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     if legal is None or len(ok_by_rule) > 1:
         legal = legal_rollouts(ok_by_rule, config)
     if not np.count_nonzero(legal) or _only_hover(legal, config, scheduled_speed_m_s):
+        if near is None:
+            near = snapshot.near(pose.x_m, pose.y_m, reach, config.horizon_s)
         if clear is not None and config.row_of is not None:  # the escape reads every rollout's
             clear = clear.reshape(len(clear), *gx.shape)[:, config.row_of].reshape(len(clear), -1)
-        elif near.count and config.row_of is None and clear is None:  # the compiled pass left some out
+        elif n_near and config.row_of is None and clear is None:  # the compiled pass left some out
             clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)
+        final_heading = pose.heading_rad + config.final_dheading_rad
         heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single, _soonest(config))
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear, separate_from)
 
@@ -87,6 +98,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     if single and kernels.pick is not None:  # the heading critic, the choice and the command in one call
         return pick(config, legal, turn_error(pose, goals, config), ex, ey, pose.heading_rad, goals.first_xy,
                     distance, sightline, speed)
+    final_heading = pose.heading_rad + config.final_dheading_rad
     heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single, _soonest(config))
     best, total, n_legal = choose(config, legal, turn_error(pose, goals, config), heading, distance, sightline, speed)
     return command_for(config, best, heading, distance, sightline, total, n_legal)
@@ -96,21 +108,25 @@ def _soonest(config: DwaConfig) -> float:
     return _SOONEST_DEG if config.count > config.samples else 0.0
 
 
-def _obstacle_rule(px: np.ndarray, py: np.ndarray, near: ObstacleSnapshot, config: DwaConfig,
+def _obstacle_rule(px: np.ndarray, py: np.ndarray, snapshot: ObstacleSnapshot, keep: np.ndarray | None,
+                   near: ObstacleSnapshot | None, config: DwaConfig,
                    shape: tuple[int, int]) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray | None]:
-    """The clearances (O, S * (K + 1)) of the rollouts to the obstacles ``near``, the obstacle
-    rule (S, K + 1), the distance critic (S,), and, compiled, the rule per rollout (S,)
-    (:func:`kernels.obstacle_pass`: otherwise None, and legal_rollouts works it out). Compiled,
-    the clearances are None when the pass left out those that cannot matter (see obstacle_pass)."""
+    """The clearances (O, S * (K + 1)) of the rollouts to the culled obstacles, the obstacle rule
+    (S, K + 1), the distance critic (S,), and, compiled, the rule per rollout (S,).
+
+    Compiled (:func:`kernels.obstacle_pass`): over the obstacles of ``snapshot`` that ``keep``
+    marks (circles, then polygons), and the clearances are None when the pass left out those
+    that cannot matter. Otherwise with numpy over ``near`` (the culled subset), and the rule per
+    rollout is None (legal_rollouts works it out)."""
     if kernels.obstacle_pass is None:
         clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)
         ok, distance = obstacle_and_distance(clear, shape, config.distance_saturation_m)
         return clear, ok.reshape(shape), distance, None
+    s = snapshot
     clear, ok, distance, legal, exact = kernels.obstacle_pass(
-        one_layout(px.ravel()), one_layout(py.ravel()), config.point_times_s, near.circle_xy_m, near.circle_vel_m_s,
-        near.circle_radius_m, near.circle_margin_m, near.poly_a_m, near.poly_b_m, near.poly_d_m, near.poly_inv_len2,
-        near.poly_dx_per_dy, near.poly_vel_m_s, near.poly_margin_m, near.poly_centre_m, near.poly_bound_m, shape[1],
-        config.distance_saturation_m)
+        one_layout(px.ravel()), one_layout(py.ravel()), config.point_times_s, s.circle_xy_m, s.circle_vel_m_s,
+        s.circle_radius_m, s.circle_margin_m, s.poly_a_m, s.poly_b_m, s.poly_d_m, s.poly_inv_len2, s.poly_dx_per_dy,
+        s.poly_vel_m_s, s.poly_margin_m, s.poly_centre_m, s.poly_bound_m, keep, shape[1], config.distance_saturation_m)
     return clear if exact else None, ok.reshape(shape), distance, legal
 
 
