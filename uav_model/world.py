@@ -38,6 +38,11 @@ class Static:
     def is_moving(self) -> bool:
         return False
 
+    @property
+    def offset_disc(self) -> tuple[tuple[float, float], float]:
+        """A disc (centre, radius) holding every offset the motion ever takes (for culling)."""
+        return (0.0, 0.0), 0.0
+
 
 @dataclass(frozen=True, slots=True)
 class Shuttle:
@@ -49,6 +54,11 @@ class Shuttle:
     @property
     def is_moving(self) -> bool:
         return self.speed_m_s > 0 and math.hypot(*self.delta_m) > 0
+
+    @property
+    def offset_disc(self) -> tuple[tuple[float, float], float]:
+        """A disc (centre, radius) holding every offset the motion ever takes: the segment's."""
+        return (0.5 * self.delta_m[0], 0.5 * self.delta_m[1]), 0.5 * math.hypot(*self.delta_m)
 
     def _phase(self, t: np.ndarray) -> np.ndarray:
         length = math.hypot(*self.delta_m)
@@ -89,6 +99,11 @@ class Orbit:
     def _radius(self) -> float:
         return math.hypot(self.start_m[0] - self.pivot_m[0], self.start_m[1] - self.pivot_m[1])
 
+    @property
+    def offset_disc(self) -> tuple[tuple[float, float], float]:
+        """A disc (centre, radius) holding every offset the motion ever takes: the orbit's."""
+        return (self.pivot_m[0] - self.start_m[0], self.pivot_m[1] - self.start_m[1]), self._radius
+
     def _angle(self, t: np.ndarray) -> np.ndarray:
         r = self._radius
         phi0 = math.atan2(self.start_m[1] - self.pivot_m[1], self.start_m[0] - self.pivot_m[0])
@@ -121,6 +136,15 @@ class Patrol:
     @property
     def is_moving(self) -> bool:
         return self.speed_m_s > 0 and self._length > 0
+
+    @property
+    def offset_disc(self) -> tuple[tuple[float, float], float]:
+        """A disc (centre, radius) holding every offset the motion ever takes: one round the
+        loop's points (the loop runs between them)."""
+        pts = np.asarray(self.loop_m, dtype=float)
+        mid = pts.mean(axis=0)
+        return ((float(mid[0] - pts[0, 0]), float(mid[1] - pts[0, 1])),
+                float(np.hypot(*(pts - mid).T).max()))
 
     @property
     def _length(self) -> float:

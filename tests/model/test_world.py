@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_model.world import Orbit, Patrol, Shuttle, make_obstacle
+from uav_model.world import Orbit, Patrol, Shuttle, Static, make_obstacle
 
 coords = st.floats(-2000, 2000)
 speeds = st.floats(0.5, 20)
@@ -82,3 +82,17 @@ def test_patrol_visits_waypoints_in_order_and_loops():
     assert np.allclose(m.offset_at(total / 10.0), (0, 0), atol=1e-9)
     assert m.velocity_at(5.0) == pytest.approx((10.0, 0.0))
     assert m.offset_at(np.array([0.0, 10.0, 20.0])).shape == (3, 2)
+
+
+@settings(max_examples=80)
+@given(st.sampled_from(["static", "shuttle", "orbit", "patrol"]), coords, coords, st.floats(1.0, 900.0), speeds,
+       st.booleans(), st.lists(st.tuples(coords, coords), min_size=2, max_size=6))
+def test_offset_disc_holds_every_offset(kind, x, y, r, speed, cw, loop):
+    """The disc a motion sweeps (Motion.offset_disc, what a contact check culls with) holds
+    its offset at every time sampled over a few periods."""
+    motion = {"static": Static(), "shuttle": Shuttle(delta_m=(x, y), speed_m_s=speed),
+              "orbit": Orbit(pivot_m=(x, y), start_m=(x + r, y - r), speed_m_s=speed, clockwise=cw),
+              "patrol": Patrol(loop_m=tuple(loop), speed_m_s=speed)}[kind]
+    (cx, cy), radius = motion.offset_disc
+    off = motion.offset_at(np.linspace(0.0, 4000.0, 4001))
+    assert (np.hypot(off[:, 0] - cx, off[:, 1] - cy) <= radius + 1e-9 * (1.0 + radius)).all()

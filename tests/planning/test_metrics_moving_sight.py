@@ -1,13 +1,16 @@
-"""Regression: the sight-line metric with a mix of fixed and moving circles."""
+"""Regression: the sight-line metric with a mix of fixed and moving circles; the clearance
+shortcuts (bounding discs, swept discs) change no value."""
 
 from __future__ import annotations
 
 from dataclasses import replace
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from companion.planning.metrics import TruthGeometry
-from uav_model.world import Shuttle, World, make_obstacle
+from uav_model.world import Orbit, Patrol, Shuttle, World, make_obstacle
 
 
 def test_sight_blocked_follows_moving_circles():
@@ -52,3 +55,45 @@ def test_segment_clearance_is_exact_with_the_bounding_disc_shortcut_and_capped_b
     capped = geo.segment_clearance_m(x0, y0, x1, y1, t0, t1, upto_m=1.0)
     assert np.array_equal(capped <= 0.0, got <= 0.0)
     assert np.allclose(capped, np.minimum(got, 1.0), atol=1e-6)
+
+
+def _world(draw_obstacles) -> World:
+    return World(-3000, -3000, 3000, 3000, 100.0, tuple(draw_obstacles))
+
+
+@st.composite
+def contact_cases(draw):
+    """Circles and polygons, fixed, shuttling, orbiting or patrolling, and short segments
+    (a batch of flown steps) anywhere among them, some grazing or crossing a footprint."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**31)))
+    obstacles = []
+    for i in range(draw(st.integers(1, 6))):
+        kind = draw(st.sampled_from(["circle", "rectangle", "triangle"]))
+        centre = tuple(rng.uniform(-1500.0, 1500.0, 2))
+        size = float(rng.uniform(20.0, 300.0))
+        shape = {"circle": dict(radius_m=size), "rectangle": dict(width_m=size, height_m=0.6 * size),
+                 "triangle": dict(circumradius_m=size)}[kind]
+        motion = draw(st.sampled_from([None, "shuttle", "orbit", "patrol"]))
+        motion = {None: None, "shuttle": Shuttle(delta_m=tuple(rng.uniform(-800.0, 800.0, 2)), speed_m_s=8.0),
+                  "orbit": Orbit(pivot_m=(centre[0] + 200.0, centre[1]), start_m=centre, speed_m_s=6.0),
+                  "patrol": Patrol(loop_m=(centre, (centre[0] + 300.0, centre[1]), (centre[0], centre[1] + 250.0)),
+                                   speed_m_s=7.0)}[motion]
+        obstacles.append(make_obstacle(f"o{i}", kind, center=centre, motion=motion, **shape))
+    n = draw(st.integers(1, 80))
+    x0, y0 = rng.uniform(-1800.0, 1800.0, (2, n))
+    x1, y1 = x0 + rng.uniform(-20.0, 20.0, n), y0 + rng.uniform(-20.0, 20.0, n)
+    t0 = draw(st.floats(0.0, 2000.0)) + 0.5 * np.arange(n)
+    return _world(obstacles), (x0, y0, x1, y1, t0, t0 + 0.5)
+
+
+@settings(max_examples=80, deadline=None)
+@given(contact_cases(), st.sampled_from([0.0, 1.0, 30.0]))
+def test_contact_check_culls_by_swept_discs_without_changing_a_clearance(case, upto):
+    """A clearance capped at ``upto`` (the runner's safety batches) skips the obstacles whose
+    swept disc no segment comes near: every value is the one without that culling, to the bit."""
+    world, segments = case
+    geo = TruthGeometry(world)
+    got = geo.segment_clearance_m(*segments, upto_m=upto)
+    geo._near_sweeps = lambda *args: np.ones(len(geo._sweep_r), dtype=bool)  # no culling
+    reference = geo.segment_clearance_m(*segments, upto_m=upto)
+    assert np.array_equal(got.view(np.uint64), reference.view(np.uint64))
