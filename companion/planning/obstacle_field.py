@@ -139,10 +139,9 @@ class ObstacleField:
             for o, circle, row, bound in rows:
                 vx, vy = o.motion.velocity_at(t)
                 speed[bound] = math.hypot(vx, vy)
-                if circle:
-                    circle_vel[row] = (vx, vy)
-                else:
-                    poly_vel[row] = (vx, vy)
+                vel = circle_vel if circle else poly_vel
+                vel[row, 0] = vx  # two scalar stores: a tuple is converted to an array first
+                vel[row, 1] = vy
             if k_p:
                 values["polygons_move"] = bool(np.any(poly_vel))
             yield assemble(values)
