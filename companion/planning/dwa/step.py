@@ -6,9 +6,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from companion.planning.dwa import kernels
 from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.distance import no_obstacle_in_reach, obstacle_and_distance
-from companion.planning.dwa import kernels
 from companion.planning.dwa.evaluate import choose, command_for, pick
 from companion.planning.dwa.geometry import inflated_clearance, one_layout
 from companion.planning.dwa.heading import heading_from_ends, single_target
