@@ -111,6 +111,7 @@ class TimedFleet:
         self.blocking = dict(blocking or {})
         self._xy: dict[str, np.ndarray] = {}
         self._along: dict[str, float] = {}  # first seen: anywhere on its path; then near where it was
+        self._seen_s: dict[str, float] = {}  # the time of each vehicle's newest position
         self._done: set[str] = set()
         self._last: dict[str, float] = {}
         self._above: dict[str, dict[str, TimedRoute]] = {}  # what a re-plan was made against
@@ -121,6 +122,7 @@ class TimedFleet:
     # -- the PriorityClocks calls ------------------------------------------------------------
     def observe(self, name: str, xy_enu_m, t_s: float) -> None:
         self._xy[name] = np.asarray(xy_enu_m, dtype=float)
+        self._seen_s[name] = t_s
         route = self.routes.get(name)
         if route is not None:  # where it is along its path, windowed as the planner's own
             self._along[name] = float(route.progress_at(self._xy[name], self._along.get(name))[0])
@@ -153,6 +155,15 @@ class TimedFleet:
             return False  # past the planned closest approach: re-plans from there cost more than they saved (seed 11)
         return float(self.routes[name].planned_along_at(tau)) - self._along[name] > self.rule.lag_m
 
+    def fresh(self, t_s: float) -> bool:
+        """Whether every flying vehicle's newest position is at most the mission's
+        ``safety.telemetry_timeout_s`` older than ``t_s``. Live, a vehicle's position stream can
+        stop while the others fly on: a re-plan would start it where it was seen last, at a time
+        it is no longer there (or forecast a vehicle above it from there). Headless every vehicle
+        is observed every tick: always fresh."""
+        limit = self.mission.safety.telemetry_timeout_s
+        return all(t_s - seen <= limit for name, seen in self._seen_s.items() if name not in self._done)
+
     def update(self, t_s: float) -> "dict[str, TimedRoute]":
         """Re-plan the first lower vehicle due (:meth:`strayed`) and every flying one below it;
         the new routes adopted, by name (empty: nothing changed). The three steps at once, as
@@ -162,7 +173,10 @@ class TimedFleet:
 
     def job(self, t_s: float) -> ReplanJob | None:
         """Step 1 (cheap, the caller's side): the re-plan due at ``t_s``, its inputs copied (None:
-        nothing due). Counts it as tried: ``every_s`` and ``most`` hold from now, adopted or not."""
+        nothing due). Counts it as tried: ``every_s`` and ``most`` hold from now, adopted or not.
+        None, uncounted, while a flying vehicle's newest position is stale (:meth:`fresh`)."""
+        if not self.fresh(t_s):
+            return None
         due = next((n for n in self.order[1:] if self.strayed(n, t_s)), None)
         if due is None:
             return None

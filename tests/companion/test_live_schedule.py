@@ -185,3 +185,22 @@ def test_a_late_or_failed_replan_leaves_the_old_plan_flying(plan, how, monkeypat
     assert pilots["b"].planner.timed_route is old and ctx.clocks.routes["b"] is old
     assert ctx.clocks.replans["b"] == 0
     assert ctx.replan_errors == (1 if how == "raised" else 0)
+
+
+def test_no_replan_from_a_stale_position_until_the_vehicle_reports_again(plan):
+    # b's position stream stopped 5 s ago (a telemetry freeze; the pilot hovers it) while a flies
+    # on: a's ticks must not re-plan b from where it was last seen. b's next sample starts it.
+    ctx, pilots, vehicles = _flight(plan)
+    b0 = plan.mission.vehicle("b").start_enu_m
+
+    async def fly() -> None:
+        await _put(vehicles["b"], b0, 25.0)
+        pilots["a"]._tick(await _put(vehicles["a"], plan.coordinated.timed["a"].planned_position_at(30.0), 30.0))
+        assert ctx.replan_task is None and ctx.clocks.tries["b"] == 0
+        pilots["b"]._tick(await _put(vehicles["b"], b0, 30.2))
+        assert ctx.replan_task is not None
+        await _turns_until_done(ctx)
+
+    asyncio.run(fly())
+    assert ctx.clocks.replans["b"] == 1 and ctx.clocks.tries["b"] == 1
+    assert ctx.clocks.routes["b"].t_s[0] == pytest.approx(30.2)

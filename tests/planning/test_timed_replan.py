@@ -128,3 +128,27 @@ def test_a_replan_that_keeps_the_line_worse_is_not_adopted(held_reference):
     fleet.observe("b", mission.vehicle("b").start_enu_m, t)  # 150 m late: the whole flight is lost
     assert fleet.update(t) == {} and fleet.tries["b"] == 1 and fleet.replans["b"] == 0
     assert fleet.routes["b"] is plan.timed["b"] and fleet.blocking["b"] is Blocking.WHOLE_FLIGHT
+
+
+def test_no_replan_from_a_stale_position_and_none_counted_until_it_is_fresh(held_reference):
+    # Live, b's position stream stopped (a telemetry freeze) while a flies on: b is far behind its
+    # plan, but where it is now is unknown. A re-plan from where it was last seen, at the time it
+    # is now, would be a plan from nowhere: it waits for b's next position, uncounted.
+    mission, plan = held_reference
+    fleet = TimedFleet(mission, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))  # adopts any re-plan
+    b0 = mission.vehicle("b").start_enu_m
+    t = next(float(t) for t in np.arange(0.0, 160.0, 0.5) if plan.timed["b"].planned_along_at(t) > 150.0)
+    stale_s = t - mission.safety.telemetry_timeout_s - 0.5
+    fleet.observe("b", b0, stale_s)
+    for tick in np.arange(stale_s, t + 0.25, 0.5):
+        fleet.observe("a", mission.vehicle("a").start_enu_m, float(tick))
+    assert not fleet.fresh(t) and fleet.update(t) == {} and fleet.tries["b"] == 0
+    here = (b0[0] - 5.0, b0[1] - 5.0)  # where b is now
+    fleet.observe("b", here, t)
+    assert fleet.fresh(t)
+    new = fleet.update(t)
+    assert set(new) == {"b"} and fleet.tries["b"] == 1
+    assert np.allclose(new["b"].xy_enu_m[0], here)
+    fleet.done("a")  # one that stopped flying holds nobody's re-plan back
+    fleet.observe("b", here, t + 40.0)
+    assert fleet.fresh(t + 40.0)
