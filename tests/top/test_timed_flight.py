@@ -1,6 +1,7 @@
 """The timed variant (``astar-bdwa-timed``) flown by ``companion run`` over real UDP and MAVSDK
-against the stub at 20x: the coordinated schedule with a departure hold on the reference, and the
-final approach that arrives instead of circling on the small reference (where PX4 circled).
+against the stub at 20x: the coordinated schedule with a departure hold on the reference, the
+final approach that arrives instead of circling on the small reference (where PX4 circled), and
+the in-flight re-plan of a b held back by a telemetry freeze.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -69,3 +71,43 @@ def test_small_reference_arrives_without_circling(sitl, companion, variant):
     assert run.exit_code == 0, run.tail
     stub.assert_success()
     stub.assert_no_circling()
+
+
+def test_b_held_back_by_a_position_freeze_is_replanned_in_flight_and_arrives(sitl, companion):
+    # SPEC §6's telemetry stall on b alone: 8 s after departure b's position streams stop for 20 s
+    # of sim time (heartbeat and clock go on); the companion hovers b (it never flies on old data),
+    # so b falls ~200 m behind its timed plan, before the plan's closest approach (~50 s). When b
+    # reports again it is planned again in (position, time) from where it is, in a worker thread
+    # while both fly on (``FlightContext`` -> ``TimedFleet``), and both still arrive.
+    stub = sitl(SMALL, speedup=20)
+    live = companion.start(stub, "--variant", "astar-bdwa-timed")
+    for name in ("a", "b"):
+        stub.wait_for_mode(name, "OFFBOARD", timeout_s=90)
+    t_depart = max(stub.mode_times(name, "OFFBOARD")[0] for name in ("a", "b"))
+    stub.wait_for_clock(t_depart + 8.0, timeout_s=60)
+    stub.freeze_position("b")
+    t_freeze = stub.clock_s("b")
+    stub.wait_for_clock(t_freeze + 20.0, "b", timeout_s=60)
+    stub.resume_position("b")
+    t_resume = stub.clock_s("b")
+    run = live.wait(150)
+    assert run.exit_code == 0, run.tail
+
+    stub.assert_success()  # both arrived; no contact, separation and geofence kept
+    x, y = stub.track("b").at(np.array([t_freeze + 3.5, t_freeze + 18.0]))
+    # hovered (PX4's velocity integrator leaves it drifting < 1 m/s), not 145 m at cruise
+    assert math.hypot(x[1] - x[0], y[1] - y[0]) < 20.0, "b was not held back: nothing to re-plan"
+    schedule = run.summary["live"]["schedule"]
+    assert schedule["replans"]["b"] >= 1 and schedule["replan_errors"] == 0, schedule
+    assert schedule["replans"]["a"] == 0  # a waits for nobody
+    # From where b was once it reported again, not from where it was last seen: the companion's
+    # mission time is the flight log's sim time less the common departure.
+    row = next(r for r in run.flight_log() if r["t_mission_s"])
+    departure = float(row["t_sim_s"]) - float(row["t_mission_s"])
+    found = re.findall(r"b: behind its plan: re-planned from t = ([\d.]+) s", run.stdout)
+    assert found, run.tail
+    assert float(found[0]) > t_resume - departure - 1.0, (found, t_resume - departure)
+    report = stub.report()
+    print(f"live, b frozen {t_freeze - t_depart:.1f}-{t_resume - t_depart:.1f} s: re-planned at {found} s; "
+          f"a {report.vehicles['a'].flight_time_s:.1f} s, b {report.vehicles['b'].flight_time_s:.1f} s, "
+          f"blocked {report.los_blocked_fraction:.3f}, at closest approach {report.crossing_occluded}")
