@@ -5,9 +5,10 @@ behind its timed plan), beside the same flight without the freeze and ``companio
 
 Each round flies, in this order: no freeze; b frozen; and, with ``--compare-tree DIR``, b frozen
 with the companion run from another checkout (e.g. one with the live re-plan removed), so the
-rows of one round share the machine's load. Prints one row per flight (the vehicles' own
-telemetry as the GCS hears it, scored as ``simulate`` scores; the re-plans from summary.json)
-and the medians per kind. No pass/fail.
+rows of one round share the machine's load. Prints one row per flight (the companion's
+summary.json: its telemetry scored as ``simulate`` scores, and its re-plans; beside it
+``gcs_success``, the same scoring of the vehicles' telemetry as the GCS recorder heard it) and
+the medians per kind. No pass/fail.
 
     python benchmarks/bench_live_replan.py [--mission M] [--rounds 3] [--freeze-after 8]
                                            [--freeze-s 20] [--compare-tree DIR] [--keep DIR]
@@ -33,7 +34,8 @@ from uav_model.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANT = "astar-bdwa-timed"
-COLUMNS = ("success", "strict", "blocked", "a_s", "b_s", "replans_b", "tries_b", "first_replan_s", "worst_lag_s")
+COLUMNS = ("success", "gcs_success", "strict", "blocked", "a_s", "b_s", "min_sep_m", "replans_b", "tries_b",
+           "first_replan_s", "worst_lag_s", "reason", "gcs_reason")
 
 
 @contextlib.contextmanager
@@ -79,10 +81,11 @@ def fly(mission: Path, work: Path, freeze_after_s: float, freeze_s: float, tree:
         report = stub.report()
         schedule = run.summary.get("live", {}).get("schedule", {})
         found = re.findall(r"b: behind its plan: re-planned from t = ([\d.]+) s", run.stdout)
-        return dict(exit=run.exit_code, freeze=window, success=report.success, strict=report.success_strict,
-                    reason=report.reason, blocked=report.los_blocked_fraction,
-                    a_s=report.vehicles["a"].flight_time_s, b_s=report.vehicles["b"].flight_time_s,
-                    bound_s=report.vehicles["b"].lower_bound_s, min_sep_m=report.min_separation_m,
+        own = run.summary
+        return dict(exit=run.exit_code, freeze=window, success=own["success"], gcs_success=report.success,
+                    strict=own["success_strict"], reason=own["reason"], gcs_reason=report.reason,
+                    blocked=own["los_blocked_fraction"], a_s=own["vehicles"]["a"]["flight_time_s"],
+                    b_s=own["vehicles"]["b"]["flight_time_s"], min_sep_m=own["min_separation_m"],
                     replans_b=schedule.get("replans", {}).get("b"), tries_b=schedule.get("replan_tries", {}).get("b"),
                     first_replan_s=float(found[0]) if found else None, worst_lag_s=schedule.get("worst_lag_s"))
     finally:
@@ -116,7 +119,7 @@ def main() -> None:
     if args.compare_tree:
         kinds.append((f"b frozen, {Path(args.compare_tree).name}", args.freeze_s, args.compare_tree))
     rows: dict[str, list[dict]] = {k: [] for k, _, _ in kinds}
-    print("round  kind                      exit freeze_s     " + "  ".join(COLUMNS) + "  min_sep_m  reason", flush=True)
+    print("round  kind                      exit freeze_s     " + "  ".join(COLUMNS), flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         base = (args.keep or Path(tmp)).resolve()
         for r in range(args.rounds):
@@ -124,13 +127,15 @@ def main() -> None:
                 row = fly(args.mission, base / f"round{r + 1}-kind{k + 1}", args.freeze_after, freeze_s, tree)
                 rows[kind].append(row)
                 print(f"{r + 1:5}  {kind:24} {row['exit']:4} {row['freeze']:10} "
-                      + "  ".join(_cell(row[c]) for c in COLUMNS) + f"  {_cell(row['min_sep_m'])}  {row['reason']}",
-                      flush=True)
+                      + "  ".join(_cell(row[c]) for c in COLUMNS), flush=True)
     for kind, runs in rows.items():
-        med = {c: statistics.median(float(r[c]) for r in runs) for c in ("blocked", "a_s", "b_s", "worst_lag_s")}
-        print(f"{kind}: {sum(r['success'] for r in runs)}/{len(runs)} success, {sum(bool(r['strict']) for r in runs)}"
-              f"/{len(runs)} strict; medians: blocked {med['blocked']:.3f}, a {med['a_s']:.1f} s, b {med['b_s']:.1f} s, "
-              f"worst lag {med['worst_lag_s']:.1f} s; re-plans of b {[r['replans_b'] for r in runs]}")
+        med = {c: statistics.median(float(r[c]) for r in runs)
+               for c in ("blocked", "a_s", "b_s", "min_sep_m", "worst_lag_s")}
+        print(f"{kind}: {sum(r['success'] for r in runs)}/{len(runs)} success "
+              f"({sum(r['gcs_success'] for r in runs)} by the GCS), {sum(bool(r['strict']) for r in runs)}/{len(runs)} "
+              f"strict; medians: blocked {med['blocked']:.3f}, a {med['a_s']:.1f} s, b {med['b_s']:.1f} s, "
+              f"min separation {med['min_sep_m']:.1f} m, worst lag {med['worst_lag_s']:.1f} s; "
+              f"re-plans of b {[r['replans_b'] for r in runs]}")
 
 
 if __name__ == "__main__":
