@@ -152,3 +152,30 @@ def test_no_replan_from_a_stale_position_and_none_counted_until_it_is_fresh(held
     fleet.done("a")  # one that stopped flying holds nobody's re-plan back
     fleet.observe("b", here, t + 40.0)
     assert fleet.fresh(t + 40.0)
+
+
+def test_a_plan_just_adopted_is_not_judged_before_the_vehicle_is_seen_on_it(held_reference):
+    # Live, the re-plan runs in a thread; on the reference under load it took longer than
+    # every_s (30 s) of sim time at 20x, and the next tick (a's, with b's last sample already
+    # observed) checked b against its new plan before any position on it: a KeyError that ended
+    # the flight. Now nothing is due until b is observed again.
+    mission, plan = held_reference
+    fleet = TimedFleet(mission, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))  # adopts any re-plan
+    b0 = mission.vehicle("b").start_enu_m
+    t = next(float(t) for t in np.arange(0.0, 160.0, 0.5) if plan.timed["b"].planned_along_at(t) > 150.0)
+    fleet.observe("a", mission.vehicle("a").start_enu_m, t)
+    fleet.observe("b", b0, t)
+    job = fleet.job(t)
+    assert job is not None
+    planned = fleet.plan(job)  # meanwhile both fly on and report
+    later = t + 31.0
+    fleet.observe("b", b0, later - 0.5)
+    fleet.observe("a", mission.vehicle("a").start_enu_m, later)
+    assert set(fleet.adopt(job, planned)) == {"b"}
+    assert fleet.fresh(later) and fleet.job(later) is None and fleet.tries["b"] == 1  # b's newest: before it
+    # Seen on its new plan, it is judged again: still at its station when that plan has it 150 m on.
+    route = fleet.routes["b"]
+    t2 = next(float(t) for t in np.arange(later, later + 300.0, 0.5) if route.planned_along_at(t) > 150.0)
+    fleet.observe("a", mission.vehicle("a").start_enu_m, t2)
+    fleet.observe("b", b0, t2)
+    assert fleet.job(t2) is not None and fleet.tries["b"] == 2
