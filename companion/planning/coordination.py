@@ -19,7 +19,8 @@ Closest approach: a path has its closest approach blocked iff some D has every o
 farther than D and some blocked instant within D. Forbidding open instants within D shrinks the
 reachable set R(D) as D grows, so g(D) = the least distance of a blocked state in R(D) grows
 too; iterating D <- g(D) from 0 never passes a feasible D, and stops at one (g(D) <= D) or at
-an empty R: infeasible.
+an empty R: infeasible. The plan is then the earliest-arriving path over a ladder of D from D*
+on (:mod:`nearpath`), not only the path through the nearest blocked state.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from companion.planning.grid import OccupancyGrid, rasterise
+from companion.planning.nearpath import best_near
 from companion.planning.shadow import SightShadows
 from companion.planning.spacetime import (AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, backward,
                                           earliest_arrival, forward, stay_from, step_model)
@@ -42,6 +44,7 @@ if TYPE_CHECKING:
     from companion.planning.routes import Route
 
 _MAX_NEAR_ROUNDS = 200  # D <- g(D) rounds; each raises D to a new state distance
+NEAR_RUNGS = 6  # distances D tried from D* on (nearpath.ladder_m2: up to D* + 16 margins); 4 and 6 compared on seeds 11-12
 
 
 class Blocking(Enum):
@@ -108,8 +111,8 @@ def feasible(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.
     return _earliest(problem, blocking) is not None
 
 
-def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[AllowedTable, Layers, tuple[int, int], int] | None:
-    """(allowed table, forward layers, s* cell, s* step) for the D <- g(D) fixed point, or None."""
+def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[AllowedTable, Layers, tuple[int, int], int, float] | None:
+    """(allowed table, forward layers, s* cell, s* step, D^2) for the D <- g(D) fixed point, or None."""
     near2 = 0.0  # D^2: squared throughout, so that a tie between two states stays a tie
     for _ in range(_MAX_NEAR_ROUNDS):
         table = allowed_table(problem, SightRule.BLOCKED_WHEN_NEAR,
@@ -127,7 +130,7 @@ def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[All
             return None
         d2, cell, k = best
         if d2 <= near2:
-            return table, fwd, cell, k
+            return table, fwd, cell, k, near2
         near2 = d2
     raise RuntimeError(f"closest-approach search did not settle in {_MAX_NEAR_ROUNDS} rounds")
 
@@ -153,19 +156,17 @@ def _closest_blocked(problem: SpaceTimeProblem, fwd: Layers, bwd: Layers) -> tup
 
 
 def _solve_near(problem: SpaceTimeProblem, margin_m: float) -> Solution | None:
+    """The earliest-arriving path over the ladder of D from the least feasible D*
+    (:func:`nearpath.best_near`). Until issue 10's fifth round the path went through the one
+    witness state at D*, the nearest blocked state: on the tuning seeds 11-13 that made b wait
+    minutes for it (plans 1.2-1.7 x bound where the ladder gives 1.16-1.25)."""
     witness = _near_witness(problem, margin_m)
     if witness is None:
         return None
-    table, fwd, cell, k_star = witness
-    stay = stay_from(problem, table)
-    seed = problem.cell_mask(cell)
-    after = forward(problem, table, seed, k_star, stop_at_arrival=True)
-    arrive = earliest_arrival(problem, after, max(stay, k_star))
-    if arrive is None:  # s* is on a full path, so the goal is reachable from it
-        raise AssertionError("closest-approach witness does not reach the goal")
-    tail = backtrack(problem, after, problem.goal, arrive, k_star)
-    head = backtrack(problem, fwd, cell, k_star, 0)
-    return Solution(head + tail[1:], problem.model.step_s, Blocking.CLOSEST_APPROACH, problem.t0_s)
+    found = best_near(problem, witness[-1], margin_m, NEAR_RUNGS)
+    if found is None:  # the witness's own path is one at D*
+        raise AssertionError("closest-approach witness without a path")
+    return Solution(found[1], problem.model.step_s, Blocking.CLOSEST_APPROACH, problem.t0_s)
 
 
 def to_timed(name: str, grid: OccupancyGrid, solution: Solution, start_xy, goal_xy) -> TimedRoute:

@@ -122,6 +122,26 @@ class BruteForce:
                 return True
         return False
 
+    def earliest_near(self, hold_s: float, near_m: float, margin_m: float) -> int | None:
+        """The earliest step at which a path reaches the goal (and may park there to the
+        horizon) with no open state within ``near_m + margin_m`` and a blocked one within
+        ``near_m`` (:func:`companion.planning.nearpath.earliest_near`); None: no such path."""
+        def ok(cell, k):
+            far, blocked, d = self._state(cell, k, hold_s)
+            if not far or (not blocked and d <= near_m + margin_m):
+                return None
+            return blocked and d <= near_m
+        parked = [ok(self.goal, k) is not None for k in range(self.horizon + 1)]
+        first = ok(self.start, 0)
+        layer = set() if first is None else {(self.start, first)}
+        for k in range(self.horizon + 1):
+            if k:
+                layer = {(c, flag or f) for cell, flag in layer for c in self.next(cell)
+                         for f in [ok(c, k)] if f is not None}
+            if (self.goal, True) in layer and all(parked[k:]):
+                return k
+        return None
+
     def _on_separated_paths(self, table) -> set:
         """States (cell, k) on some start-to-goal path that keeps only the separation."""
         fwd = [{self.start} if table[(self.start, 0)][0] else set()]
