@@ -59,6 +59,13 @@ class LocalGoalTracker:
         gx, gy = self._xy[self.index]
         return math.hypot(gx - x_m, gy - y_m) + self._along[-1] - self._along[self.index]
 
+    def advance_to(self, along_m: float) -> tuple[float, float]:
+        """Advance past every node no farther along the nodes than ``along_m`` (a vehicle known
+        to be that far along them: :meth:`timed.TimedRoute.progress_at`); return the current goal."""
+        while not self.is_last and self._along[self.index] <= along_m:
+            self.index += 1
+        return self.goal_xy
+
     def update(self, x_m: float, y_m: float) -> tuple[float, float]:
         """Advance past every node already reached or passed; return the current goal."""
         while not self.is_last:

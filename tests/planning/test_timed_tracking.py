@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from companion.planning.dwa import NO_OBSTACLES, OtherUav, Pose
+from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.routes import plan_routes
 from companion.planning.timed import PriorityClocks, TimedRoute, closest_approach_m, forecast, sight_near_m
 from companion.planning.vehicle_planner import VehiclePlanner
@@ -86,3 +87,26 @@ def test_the_sightline_term_acts_only_near_the_planned_closest_approach():
     alone = VehiclePlanner.build(mission, b, routes[b.name], "astar-bdwa-timed", timed_route=timed[b.name])
     # beyond the near distance the other UAV changes nothing (no sightline term; separation far)
     assert planner.tick(pose, far, NO_OBSTACLES, 100.0).command == alone.tick(pose, None, NO_OBSTACLES, 100.0).command
+
+
+def test_local_goals_advance_with_the_progress_along_the_timed_path_past_a_cut_corner():
+    """A space-time path can step out and back (beside a wait, round a shadow's edge); the
+    multicopter cuts the corner, and the paper's tracker kept the node it never reached as the
+    goal, so b turned back to it and hovered 10-30 s near the closest approach (seed 13, a tuning
+    seed). With a timed path the goal is past wherever the vehicle is along the path."""
+    xy = np.array([[0.0, 0.0], [200.0, 0.0], [190.0, 30.0], [210.0, 0.0], [600.0, 0.0]])
+    route = TimedRoute("x", np.array([0.0, 20.0, 23.2, 26.8, 65.8]), xy)
+    timed = VehiclePlanner("x", timed_config(), LocalGoalTracker(route.path_xy, 5.0), 20.0, None, route)
+    timed.tick(Pose(205.0, 2.0, 0.0), None, NO_OBSTACLES, 26.0)
+    assert timed.tracker.goal_xy == (210.0, 0.0)
+    paper = VehiclePlanner("x", timed_config(), LocalGoalTracker(xy, 5.0), 20.0)
+    paper.tick(Pose(205.0, 2.0, 0.0), None, NO_OBSTACLES, 26.0)
+    assert paper.tracker.goal_xy == (190.0, 30.0)  # the paper's rule: reached or passed
+
+
+def test_advance_to_passes_every_node_no_farther_along_and_never_the_station():
+    tracker = LocalGoalTracker(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]]), 1.0)
+    assert tracker.advance_to(5.0) == (10.0, 0.0)
+    assert tracker.advance_to(20.0) == (30.0, 0.0)
+    assert tracker.advance_to(1e9) == (30.0, 0.0) and tracker.is_last
+    assert tracker.advance_to(0.0) == (30.0, 0.0)  # never back
