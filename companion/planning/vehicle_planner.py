@@ -302,7 +302,7 @@ class VehiclePlanner:
         if self._goals_on_path:
             # A space-time path can step out and back (a cell or a few beside a wait, round a
             # shadow's edge); the multicopter cuts such a corner and never reaches the node, so
-            # the tracker held it as the goal and b turned back to it, hovering 10-30 s near the
+            # the tracker held it as the goal and b turned back to it, hovering 10 s or more near the
             # closest approach (seed 13, the tuning seeds). The goal is past wherever b is along the path.
             self.tracker.advance_to(self._along_m)
         held = bool(route.is_waiting_at(t_s)) or self.lead_m > 0.0

@@ -92,7 +92,7 @@ def test_the_sightline_term_acts_only_near_the_planned_closest_approach():
 def test_local_goals_advance_with_the_progress_along_the_timed_path_past_a_cut_corner():
     """A space-time path can step out and back (beside a wait, round a shadow's edge); the
     multicopter cuts the corner, and the paper's tracker kept the node it never reached as the
-    goal, so b turned back to it and hovered 10-30 s near the closest approach (seed 13, a tuning
+    goal, so b turned back to it and hovered 10 s or more near the closest approach (seed 13, a tuning
     seed). With a timed path the goal is past wherever the vehicle is along the path."""
     xy = np.array([[0.0, 0.0], [200.0, 0.0], [190.0, 30.0], [210.0, 0.0], [600.0, 0.0]])
     route = TimedRoute("x", np.array([0.0, 20.0, 23.2, 26.8, 65.8]), xy)
