@@ -165,3 +165,21 @@ def test_inside_an_inflated_zone_the_window_recovers_instead_of_hovering_unless_
     waiting.tracker.update(149.0, 276.0)
     result = waiting.tick(pose, None, snapshot, 100.0)
     assert result.command is not None and result.recovery_reason is None and result.speed_m_s == 0.0, result
+
+
+def test_the_turn_around_preference_gives_way_when_it_would_leave_only_hovers():
+    """Seed 11 i018 (a tuning seed): the goal 147 deg to the left, the only legal left turns were
+    hovers, two moving right turns were legal; a turned left in place until nothing was legal,
+    the spin recovery turned it right, and again, for 2,200 s."""
+    from companion.planning.dwa.step import _toward_only_hovers
+    cfg = timed_config()
+    moving, left = cfg.speeds_m_s > 0.0, cfg.yaw_rates_rad_s >= 0.0
+    legal = ~moving | (moving & ~left & (cfg.speeds_m_s < 4.0))  # hovers, and slow right turns
+    assert _toward_only_hovers(legal, cfg, None, 2.56)
+    assert not _toward_only_hovers(legal, cfg, None, -2.56)  # the goal on the right: right turns move
+    assert not _toward_only_hovers(legal | (moving & left), cfg, None, 2.56)
+    assert not _toward_only_hovers(legal, cfg, 0.0, 2.56)  # a scheduled wait: hovering is the plan
+    assert not _toward_only_hovers(~moving, cfg, None, 2.56)  # nothing moves: the recovery's case
+    assert not _toward_only_hovers(legal, cfg, None, float("nan"))
+    paper = timed_config(speed_samples=1, fixed_scale=False, sightline_slope=False)
+    assert not _toward_only_hovers(np.ones(paper.count, dtype=bool), paper, None, 2.56)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -95,12 +96,15 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     speed = None
     if config.count > config.samples:
         speed = speed_scores(config, reference_speed_m_s(pose, goals, config, scheduled_speed_m_s))
+    turn = turn_error(pose, goals, config)
+    if _toward_only_hovers(legal, config, scheduled_speed_m_s, turn):
+        turn = math.nan  # the turn-around preference would leave only hovers: drop it
     if single and kernels.pick is not None:  # the heading critic, the choice and the command in one call
-        return pick(config, legal, turn_error(pose, goals, config), ex, ey, pose.heading_rad, goals.first_xy,
+        return pick(config, legal, turn, ex, ey, pose.heading_rad, goals.first_xy,
                     distance, sightline, speed)
     final_heading = pose.heading_rad + config.final_dheading_rad
     heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single, _soonest(config))
-    best, total, n_legal = choose(config, legal, turn_error(pose, goals, config), heading, distance, sightline, speed)
+    best, total, n_legal = choose(config, legal, turn, heading, distance, sightline, speed)
     return command_for(config, best, heading, distance, sightline, total, n_legal)
 
 
@@ -165,6 +169,23 @@ def _only_hover(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_s: float
     if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * float(config.speeds_m_s[moving].min()):
         return False  # the plan asks for a wait here
     return not np.count_nonzero(legal & moving)
+
+
+def _toward_only_hovers(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_s: float | None,
+                        turn_error_rad: float) -> bool:
+    """Whether the turn-around preference (:func:`legality.commit_turn`) would leave only hovers
+    while a moving rollout is legal. It drops itself when it would leave no legal rollout; with
+    a speed window, only hovers is the same (see :func:`_only_hover`): seed 11 i018 (a tuning
+    seed), a in a pocket with its goal 147 deg to the left, turned left in place until nothing
+    was legal, the spin recovery turned it right, and again, for 2,200 s; two moving rollouts
+    to the right were legal throughout. Unless its timed route holds it still."""
+    if math.isnan(turn_error_rad) or config.speed_samples == 1 or config.min_speed_m_s > 0.0:
+        return False
+    moving = config.speeds_m_s > 0.0
+    if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * float(config.speeds_m_s[moving].min()):
+        return False
+    toward = config.yaw_rates_rad_s * turn_error_rad >= 0.0
+    return not np.count_nonzero(legal & moving & toward) and bool(np.count_nonzero(legal & moving))
 
 
 def _placed(place: np.ndarray, config: DwaConfig,
