@@ -17,7 +17,9 @@ cannot collide: ``unshare -n sh -c 'ip link set lo up; python benchmarks/suite_u
 from __future__ import annotations
 
 import argparse
+import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -45,11 +47,34 @@ def stop_loops(loops: list[subprocess.Popen]) -> None:
             p.wait(10)
 
 
+def _stop_group(proc: subprocess.Popen) -> None:
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+            proc.wait(10)
+            return
+        except ProcessLookupError:
+            return
+        except subprocess.TimeoutExpired:
+            continue
+
+
+def _interrupted(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def one_run(pytest_args: list[str], log: Path) -> tuple[int, str, list[str]]:
     """Run pytest once; (exit code, its summary line, the failed test ids)."""
     with open(log, "w") as out:
-        code = subprocess.call([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *pytest_args],
-                               cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
+        # A session of its own, so that an interrupted run takes its xdist workers and the
+        # stubs and companions they started down with it instead of orphaning them.
+        proc = subprocess.Popen([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *pytest_args],
+                                cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            code = proc.wait()
+        except BaseException:
+            _stop_group(proc)
+            raise
     summary, failed = "", []
     for line in log.read_text(errors="replace").splitlines():
         if (m := SUMMARY.match(line)) is not None:
@@ -71,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs < 1 or args.loops < 0:
         p.error("--runs must be >= 1 and --loops >= 0")
     args.logs.mkdir(parents=True, exist_ok=True)
+    signal.signal(signal.SIGTERM, _interrupted)  # a kill ends it as Ctrl-C does: loops and pytest stopped
     loops = start_loops(args.loops, args.max_minutes)
     passed = 0
     try:
@@ -83,6 +109,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"run {i}/{args.runs}: {verdict} in {time.monotonic() - started:.0f} s: {summary}", flush=True)
             for test in failed:
                 print(f"    {test}", flush=True)
+    except KeyboardInterrupt as exc:
+        print(f"interrupted ({exc or 'Ctrl-C'}): {passed} run(s) had passed; pytest and the busy loops stopped")
+        return 130
     finally:
         stop_loops(loops)
     print(f"{passed}/{args.runs} runs passed under {args.loops} busy loop(s)")
