@@ -183,3 +183,23 @@ def test_the_turn_around_preference_gives_way_when_it_would_leave_only_hovers():
     assert not _toward_only_hovers(legal, cfg, None, float("nan"))
     paper = timed_config(speed_samples=1, fixed_scale=False, sightline_slope=False)
     assert not _toward_only_hovers(np.ones(paper.count, dtype=bool), paper, None, 2.56)
+
+
+@pytest.mark.parametrize("ahead_m", [160.0, 200.0])
+def test_a_window_does_not_trail_a_moving_obstacle_it_could_not_clear_if_it_turned_back(ahead_m):
+    """Seed 2026 i079: b trailed m1 (a shuttle at 4 m/s) down its lane at 3.3 m/s, 19 m beyond
+    its inflated disc, for 50 s; m1 turned back at the lane's end and hit b. Rollouts now keep
+    clear of each moving obstacle also predicted with its velocity reversed."""
+    from companion.planning.dwa.snapshot import ObstacleSnapshot
+    cfg = timed_config()
+    radius, margin, speed = 100.0, 20.0, 4.0
+    snapshot = ObstacleSnapshot.build([("m1", 0.0, ahead_m, radius, margin, 0.0, speed)], [])
+    chosen = plan_step(Pose(0.0, 0.0, math.pi / 2), (0.0, 3000.0), None, snapshot, cfg, V)
+    assert isinstance(chosen, Command), chosen
+    i = int(np.argmin(np.abs(cfg.yaw_rates_rad_s - chosen.yaw_rate_rad_s) + np.abs(cfg.speeds_m_s - chosen.speed_m_s)))
+    t = cfg.dt_s * np.arange(cfg.steps + 1)  # the chosen rollout (body frame: x ahead, y left)
+    x, y = -cfg.body_xy_m[i, :, 1], cfg.body_xy_m[i, :, 0]  # heading north
+    turned_back = np.hypot(x, y - (ahead_m - speed * t)) - radius - margin
+    assert turned_back.min() >= 0.0, (chosen, turned_back.min())
+    # Straight ahead at the obstacle's pace, legal at its predicted velocity, is not what it flies.
+    assert chosen.yaw_rate_rad_s != 0.0

@@ -205,6 +205,24 @@ class ObstacleSnapshot:
         return subset({**fixed, **pick(moving_fields)})
 
 
+def with_turned_back(snapshot: ObstacleSnapshot) -> ObstacleSnapshot:
+    """``snapshot`` plus each moving obstacle once more, at the same place, predicted with its
+    velocity reversed: a rollout is legal only if it keeps clear of both. A shuttle turns back
+    at its end, and a sensor's (ADS-B's) velocity says nothing of when; a vehicle that may slow
+    down (a speed window) otherwise trails a moving obstacle down its lane just beyond the margin
+    at its speed and has no room when it turns (seed 2026 i079: b trailed m1 at 140 m, 19 m
+    beyond its inflated disc, for 50 s, and m1 turned back into it)."""
+    moving = snapshot.speed_m_s > 0.0
+    if not moving.any():
+        return snapshot
+    n_c = len(snapshot.circle_ids)
+    circles = [(snapshot.circle_ids[i], *snapshot.circle_xy_m[i], snapshot.circle_radius_m[i],
+                snapshot.circle_margin_m[i], *(-snapshot.circle_vel_m_s[i])) for i in np.flatnonzero(moving[:n_c])]
+    polygons = [(snapshot.poly_ids[i], snapshot.vertices(i), snapshot.poly_margin_m[i], *(-snapshot.poly_vel_m_s[i]))
+                for i in np.flatnonzero(moving[n_c:])]
+    return snapshot.merged(ObstacleSnapshot.build(circles, polygons))
+
+
 # The array fields of a snapshot and the rows they have: one per circle, polygon, or obstacle
 # (circles first, then polygons).
 _CIRCLE, _POLYGON, _BOTH = "circle", "polygon", "both"
