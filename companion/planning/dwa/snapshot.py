@@ -212,16 +212,35 @@ def with_turned_back(snapshot: ObstacleSnapshot) -> ObstacleSnapshot:
     down (a speed window) otherwise trails a moving obstacle down its lane just beyond the margin
     at its speed and has no room when it turns (seed 2026 i079: b trailed m1 at 140 m, 19 m
     beyond its inflated disc, for 50 s, and m1 turned back into it)."""
+    cached = snapshot._subsets.get(_TURNED_BACK)  # every vehicle reads one snapshot a tick
+    if cached is not None:
+        return cached
     moving = snapshot.speed_m_s > 0.0
-    if not moving.any():
-        return snapshot
     n_c = len(snapshot.circle_ids)
-    circles = [(snapshot.circle_ids[i], *snapshot.circle_xy_m[i], snapshot.circle_radius_m[i],
-                snapshot.circle_margin_m[i], *(-snapshot.circle_vel_m_s[i])) for i in np.flatnonzero(moving[:n_c])]
-    polygons = [(snapshot.poly_ids[i], snapshot.vertices(i), snapshot.poly_margin_m[i], *(-snapshot.poly_vel_m_s[i]))
-                for i in np.flatnonzero(moving[n_c:])]
-    return snapshot.merged(ObstacleSnapshot.build(circles, polygons))
+    if not moving.any():
+        out = snapshot
+    elif moving[n_c:].any():  # a moving polygon: the general way
+        circles = [(snapshot.circle_ids[i], *snapshot.circle_xy_m[i], snapshot.circle_radius_m[i],
+                    snapshot.circle_margin_m[i], *(-snapshot.circle_vel_m_s[i])) for i in np.flatnonzero(moving[:n_c])]
+        polygons = [(snapshot.poly_ids[i], snapshot.vertices(i), snapshot.poly_margin_m[i],
+                     *(-snapshot.poly_vel_m_s[i])) for i in np.flatnonzero(moving[n_c:])]
+        out = snapshot.merged(ObstacleSnapshot.build(circles, polygons))
+    else:  # moving circles only: their rows once more, after the circles (this runs every tick)
+        rows = np.flatnonzero(moving)
+        values = {**snapshot.__dict__, "_subsets": {}, "_shared": None,
+                  "circle_ids": snapshot.circle_ids + tuple(snapshot.circle_ids[i] for i in rows)}
+        for name in ("circle_xy_m", "circle_radius_m", "circle_margin_m"):
+            values[name] = np.concatenate([getattr(snapshot, name), getattr(snapshot, name)[rows]])
+        values["circle_vel_m_s"] = np.concatenate([snapshot.circle_vel_m_s, -snapshot.circle_vel_m_s[rows]])
+        for name in ("bound_xy_m", "bound_radius_m", "speed_m_s"):
+            a = getattr(snapshot, name)
+            values[name] = np.concatenate([a[:n_c], a[rows], a[n_c:]])
+        out = assemble(values)
+    snapshot._subsets[_TURNED_BACK] = out
+    return out
 
+
+_TURNED_BACK = b"turned back"  # with_turned_back's key in a snapshot's cache (near's keys are masks' bytes)
 
 # The array fields of a snapshot and the rows they have: one per circle, polygon, or obstacle
 # (circles first, then polygons).
