@@ -210,15 +210,16 @@ def test_turned_back_obstacles_are_the_moving_ones_reversed_and_cached_per_snaps
     circles = [("s", 0.0, 0.0, 50.0, 10.0, 0.0, 0.0), ("m", 300.0, 0.0, 40.0, 8.0, 3.0, -1.0)]
     square = np.array([[500.0, 500.0], [600.0, 500.0], [600.0, 600.0], [500.0, 600.0]])
     snapshot = ObstacleSnapshot.build(circles, [("p", square, 5.0, 0.0, 0.0)])
-    turned = with_turned_back(snapshot)  # moving circles only: the fast way
+    turned = with_turned_back(snapshot, 0.0, 0.0)  # m moves away from (0, 0); moving circles only: the fast way
     general = snapshot.merged(ObstacleSnapshot.build([("m", 300.0, 0.0, 40.0, 8.0, -3.0, 1.0)], []))
     for name, value in general.__dict__.items():
         if name not in ("_subsets", "_shared"):
             assert np.array_equal(value, turned.__dict__[name]) if isinstance(value, np.ndarray) \
                 else value == turned.__dict__[name], name
-    assert with_turned_back(snapshot) is turned
+    assert with_turned_back(snapshot, 0.0, 0.0) is turned
+    assert with_turned_back(snapshot, 400.0, 0.0) is snapshot  # m comes closer: left as it is
     moving_polygon = ObstacleSnapshot.build(circles[:1], [("p", square, 5.0, 2.0, 0.0)])
-    both = with_turned_back(moving_polygon)
+    both = with_turned_back(moving_polygon, 0.0, 550.0)
     assert both.poly_ids == ("p", "p") and np.array_equal(both.poly_vel_m_s, [[2.0, 0.0], [-2.0, 0.0]])
     still = ObstacleSnapshot.build(circles[:1], [])
-    assert with_turned_back(still) is still
+    assert with_turned_back(still, 0.0, 0.0) is still

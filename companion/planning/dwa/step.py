@@ -40,8 +40,8 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     if not isinstance(goals, LocalGoals):
         goals = LocalGoals.single(goals)
     sighted = snapshot  # the sightline term reads where the obstacles are predicted to be
-    if config.count > config.samples:  # a speed window: keep clear of moving obstacles turning back too
-        snapshot = with_turned_back(snapshot)
+    if config.count > config.samples:  # a speed window: keep clear of receding obstacles turning back too
+        snapshot = with_turned_back(snapshot, pose.x_m, pose.y_m)
     shape = (config.count, config.steps + 1)
     reach = config.reach_m + config.distance_saturation_m
     if kernels.obstacle_pass is not None and config.row_of is None:
