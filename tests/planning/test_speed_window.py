@@ -183,3 +183,43 @@ def test_the_turn_around_preference_gives_way_when_it_would_leave_only_hovers():
     assert not _toward_only_hovers(legal, cfg, None, float("nan"))
     paper = timed_config(speed_samples=1, fixed_scale=False, sightline_slope=False)
     assert not _toward_only_hovers(np.ones(paper.count, dtype=bool), paper, None, 2.56)
+
+
+@pytest.mark.parametrize("ahead_m", [160.0, 200.0])
+def test_a_window_does_not_trail_a_moving_obstacle_it_could_not_clear_if_it_turned_back(ahead_m):
+    """Seed 2026 i079: b trailed m1 (a shuttle at 4 m/s) down its lane at 3.3 m/s, 19 m beyond
+    its inflated disc, for 50 s; m1 turned back at the lane's end and hit b. Rollouts now keep
+    clear of each moving obstacle also predicted with its velocity reversed."""
+    from companion.planning.dwa.snapshot import ObstacleSnapshot
+    cfg = timed_config()
+    radius, margin, speed = 100.0, 20.0, 4.0
+    snapshot = ObstacleSnapshot.build([("m1", 0.0, ahead_m, radius, margin, 0.0, speed)], [])
+    chosen = plan_step(Pose(0.0, 0.0, math.pi / 2), (0.0, 3000.0), None, snapshot, cfg, V)
+    assert isinstance(chosen, Command), chosen
+    i = int(np.argmin(np.abs(cfg.yaw_rates_rad_s - chosen.yaw_rate_rad_s) + np.abs(cfg.speeds_m_s - chosen.speed_m_s)))
+    t = cfg.dt_s * np.arange(cfg.steps + 1)  # the chosen rollout (body frame: x ahead, y left)
+    x, y = -cfg.body_xy_m[i, :, 1], cfg.body_xy_m[i, :, 0]  # heading north
+    turned_back = np.hypot(x, y - (ahead_m - speed * t)) - radius - margin
+    assert turned_back.min() >= 0.0, (chosen, turned_back.min())
+    # Straight ahead at the obstacle's pace, legal at its predicted velocity, is not what it flies.
+    assert chosen.yaw_rate_rad_s != 0.0
+
+
+def test_turned_back_obstacles_are_the_moving_ones_reversed_and_cached_per_snapshot():
+    from companion.planning.dwa.snapshot import ObstacleSnapshot, with_turned_back
+    circles = [("s", 0.0, 0.0, 50.0, 10.0, 0.0, 0.0), ("m", 300.0, 0.0, 40.0, 8.0, 3.0, -1.0)]
+    square = np.array([[500.0, 500.0], [600.0, 500.0], [600.0, 600.0], [500.0, 600.0]])
+    snapshot = ObstacleSnapshot.build(circles, [("p", square, 5.0, 0.0, 0.0)])
+    turned = with_turned_back(snapshot, 0.0, 0.0)  # m moves away from (0, 0); moving circles only: the fast way
+    general = snapshot.merged(ObstacleSnapshot.build([("m", 300.0, 0.0, 40.0, 8.0, -3.0, 1.0)], []))
+    for name, value in general.__dict__.items():
+        if name not in ("_subsets", "_shared"):
+            assert np.array_equal(value, turned.__dict__[name]) if isinstance(value, np.ndarray) \
+                else value == turned.__dict__[name], name
+    assert with_turned_back(snapshot, 0.0, 0.0) is turned
+    assert with_turned_back(snapshot, 400.0, 0.0) is snapshot  # m comes closer: left as it is
+    moving_polygon = ObstacleSnapshot.build(circles[:1], [("p", square, 5.0, 2.0, 0.0)])
+    both = with_turned_back(moving_polygon, 0.0, 550.0)
+    assert both.poly_ids == ("p", "p") and np.array_equal(both.poly_vel_m_s, [[2.0, 0.0], [-2.0, 0.0]])
+    still = ObstacleSnapshot.build(circles[:1], [])
+    assert with_turned_back(still, 0.0, 0.0) is still

@@ -205,6 +205,51 @@ class ObstacleSnapshot:
         return subset({**fixed, **pick(moving_fields)})
 
 
+def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float) -> ObstacleSnapshot:
+    """``snapshot`` plus each moving obstacle that moves away from (x, y) (within 60 deg of
+    straight away) once more, at the same place, predicted with its velocity reversed: a rollout
+    is legal only if it keeps clear of both. A shuttle turns back at its lane's end, and a
+    sensor's (ADS-B's) velocity says nothing of when; a vehicle that may slow down (a speed
+    window) otherwise trails a moving obstacle down its lane just beyond the margin at its pace
+    and has no room when it turns (seed 2026 i079: b trailed m1 at 140 m, 19 m beyond its
+    inflated disc, for 50 s, and m1 turned back into it). Obstacles crossing or coming closer
+    are left as they are: reversing every moving obstacle held vehicles off crossing lanes too
+    (tuning seeds 11, 13: three closest approaches lost their block)."""
+    n_c = len(snapshot.circle_ids)
+    vel = np.concatenate([snapshot.circle_vel_m_s, snapshot.poly_vel_m_s])
+    away = np.einsum("ij,ij->i", vel, snapshot.bound_xy_m - (x_m, y_m))
+    dist = np.hypot(snapshot.bound_xy_m[:, 0] - x_m, snapshot.bound_xy_m[:, 1] - y_m)
+    moving = (snapshot.speed_m_s > 0.0) & (away > _AWAY_COS * snapshot.speed_m_s * dist)
+    if not moving.any():
+        return snapshot
+    key = _TURNED_BACK + moving.tobytes()  # both vehicles often reverse the same ones in a tick
+    cached = snapshot._subsets.get(key)
+    if cached is not None:
+        return cached
+    if moving[n_c:].any():  # a moving polygon: the general way
+        circles = [(snapshot.circle_ids[i], *snapshot.circle_xy_m[i], snapshot.circle_radius_m[i],
+                    snapshot.circle_margin_m[i], *(-snapshot.circle_vel_m_s[i])) for i in np.flatnonzero(moving[:n_c])]
+        polygons = [(snapshot.poly_ids[i], snapshot.vertices(i), snapshot.poly_margin_m[i],
+                     *(-snapshot.poly_vel_m_s[i])) for i in np.flatnonzero(moving[n_c:])]
+        out = snapshot.merged(ObstacleSnapshot.build(circles, polygons))
+    else:  # moving circles only: their rows once more, after the circles (this runs every tick)
+        rows = np.flatnonzero(moving)
+        values = {**snapshot.__dict__, "_subsets": {}, "_shared": None,
+                  "circle_ids": snapshot.circle_ids + tuple(snapshot.circle_ids[i] for i in rows)}
+        for name in ("circle_xy_m", "circle_radius_m", "circle_margin_m"):
+            values[name] = np.concatenate([getattr(snapshot, name), getattr(snapshot, name)[rows]])
+        values["circle_vel_m_s"] = np.concatenate([snapshot.circle_vel_m_s, -snapshot.circle_vel_m_s[rows]])
+        for name in ("bound_xy_m", "bound_radius_m", "speed_m_s"):
+            a = getattr(snapshot, name)
+            values[name] = np.concatenate([a[:n_c], a[rows], a[n_c:]])
+        out = assemble(values)
+    snapshot._subsets[key] = out
+    return out
+
+
+_AWAY_COS = 0.5  # with_turned_back: an obstacle within 60 deg of moving straight away
+_TURNED_BACK = b"turned back"  # with_turned_back's keys in a snapshot's cache (near's are bare masks' bytes)
+
 # The array fields of a snapshot and the rows they have: one per circle, polygon, or obstacle
 # (circles first, then polygons).
 _CIRCLE, _POLYGON, _BOTH = "circle", "polygon", "both"

@@ -18,7 +18,7 @@ from companion.planning.dwa.legality import (Rule, binding_uavs, fence_distance,
 from companion.planning.dwa.recovery import no_legal_rollout
 from companion.planning.dwa.shapes import placement
 from companion.planning.dwa.sightline import sightline_scores, sightline_term
-from companion.planning.dwa.snapshot import ObstacleSnapshot
+from companion.planning.dwa.snapshot import ObstacleSnapshot, with_turned_back
 from companion.planning.dwa.speed import reference_speed_m_s, speed_scores
 from companion.planning.dwa.types import Command, LocalGoals, NoLegalRollout, OtherUav, Pose
 
@@ -39,6 +39,9 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     """
     if not isinstance(goals, LocalGoals):
         goals = LocalGoals.single(goals)
+    sighted = snapshot  # the sightline term reads where the obstacles are predicted to be
+    if config.count > config.samples:  # a speed window: keep clear of receding obstacles turning back too
+        snapshot = with_turned_back(snapshot, pose.x_m, pose.y_m)
     shape = (config.count, config.steps + 1)
     reach = config.reach_m + config.distance_saturation_m
     if kernels.obstacle_pass is not None and config.row_of is None:
@@ -92,7 +95,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
         heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single, _soonest(config))
         return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear, separate_from)
 
-    sightline = _sightline(pose, other, snapshot, config, ex, ey, None if px is None else (gx, gy))
+    sightline = _sightline(pose, other, sighted, config, ex, ey, None if px is None else (gx, gy))
     speed = None
     if config.count > config.samples:
         speed = speed_scores(config, reference_speed_m_s(pose, goals, config, scheduled_speed_m_s))
