@@ -148,8 +148,10 @@ class TimedFleet:
         """Whether lower vehicle ``name`` (observed this tick) is due for a re-plan at ``t_s``.
         Not before it has been observed on its current plan: a plan just adopted has no progress
         along it yet (live, adopted between two of its samples, after a re-plan that took longer
-        than ``every_s`` of sim time)."""
-        if name not in self._ca_s or name in self._done or name not in self._along:
+        than ``every_s`` of sim time). Never when the mission turns re-plans off
+        (``coordination.replan: false``)."""
+        if not self.mission.coordination.replan or name not in self._ca_s or name in self._done \
+                or name not in self._along:
             return False
         if self.tries[name] >= self.rule.most or t_s - self._last.get(name, -np.inf) < self.rule.every_s:
             return False

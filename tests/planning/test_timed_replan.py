@@ -104,6 +104,24 @@ def test_a_vehicle_lagging_before_the_closest_approach_is_replanned_from_where_i
     assert fleet.update(t + 10.0) == {}  # at most every 30 s
 
 
+def test_a_mission_that_turns_replans_off_flies_its_pre_flight_plan(held_reference, tmp_path):
+    mission, plan = held_reference
+    doc = REFERENCE.read_text().replace("planner:", "coordination:\n  replan: false\nplanner:", 1)
+    (tmp_path / "off.yaml").write_text(doc)
+    off = load_mission(tmp_path / "off.yaml")
+    assert off.coordination.replan is False and mission.coordination.replan is True
+    off = replace(off, coordination=replace(off.coordination, hold_s_max=200.0))
+    t = next(float(t) for t in np.arange(0.0, 160.0, 0.5) if plan.timed["b"].planned_along_at(t) > 150.0)
+    fleets = {m.coordination.replan: TimedFleet(m, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))
+              for m in (mission, off)}
+    for fleet in fleets.values():  # b has not moved, 150 m behind its plan, as above
+        fleet.observe("a", mission.vehicle("a").start_enu_m, t)
+        fleet.observe("b", mission.vehicle("b").start_enu_m, t)
+    assert set(fleets[True].update(t)) == {"b"}  # the same lag re-plans when they are on
+    assert fleets[False].update(t) == {} and fleets[False].tries["b"] == 0
+    assert fleets[False].routes["b"] is plan.timed["b"]
+
+
 def test_no_replan_on_plan_or_past_the_planned_closest_approach(held_reference):
     mission, plan = held_reference
     fleet = TimedFleet(mission, plan.timed, blocking=plan.blocking)
