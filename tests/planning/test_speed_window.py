@@ -223,3 +223,20 @@ def test_turned_back_obstacles_are_the_moving_ones_reversed_and_cached_per_snaps
     assert both.poly_ids == ("p", "p") and np.array_equal(both.poly_vel_m_s, [[2.0, 0.0], [-2.0, 0.0]])
     still = ObstacleSnapshot.build(circles[:1], [])
     assert with_turned_back(still, 0.0, 0.0) is still
+
+
+def test_turned_back_obstacles_are_a_precaution_that_gives_way_when_it_leaves_no_legal_move():
+    """A disc 30 m beyond its margin ahead, receding at 4 m/s, in a corridor too narrow to turn
+    in: turned back, it would reach a hovering vehicle within the horizon, so no move is legal
+    with it; the window then plans against the obstacles as they move (trailing it slower than it
+    goes, or hovering) rather than escape from one that is not coming (seed 2027 i054)."""
+    from companion.planning.dwa.snapshot import ObstacleSnapshot
+    cfg = timed_config(fence_m=(-15.0, -1000.0, 15.0, 1000.0))
+    radius, margin, speed = 100.0, 20.0, 4.0
+    snapshot = ObstacleSnapshot.build([("m1", 0.0, 150.0, radius, margin, 0.0, speed)], [])
+    pose = Pose(0.0, 0.0, math.pi / 2)
+    assert isinstance(plan_step(pose, (0.0, 3000.0), None, ObstacleSnapshot.build(
+        [("m1", 0.0, 150.0, radius, margin, 0.0, -speed)], []), cfg, V), NoLegalRollout)  # it, coming back
+    chosen = plan_step(pose, (0.0, 3000.0), None, snapshot, cfg, V)
+    assert isinstance(chosen, Command), chosen
+    assert chosen.speed_m_s < speed

@@ -183,6 +183,9 @@ def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapsho
     return NoLegalRollout(f"{reason}: yaw {math.degrees(turn):+.0f} deg in place", recovery=command)
 
 
+_ESCAPE_KEEP = 0.25  # of the least inflation margin: what an escape keeps of it when it can
+
+
 def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.ndarray], heading: np.ndarray,
            clear: np.ndarray | None, hover: HoverCheck, reason: str,
            whole_horizon: bool = False) -> NoLegalRollout | None:
@@ -194,9 +197,13 @@ def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.
     for rule, ok in ok_by_rule.items():
         if rule is not Rule.OBSTACLE:
             ok_pts &= ok
+    kept = None  # (S,) the least true clearance each rollout keeps over the horizon
     if clear is not None:
-        true_clear = clear + np.concatenate([near.circle_margin_m, near.poly_margin_m])[:, None]
+        margins = np.concatenate([near.circle_margin_m, near.poly_margin_m])
+        true_clear = clear + margins[:, None]
         ok_pts &= (true_clear >= np.minimum(true_clear[:, 0:1], 0.0) - 1e-9).all(axis=0).reshape(ok_pts.shape)
+        if len(margins):
+            kept = true_clear.min(axis=0).reshape(ok_pts.shape)[:, 1:].min(axis=1) - _ESCAPE_KEEP * margins.min()
     # legal steps flown; a rollout clear for the whole horizon outlasts any hover
     lasts = np.where(ok_pts[:, 1:].all(axis=1), hover_steps + 1, np.argmin(ok_pts[:, 1:], axis=1))
     if whole_horizon:  # flying on: a hover rollout would stop after all
@@ -207,7 +214,15 @@ def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.
         return None
     if best_last <= hold_lasts:
         return NoLegalRollout(f"{reason}; holding: nothing lasts longer than hovering ({hold_lasts * dt:g} s)")
-    i = int(np.argmax(np.where(lasts == best_last, heading, -np.inf)))
+    longest = lasts == best_last
+    if kept is not None and not (longest & (kept >= 0.0)).any():
+        # None of them keeps a fraction of the margin: the plant lags its commands, so a rollout
+        # that grazes a true footprint is a collision (seed 2027 i054: b escaped along a static
+        # disc at 0-9 m and hit it). Keep as much as any of them keeps.
+        longest &= kept >= kept[longest].max() - 1e-9
+    else:
+        longest &= kept >= 0.0 if kept is not None else True
+    i = int(np.argmax(np.where(longest, heading, -np.inf)))
     command = command_for(config, i, heading, np.zeros(config.count), None, 0.0, 0)
     clear_for = "the horizon" if best_last > hover_steps else f"{min(best_last, steps) * dt:g} s"
     return NoLegalRollout(f"{reason}; escaping: clear for {clear_for}, hovering for {hold_lasts * dt:g} s", command)

@@ -39,9 +39,24 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     """
     if not isinstance(goals, LocalGoals):
         goals = LocalGoals.single(goals)
-    sighted = snapshot  # the sightline term reads where the obstacles are predicted to be
     if config.count > config.samples:  # a speed window: keep clear of receding obstacles turning back too
-        snapshot = with_turned_back(snapshot, pose.x_m, pose.y_m)
+        cautious = with_turned_back(snapshot, pose.x_m, pose.y_m)
+        if cautious is not snapshot:
+            found = _step(pose, goals, other, cautious, snapshot, config, scheduled_speed_m_s, separate_from,
+                          cautious=True)
+            if found is not None:
+                return found
+    return _step(pose, goals, other, snapshot, snapshot, config, scheduled_speed_m_s, separate_from)
+
+
+def _step(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
+          sighted: ObstacleSnapshot, config: DwaConfig, scheduled_speed_m_s: float | None,
+          separate_from: Sequence[OtherUav] | None, cautious: bool = False) -> Command | NoLegalRollout | None:
+    """:func:`plan_step` against ``snapshot``; the sightline term reads ``sighted`` (where the
+    obstacles are predicted to be). ``cautious``: ``snapshot`` also has the receding obstacles
+    turned back, a precaution only: when it leaves no legal move, None (the caller plans without
+    it) rather than an escape from obstacles that are not coming (seed 2027 i054: b, among
+    three moving discs, escaped into a static one)."""
     shape = (config.count, config.steps + 1)
     reach = config.reach_m + config.distance_saturation_m
     if kernels.obstacle_pass is not None and config.row_of is None:
@@ -85,6 +100,8 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     if legal is None or len(ok_by_rule) > 1:
         legal = legal_rollouts(ok_by_rule, config)
     if not np.count_nonzero(legal) or _only_hover(legal, config, scheduled_speed_m_s):
+        if cautious:
+            return None
         if near is None:
             near = snapshot.near(pose.x_m, pose.y_m, reach, config.horizon_s)
         if clear is not None and config.row_of is not None:  # the escape reads every rollout's
