@@ -166,8 +166,8 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
     safety_raw, sdef = data.get("safety", {}), schema["safety"]["properties"]
     safety = SafetySettings(**{k: float(_opt(safety_raw, sdef, k)) for k in sdef})
     coord_raw, cdef = data.get("coordination", {}), schema["coordination"]["properties"]
-    coordination = CoordinationSettings(**{k: (bool if cdef[k]["type"] == "boolean" else float)(_opt(coord_raw, cdef, k))
-                                           for k in cdef})
+    cast = {"boolean": bool, "number": float, "string": str}
+    coordination = CoordinationSettings(**{k: cast[cdef[k]["type"]](_opt(coord_raw, cdef, k)) for k in cdef})
     report = _Problems(source, root, problems)
     world = _world(data, planner.inflation_ratio, report, broken)
     stations = _stations(data, world, report)

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from companion.planning.coordination import Blocking, feasible, problem_for
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.shadow import SightShadows
-from companion.planning.timed import forecast
+from companion.planning.timed import TimedRoute, forecast, held
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
@@ -72,16 +72,19 @@ class OcclusionCertificate:
 
 def least_hold(mission: "Mission", routes: dict[str, "Route"], blocking: Blocking, max_hold_s: float,
                grid: OccupancyGrid, shadows: SightShadows, memo: dict | None = None,
-               margin_m: float = 0.0, known_at_max: bool = False) -> float | None:
+               margin_m: float = 0.0, known_at_max: bool = False,
+               top: TimedRoute | None = None) -> float | None:
     """The least hold (a multiple of the lower vehicle's step, <= ``max_hold_s``) of the first
     vehicle that makes ``blocking`` feasible for the second, or None. ``margin_m``: see
-    :func:`coordination.solve`; ``known_at_max``: the caller knows ``max_hold_s`` suffices."""
+    :func:`coordination.solve`; ``known_at_max``: the caller knows ``max_hold_s`` suffices.
+    ``top``: the first vehicle's forecast without a hold (default: its route at cruise), held
+    back by each hold tried (:func:`timed.held`)."""
     higher, lower = mission.by_priority[0], mission.by_priority[1]
-    route = routes[higher.name].sparse_enu_m
+    top = top or forecast(higher.name, routes[higher.name].sparse_enu_m, higher.speed_m_s)
     memo = {} if memo is None else memo
 
     def ok(i: int) -> bool:
-        others = (forecast(higher.name, route, higher.speed_m_s, i * step),)
+        others = (held(top, i * step),)
         return feasible(problem_for(mission, grid, shadows, lower.name, others, higher.speed_m_s, memo), blocking, margin_m)
 
     step = problem_for(mission, grid, shadows, lower.name, (), higher.speed_m_s).model.step_s

@@ -37,7 +37,7 @@ from companion.planning.nearpath import best_near
 from companion.planning.shadow import SightShadows
 from companion.planning.spacetime import (AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, backward,
                                           earliest_arrival, forward, stay_from, step_model)
-from companion.planning.timed import TimedRoute, forecast
+from companion.planning.timed import TimedRoute, forecast, held
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
@@ -240,6 +240,11 @@ def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: 
     order = mission.by_priority
     top = order[0]
     memo: dict = {}
+    if len(order) > 1 and mission.coordination.forecast == "flown":
+        from companion.planning.flown_forecast import flown_forecast
+        first = flown_forecast(mission, routes[top.name], top.name)
+    else:
+        first = forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s)
     if hold_s is None:
         hold_s = 0.0
         if len(order) > 1 and mission.coordination.hold_s_max > 0:
@@ -248,11 +253,11 @@ def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: 
             for blocking, margin_m in ((Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
                                        (Blocking.CLOSEST_APPROACH, 0.0)):
                 found = least_hold(mission, routes, blocking, mission.coordination.hold_s_max, grid, shadows,
-                                   memo, margin_m)
+                                   memo, margin_m, top=first)
                 if found is not None:
                     hold_s = found
                     break
-    timed = {top.name: forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s, hold_s)}
+    timed = {top.name: held(first, hold_s)}
     blocking = {top.name: Blocking.WHOLE_FLIGHT}
     planned = {top.name: True}
     steps = {top.name: 0.0}

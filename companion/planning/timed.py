@@ -190,6 +190,14 @@ def forecast(vehicle: str, route_enu_m: np.ndarray, speed_m_s: float, hold_s: fl
     return TimedRoute(vehicle, t, p)
 
 
+def held(route: TimedRoute, hold_s: float) -> TimedRoute:
+    """``route`` (which starts at 0) after a departure hold of ``hold_s`` at its first point."""
+    if not hold_s > 0:
+        return route
+    return TimedRoute(route.vehicle, np.concatenate([[0.0], route.t_s + hold_s]),
+                      np.vstack([route.xy_enu_m[:1], route.xy_enu_m]))
+
+
 def forecast_from(vehicle: str, route_enu_m: np.ndarray, xy_enu_m: tuple[float, float], t_s: float,
                   speed_m_s: float) -> TimedRoute:
     """A vehicle seen at ``xy_enu_m`` at time ``t_s`` flying the rest of ``route_enu_m`` at
