@@ -184,17 +184,16 @@ def forecast(vehicle: str, route_enu_m: np.ndarray, speed_m_s: float, hold_s: fl
     if not hold_s >= 0:
         raise PlanningError(f"forecast of {vehicle!r}: hold must be >= 0 s, got {hold_s!r}")
     p = np.asarray(route_enu_m, dtype=float).reshape(-1, 2)
-    t = start_s + hold_s + np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))]) / speed_m_s
-    if hold_s > 0:
-        p, t = np.vstack([p[:1], p]), np.concatenate([[start_s], t])
-    return TimedRoute(vehicle, t, p)
+    t = start_s + np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))]) / speed_m_s
+    return held(TimedRoute(vehicle, t, p), hold_s)
 
 
 def held(route: TimedRoute, hold_s: float) -> TimedRoute:
-    """``route`` (which starts at 0) after a departure hold of ``hold_s`` at its first point."""
+    """``route`` delayed by a departure hold of ``hold_s`` at its first point: it still starts
+    when it did, and waits there that long before going on as before."""
     if not hold_s > 0:
         return route
-    return TimedRoute(route.vehicle, np.concatenate([[0.0], route.t_s + hold_s]),
+    return TimedRoute(route.vehicle, np.concatenate([route.t_s[:1], route.t_s + hold_s]),
                       np.vstack([route.xy_enu_m[:1], route.xy_enu_m]))
 
 

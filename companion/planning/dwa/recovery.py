@@ -215,13 +215,12 @@ def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.
     if best_last <= hold_lasts:
         return NoLegalRollout(f"{reason}; holding: nothing lasts longer than hovering ({hold_lasts * dt:g} s)")
     longest = lasts == best_last
-    if kept is not None and not (longest & (kept >= 0.0)).any():
-        # None of them keeps a fraction of the margin: the plant lags its commands, so a rollout
-        # that grazes a true footprint is a collision (seed 2027 i054: b escaped along a static
-        # disc at 0-9 m and hit it). Keep as much as any of them keeps.
-        longest &= kept >= kept[longest].max() - 1e-9
-    else:
-        longest &= kept >= 0.0 if kept is not None else True
+    if kept is not None:
+        # The plant lags its commands, so a rollout that grazes a true footprint is a collision
+        # (seed 2027 i054: b escaped along a static disc at 0-9 m and hit it): those that keep
+        # the fraction of the margin, else as much as any of them keeps.
+        keeping = longest & (kept >= 0.0)
+        longest = keeping if keeping.any() else longest & (kept >= kept[longest].max() - 1e-9)
     i = int(np.argmax(np.where(longest, heading, -np.inf)))
     command = command_for(config, i, heading, np.zeros(config.count), None, 0.0, 0)
     clear_for = "the horizon" if best_last > hover_steps else f"{min(best_last, steps) * dt:g} s"
