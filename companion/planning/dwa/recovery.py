@@ -183,15 +183,12 @@ def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapsho
     return NoLegalRollout(f"{reason}: yaw {math.degrees(turn):+.0f} deg in place", recovery=command)
 
 
-_ESCAPE_KEEP = 0.25  # of the least inflation margin: what an escape keeps of it when it can
-
-
 def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.ndarray], heading: np.ndarray,
            clear: np.ndarray | None, hover: HoverCheck, reason: str,
            whole_horizon: bool = False) -> NoLegalRollout | None:
     """Hovering will be hit and no heading helps: fly what stays clear of the true footprints
-    longest, if that outlasts hovering; else hold. ``whole_horizon``: only a rollout clear of
-    them for the whole horizon, else None."""
+    longest (of those, the one keeping the most clearance), if that outlasts hovering; else hold.
+    ``whole_horizon``: only a rollout clear of them for the whole horizon, else None."""
     dt, steps, hover_steps = config.dt_s, config.steps, hover.steps
     ok_pts = np.ones((config.count, steps + 1), dtype=bool)
     for rule, ok in ok_by_rule.items():
@@ -203,7 +200,7 @@ def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.
         true_clear = clear + margins[:, None]
         ok_pts &= (true_clear >= np.minimum(true_clear[:, 0:1], 0.0) - 1e-9).all(axis=0).reshape(ok_pts.shape)
         if len(margins):
-            kept = true_clear.min(axis=0).reshape(ok_pts.shape)[:, 1:].min(axis=1) - _ESCAPE_KEEP * margins.min()
+            kept = true_clear.min(axis=0).reshape(ok_pts.shape)[:, 1:].min(axis=1)
     # legal steps flown; a rollout clear for the whole horizon outlasts any hover
     lasts = np.where(ok_pts[:, 1:].all(axis=1), hover_steps + 1, np.argmin(ok_pts[:, 1:], axis=1))
     if whole_horizon:  # flying on: a hover rollout would stop after all
@@ -216,11 +213,13 @@ def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.
         return NoLegalRollout(f"{reason}; holding: nothing lasts longer than hovering ({hold_lasts * dt:g} s)")
     longest = lasts == best_last
     if kept is not None:
-        # The plant lags its commands, so a rollout that grazes a true footprint is a collision
-        # (seed 2027 i054: b escaped along a static disc at 0-9 m and hit it): those that keep
-        # the fraction of the margin, else as much as any of them keeps.
-        keeping = longest & (kept >= 0.0)
-        longest = keeping if keeping.any() else longest & (kept >= kept[longest].max() - 1e-9)
+        # Of those, the one that keeps the most true clearance (the heading breaks ties). The
+        # plant lags its commands, so a rollout that grazes a true footprint is a collision, and
+        # an escape repeated tick after tick that trades clearance for heading ratchets into an
+        # obstacle: seed 2027 i054 (b escaped along a static disc at 0-9 m and hit it) and seed
+        # 2026 i115 (22 s of escapes from a shuttle, each 5-15 m closer to a static disc than
+        # the best one, until b hit the disc).
+        longest = longest & (kept >= kept[longest].max() - 1e-9)
     i = int(np.argmax(np.where(longest, heading, -np.inf)))
     command = command_for(config, i, heading, np.zeros(config.count), None, 0.0, 0)
     clear_for = "the horizon" if best_last > hover_steps else f"{min(best_last, steps) * dt:g} s"
