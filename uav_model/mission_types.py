@@ -115,7 +115,7 @@ class CoordinationSettings:
     hold_s_max: float = 0.0  # the first vehicle in priority may hold at its station this long (paper: 0)
     step_s: float = 5.0      # nominal time step of the space-time plan
     replan: bool = True      # re-plan in flight a lower vehicle that lags its timed plan
-    forecast: str = "route"  # the first vehicle's forecast: "route" (at cruise) or "flown" (alone, headless)
+    forecast: str = "flown"  # the first vehicle's forecast: "route" (at cruise) or "flown" (alone, headless)
 
 
 @dataclass(frozen=True)
