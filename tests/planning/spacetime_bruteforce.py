@@ -8,6 +8,11 @@ the closest approach every candidate distance D tried in turn:
 
     a path has its closest approach blocked  <=>  for some D, every open state on it is farther
     than D and some blocked state on it is within D.
+
+Distances are compared squared, and the higher vehicle's positions are those of the model (to
+the micrometre, as ``SpaceTimeProblem.positions``): a forecast at (13, 40) computed as
+(12.999999999999998, 40) once made an open state 1e-14 m farther than a blocked one at the same
+true distance, and this check called feasible what the model's tie forbids.
 """
 
 from __future__ import annotations
@@ -47,7 +52,7 @@ class BruteForce:
     def _higher_at(self, k: int, hold_s: float) -> tuple[float, float]:
         xy = forecast(self.higher.name, self.route, self.higher.speed_m_s, hold_s).planned_position_at(
             k * self.model.step_s)
-        return float(xy[0]), float(xy[1])
+        return round(float(xy[0]), 6), round(float(xy[1]), 6)
 
     def _cell(self, xy) -> tuple[int, int]:
         ny, nx = self.grid.shape
@@ -74,10 +79,11 @@ class BruteForce:
         return False
 
     def _state(self, cell, k, hold_s):
-        """(allowed by separation, sight blocked, distance) of the lower vehicle at cell, step k."""
+        """(allowed by separation, sight blocked, squared distance) of the lower vehicle at cell, step k."""
         p = self.higher_at(k, hold_s)
-        d = math.dist(self.grid.cell_to_world(*cell), p)
-        return d >= self.model.min_distance_m, self.sight_blocked(cell, p), d
+        q = self.grid.cell_to_world(*cell)
+        d2 = (q[0] - p[0]) ** 2 + (q[1] - p[1]) ** 2
+        return d2 >= self.model.min_distance_m ** 2, self.sight_blocked(cell, p), d2
 
     def _reaches_goal(self, hold_s: float, ok) -> bool:
         """Breadth-first over (cell, step, flag) states; ``ok(cell, k)`` -> None (forbidden) or
@@ -112,12 +118,12 @@ class BruteForce:
         # Only a blocked state on some separated path can be a closest approach: D runs over those.
         on_path = self._on_separated_paths(table)
         candidates = sorted({table[s][2] for s in on_path if table[s][1]})
-        for near in candidates:
-            def ok(cell, k, near=near):
-                far, blocked, d = table[(cell, k)]
-                if not far or (not blocked and d <= near):
+        for near2 in candidates:
+            def ok(cell, k, near2=near2):
+                far, blocked, d2 = table[(cell, k)]
+                if not far or (not blocked and d2 <= near2):
                     return None
-                return blocked and d <= near
+                return blocked and d2 <= near2
             if self._reaches_goal(hold_s, ok):
                 return True
         return False
@@ -126,11 +132,14 @@ class BruteForce:
         """The earliest step at which a path reaches the goal (and may park there to the
         horizon) with no open state within ``near_m + margin_m`` and a blocked one within
         ``near_m`` (:func:`companion.planning.nearpath.earliest_near`); None: no such path."""
+        near2 = near_m ** 2  # the thresholds squared as the model squares them
+        far2 = (math.sqrt(near2) + margin_m) ** 2 if margin_m else near2
+
         def ok(cell, k):
-            far, blocked, d = self._state(cell, k, hold_s)
-            if not far or (not blocked and d <= near_m + margin_m):
+            far, blocked, d2 = self._state(cell, k, hold_s)
+            if not far or (not blocked and d2 <= far2):
                 return None
-            return blocked and d <= near_m
+            return blocked and d2 <= near2
         parked = [ok(self.goal, k) is not None for k in range(self.horizon + 1)]
         first = ok(self.start, 0)
         layer = set() if first is None else {(self.start, first)}

@@ -89,6 +89,26 @@ def test_an_open_instant_as_near_as_the_blocked_one_is_not_a_blocked_closest_app
     assert cert.closest_approach_min_hold_s == brute.least_hold(brute.closest_approach, 6.0) is None
 
 
+def test_the_brute_force_reads_the_forecast_as_the_model_does():
+    """Found by the property test: a at 10 m/s from (3, 40), held 2 s, is forecast at (13, 40) and
+    (43, 40) at steps 3 and 6, which floating point gives as 12.999999999999998 and
+    42.99999999999999. Unrounded, the brute force put an open state (d^2 = 1249) 1e-14 m farther
+    than the blocked one at the same distance, and called feasible what the model's tie forbids."""
+    data = {"name": "tie2", "area": {"x_min_m": 0, "y_min_m": 0, "x_max_m": 80, "y_max_m": 80, "geofence_margin_m": 0},
+            "stations": {"A": [3, 40], "B": [77, 40]},
+            "obstacles": [{"id": "o0", "shape": "rectangle", "center": [25, 25], "width_m": 4, "height_m": 22}],
+            "vehicles": [{"name": "a", "start": "A", "goal": "B", "speed_m_s": 10.0},
+                         {"name": "b", "start": "B", "goal": "A", "speed_m_s": 20.0}],
+            "planner": {"grid_resolution_m": 10.0}, "safety": {"min_separation_m": 0.0, "time_limit_s": 30.0},
+            "coordination": {"step_s": 1.0}}
+    mission = mission_from_data(data)
+    routes = plan_routes(mission)
+    brute = BruteForce(mission, routes)
+    assert brute.higher_at(3, 2.0) == (13.0, 40.0) and brute.higher_at(6, 2.0) == (43.0, 40.0)
+    cert = certify(mission, routes, max_hold_s=6.0)
+    assert cert.closest_approach_min_hold_s == brute.least_hold(brute.closest_approach, 6.0) is None
+
+
 def test_reference_certificate_agrees_with_the_issues_independent_analysis():
     """Issue 10's own space-time check (10 m cells, 5 s steps): with a departing at t = 0 the line
     cannot be blocked at closest approach; a hold of about 75 s makes that feasible, about 150 s

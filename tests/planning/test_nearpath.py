@@ -37,7 +37,8 @@ def _check_path(brute: BruteForce, cells, near_m: float, margin_m: float, tol_m:
     for k, cell in enumerate(cells):
         if k:
             assert cell in brute.next(cells[k - 1]), (k, cells[k - 1], cell)
-        far, blocked, d = brute._state(cell, k, 0.0)
+        far, blocked, d2 = brute._state(cell, k, 0.0)
+        d = math.sqrt(d2)
         assert far and (blocked or d > near_m + margin_m - tol_m), (k, cell, blocked, d)
         witnessed |= blocked and d <= near_m + tol_m
     assert witnessed and cells[0] == brute.start and cells[-1] == brute.goal
