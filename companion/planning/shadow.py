@@ -16,6 +16,8 @@ Moving obstacles are left out: a plan made before flight must not count on a sha
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import shapely
 
@@ -67,6 +69,8 @@ class SightShadows:
             self._piece_v = np.concatenate([v for v, _, _ in self._pieces])
             self._piece_n = np.concatenate([n for _, n, _ in self._pieces])
             self._piece_off = np.concatenate([o for _, _, o in self._pieces])
+        self._bounds = _bounding_discs(self._circle_rows, [v for v, _, _ in self._pieces])
+        self._extent = max(float(np.abs(xs).max()), float(np.abs(ys).max()), 1.0)
 
     def blocked_from(self, xy: tuple[float, float]) -> np.ndarray:
         """(ny, nx) bool: the segment from each cell centre to ``xy`` meets a true obstacle."""
@@ -92,14 +96,17 @@ class SightShadows:
         return out
 
     def _blocked_compiled(self, px: float, py: float) -> np.ndarray:
-        """blocked_from by the compiled loop: the same operations per cell, so the same mask.
-        Each edge's side of p stays a numpy product, as in the numpy mask."""
+        """blocked_from by the compiled loop: the same operations per cell, on the cells each
+        obstacle can block (the others cannot be blocked by it), so the same mask. Each edge's
+        side of p stays a numpy product, as in the numpy mask."""
+        slack = _SLACK * max(self._extent, abs(px), abs(py))
         if not self._pieces:
             return _blocked_jit(self._xs, self._ys, px, py, self._circle_rows, np.zeros(1, dtype=np.int64),
-                                np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.bool_))
+                                np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.bool_),
+                                self._bounds, slack)
         outside = np.concatenate([normal @ (px, py) - offset > 0 for _, normal, offset in self._pieces])
         return _blocked_jit(self._xs, self._ys, px, py, self._circle_rows, self._piece_start, self._piece_v,
-                            self._piece_n, self._piece_off, outside)
+                            self._piece_n, self._piece_off, outside, self._bounds, slack)
 
     def _meets_convex(self, px: float, py: float, dx: np.ndarray, dy: np.ndarray, v: np.ndarray,
                       normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -117,37 +124,50 @@ class SightShadows:
         return ~(separated | above | below)
 
 
+# Tiles of _TILE x _TILE cells: an obstacle is tested on a tile's cells only when it can block
+# one of them (see _blocked_jit). Its bounding disc gets a slack of _SLACK times the largest
+# coordinate: far more than the per-cell tests' rounding (~1e-12 m at a few km), far less than a cell.
+_TILE = 8
+_SLACK = 1e-6
+
+
+def _bounding_discs(circles: np.ndarray, pieces: list[np.ndarray]) -> np.ndarray:
+    """(C + K, 3): a disc (x, y, radius) holding each circle, then each convex piece."""
+    rows = [(x, y, r) for x, y, r in circles]
+    for v in pieces:
+        c = v.mean(axis=0)
+        rows.append((c[0], c[1], float(np.hypot(*(v - c).T).max())))
+    return np.array(rows, dtype=float).reshape(-1, 3)
+
+
 _blocked_jit = None
 if numba is not None:
-    @numba.njit(cache=True, nogil=True, error_model="numpy")
-    def _blocked_jit(xs, ys, px, py, circles, start, v, normal, offset, outside):
-        """SightShadows.blocked_from per cell: circles (C, 3) as (x, y, r), convex pieces k as
-        rows start[k]:start[k + 1] of v, normal, offset; ``outside``: p outside edge j."""
-        out = np.zeros((len(ys), len(xs)), dtype=np.bool_)
-        for c in range(len(circles)):
-            wx, wy, r = circles[c, 0] - px, circles[c, 1] - py, circles[c, 2]
-            if wx * wx + wy * wy < r * r:  # p inside: everything is blocked
-                out[:, :] = True
-                return out
-        for iy in range(len(ys)):
+    @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+    def _blocked_tile(out, xs, ys, x0, x1, y0, y1, px, py, circles, start, v, normal, offset, outside, cand, m):
+        """The numpy mask's tests on the tile's cells, for the candidate obstacles only."""
+        n_c = len(circles)
+        for iy in range(y0, y1):
             qy = ys[iy]
             dy = qy - py
-            for ix in range(len(xs)):
+            row = out[iy]
+            for ix in range(x0, x1):
                 qx = xs[ix]
                 dx = qx - px
                 len2 = dx * dx + dy * dy
                 blocked = False
-                for c in range(len(circles)):
-                    cx, cy, r = circles[c, 0], circles[c, 1], circles[c, 2]
-                    ex, ey = qx - cx, qy - cy
-                    wx, wy = cx - px, cy - py
-                    along = wx * dx + wy * dy
-                    cross = dx * wy - dy * wx
-                    if ex * ex + ey * ey < r * r or (along > 0 and along < len2 and cross * cross < r * r * len2):
-                        blocked = True
-                        break
-                k = 0
-                while not blocked and k < len(start) - 1:
+                for i in range(m):
+                    o = cand[i]
+                    if o < n_c:
+                        cx, cy, r = circles[o, 0], circles[o, 1], circles[o, 2]
+                        ex, ey = qx - cx, qy - cy
+                        wx, wy = cx - px, cy - py
+                        along = wx * dx + wy * dy
+                        cross = dx * wy - dy * wx
+                        if ex * ex + ey * ey < r * r or (along > 0 and along < len2 and cross * cross < r * r * len2):
+                            blocked = True
+                            break
+                        continue
+                    k = o - n_c
                     separated = False
                     for j in range(start[k], start[k + 1]):
                         if outside[j] and normal[j, 0] * qx + normal[j, 1] * qy > offset[j]:
@@ -159,7 +179,50 @@ if numba is not None:
                             cross = dx * (v[j, 1] - py) - dy * (v[j, 0] - px)
                             above = above and cross > 0
                             below = below and cross < 0
-                        blocked = not (above or below)
-                    k += 1
-                out[iy, ix] = blocked
+                        if not (above or below):
+                            blocked = True
+                            break
+                row[ix] = blocked
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _blocked_jit(xs, ys, px, py, circles, start, v, normal, offset, outside, bounds, slack):
+        """SightShadows.blocked_from per cell: circles (C, 3) as (x, y, r), convex pieces k as
+        rows start[k]:start[k + 1] of v, normal, offset; ``outside``: p outside edge j;
+        ``bounds``: :func:`_bounding_discs` (obstacle o: circle o, else piece o - C).
+
+
+        Tile by tile, an obstacle is a candidate only when the segment from p to the tile's
+        centre comes within its bounding disc plus the tile's half-diagonal: a segment from p to
+        any cell q of the tile lies within that half-diagonal of it (its point at fraction s is
+        s |q - centre| from the one at s of the other), so a non-candidate stays farther than
+        ``slack`` from every such segment, and the numpy mask's per-cell tests, done here on the
+        candidates, could not find it blocking. A cell is blocked when a candidate blocks it."""
+        n_c, n_k = len(circles), len(start) - 1
+        out = np.zeros((len(ys), len(xs)), dtype=np.bool_)
+        for c in range(n_c):
+            wx, wy, r = circles[c, 0] - px, circles[c, 1] - py, circles[c, 2]
+            if wx * wx + wy * wy < r * r:  # p inside: everything is blocked
+                out[:, :] = True
+                return out
+        cand = np.empty(n_c + n_k, dtype=np.int64)
+        for y0 in range(0, len(ys), _TILE):
+            y1 = min(y0 + _TILE, len(ys))
+            for x0 in range(0, len(xs), _TILE):
+                x1 = min(x0 + _TILE, len(xs))
+                tx, ty = 0.5 * (xs[x0] + xs[x1 - 1]), 0.5 * (ys[y0] + ys[y1 - 1])
+                half = 0.5 * math.hypot(xs[x1 - 1] - xs[x0], ys[y1 - 1] - ys[y0])
+                dx, dy = tx - px, ty - py
+                len2 = dx * dx + dy * dy
+                m = 0
+                for o in range(n_c + n_k):  # the point of segment p -> centre nearest the disc
+                    wx, wy = bounds[o, 0] - px, bounds[o, 1] - py
+                    u = 0.0 if len2 == 0.0 else min(max((wx * dx + wy * dy) / len2, 0.0), 1.0)
+                    ex, ey = wx - u * dx, wy - u * dy
+                    reach = bounds[o, 2] + half + slack
+                    if ex * ex + ey * ey <= reach * reach:
+                        cand[m] = o
+                        m += 1
+                if m:
+                    _blocked_tile(out, xs, ys, x0, x1, y0, y1, px, py, circles, start, v, normal, offset,
+                                  outside, cand, m)
         return out

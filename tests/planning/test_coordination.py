@@ -77,6 +77,14 @@ def test_shadow_masks_agree_with_the_metric_sight_test(world, p):
         assert min(seg.distance(o.footprint.exterior) for o in world.obstacles) < 1e-3
 
 
+def _numpy_mask(shadows: SightShadows, p) -> np.ndarray:
+    saved, shadow_module._blocked_jit = shadow_module._blocked_jit, None
+    try:
+        return shadows.blocked_from(p)
+    finally:
+        shadow_module._blocked_jit = saved
+
+
 @pytest.mark.skipif(shadow_module.numba is None, reason="numba (the 'fast' extra) is not installed")
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(worlds(0, 5), st.tuples(st.floats(-50.0, 1050.0), st.floats(-50.0, 1050.0)))
@@ -85,13 +93,26 @@ def test_compiled_shadow_masks_equal_the_numpy_masks(world, p):
     grid = rasterise(world, 25.0)
     shadows = SightShadows(world, grid)
     compiled = shadows.blocked_from(p)
-    saved, shadow_module._blocked_jit = shadow_module._blocked_jit, None
-    try:
-        reference = shadows.blocked_from(p)
-    finally:
-        shadow_module._blocked_jit = saved
+    reference = _numpy_mask(shadows, p)
     assert compiled.dtype == reference.dtype and np.array_equal(compiled, reference)
 
+
+
+@pytest.mark.skipif(shadow_module.numba is None, reason="numba (the 'fast' extra) is not installed")
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(worlds(1, 5), st.floats(6.0, 30.0), st.data())
+def test_compiled_shadow_masks_equal_the_numpy_masks_where_segments_graze(world, resolution_m, data):
+    """The compiled mask tests an obstacle only on the tiles of cells it can block: on fine
+    grids (tiles cut short at the edges), from points on or just off an obstacle's outline
+    (segments that graze the obstacles a tile leaves out), it is still the numpy mask."""
+    grid = rasterise(world, resolution_m)
+    shadows = SightShadows(world, grid)
+    outline = data.draw(st.sampled_from(world.obstacles)).footprint.exterior
+    on = outline.interpolate(data.draw(st.floats(0.0, 1.0)), normalized=True)
+    off = data.draw(st.sampled_from([0.0, 1e-9, 1e-6, 1e-3, 0.5, 5.0]))
+    angle = data.draw(st.floats(0.0, 2.0 * math.pi))
+    p = (on.x + off * math.cos(angle), on.y + off * math.sin(angle))
+    assert np.array_equal(shadows.blocked_from(p), _numpy_mask(shadows, p))
 
 # --- the space-time plan ------------------------------------------------------------------------
 
