@@ -8,6 +8,8 @@ from the neighbouring word, so dilating a 360 x 360 grid is a dozen numpy operat
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 try:
@@ -39,6 +41,35 @@ def single(shape_bits: tuple[int, int], x: int, y: int) -> np.ndarray:
     out = np.zeros(shape_bits, dtype=np.uint64)
     out[y, x >> 6] = np.uint64(1) << np.uint64(x & 63)
     return out
+
+
+def distance2(xs: np.ndarray, ys: np.ndarray, xy: tuple[float, float]) -> np.ndarray:
+    """(ny, nx): the squared distance from each cell centre (xs[ix], ys[iy]) to ``xy``."""
+    return (xs[None, :] - xy[0]) ** 2 + (ys[:, None] - xy[1]) ** 2
+
+
+def farther(xs: np.ndarray, ys: np.ndarray, xy: tuple[float, float], d2: float, strict: bool = True) -> np.ndarray:
+    """Packed: the cells whose :func:`distance2` to ``xy`` is above ``d2`` (``strict``) or at
+    least ``d2``. Compiled when numba is installed: the same sums, so the same bits."""
+    if _farther_jit is not None:
+        return _farther_jit(xs, ys, float(xy[0]), float(xy[1]), float(d2), strict)
+    d = distance2(xs, ys, xy)
+    return pack(d > d2 if strict else d >= d2)
+
+
+def nearest(bits: np.ndarray, xs: np.ndarray, ys: np.ndarray,
+            points: list[tuple[float, float]]) -> tuple[float, tuple[int, int]]:
+    """The least :func:`distance2` to the nearest of ``points`` over the cells of packed ``bits``
+    (not empty), and its cell (ix, iy): the first in row order on ties."""
+    if _nearest_jit is not None:
+        d2, ix, iy = _nearest_jit(bits, xs, ys, np.array(points, dtype=float).reshape(-1, 2))
+        return d2, (ix, iy)
+    rows = np.flatnonzero(bits.any(axis=1))
+    iy, ix = np.nonzero(unpack(bits[rows], len(xs)))
+    iy = rows[iy]
+    d2 = np.min([(xs[ix] - x) ** 2 + (ys[iy] - y) ** 2 for x, y in points], axis=0)
+    i = int(np.argmin(d2))
+    return float(d2[i]), (int(ix[i]), int(iy[i]))
 
 
 _ONE = np.uint64(1)
@@ -98,3 +129,44 @@ if numba is not None:
                     nxt[y, w] = o & free[y, w]
             cur, nxt = nxt, cur
         return cur
+
+
+_farther_jit = _nearest_jit = None
+if numba is not None:
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _farther_jit(xs, ys, x, y, d2, strict):
+        nx = len(xs)
+        out = np.zeros((len(ys), -(-nx // 64)), dtype=np.uint64)
+        ax = (xs - x) ** 2
+        full = np.full(out.shape[1], ~np.uint64(0), dtype=np.uint64)
+        if nx % 64:
+            full[-1] = (np.uint64(1) << np.uint64(nx % 64)) - np.uint64(1)
+        for iy in range(len(ys)):
+            ay = (ys[iy] - y) ** 2
+            if ay > d2:  # every cell of the row: its sum is ay or more (ax >= 0, rounding is monotone)
+                out[iy] = full
+                continue
+            for ix in range(nx):
+                d = ax[ix] + ay
+                if d > d2 if strict else d >= d2:
+                    out[iy, ix >> 6] |= np.uint64(1) << np.uint64(ix & 63)
+        return out
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _nearest_jit(bits, xs, ys, points):
+        best, bx, by = math.inf, -1, -1
+        for iy in range(bits.shape[0]):
+            for w in range(bits.shape[1]):
+                word = bits[iy, w]
+                if word == 0:
+                    continue
+                for b in range(64):
+                    if not (word >> np.uint64(b)) & np.uint64(1):
+                        continue
+                    ix = w * 64 + b
+                    d = math.inf
+                    for j in range(len(points)):
+                        d = min(d, (xs[ix] - points[j, 0]) ** 2 + (ys[iy] - points[j, 1]) ** 2)
+                    if d < best:
+                        best, bx, by = d, ix, iy
+        return best, bx, by

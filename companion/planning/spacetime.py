@@ -104,13 +104,15 @@ class SpaceTimeProblem:
         self.settled = min(self.horizon, max(0, math.ceil((settled_s - t0_s) / model.step_s)))  # allowed is fixed from here
         xs, ys = grid.cell_centres()
         self._xs, self._ys = xs, ys
-        self._qx, self._qy = xs[None, :], ys[:, None]
         self._memo = {} if memo is None else memo
-        self._positions = [self._positions_at(k) for k in range(self.settled + 1)]
+        self._positions = self._positions_upto(self.settled)
 
-    def _positions_at(self, k: int) -> list[tuple[float, float]]:
-        t = self.t0_s + k * self.model.step_s
-        return [(round(float(x), 6), round(float(y), 6)) for x, y in (o.planned_position_at(t) for o in self.others)]
+    def _positions_upto(self, last: int) -> list[list[tuple[float, float]]]:
+        """Every higher vehicle's forecast position (rounded to the micrometre: memo keys) at
+        steps 0..last, as a list per step (each forecast read once, at all the steps' times)."""
+        t = self.t0_s + np.arange(last + 1) * self.model.step_s
+        per_other = [[(round(x, 6), round(y, 6)) for x, y in o.planned_position_at(t).tolist()] for o in self.others]
+        return [list(at_k) for at_k in zip(*per_other)] if per_other else [[] for _ in range(last + 1)]
 
     def positions(self, k: int) -> list[tuple[float, float]]:
         return self._positions[min(k, self.settled)]
@@ -125,11 +127,11 @@ class SpaceTimeProblem:
         return self._memoised(("shadow", xy), lambda: bitgrid.pack(self.shadows.blocked_from(xy)))
 
     def far_bits(self, xy: tuple[float, float]) -> np.ndarray:
-        return self._memoised(("far", xy, self.model.min_distance_m),
-                              lambda: bitgrid.pack(self.distance2(xy) >= self.model.min_distance_m ** 2))
+        return self._memoised(("far", xy, self.model.min_distance_m), lambda: bitgrid.farther(
+            self._xs, self._ys, xy, self.model.min_distance_m ** 2, strict=False))
 
     def distance2(self, xy: tuple[float, float]) -> np.ndarray:
-        return (self._qx - xy[0]) ** 2 + (self._qy - xy[1]) ** 2
+        return bitgrid.distance2(self._xs, self._ys, xy)
 
     def allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf) -> np.ndarray:
         """Packed cells allowed at step k; ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR
@@ -140,7 +142,7 @@ class SpaceTimeProblem:
             if rule is SightRule.BLOCKED:
                 ok &= self.shadow_bits(xy)
             elif rule is SightRule.BLOCKED_WHEN_NEAR:
-                ok &= self.shadow_bits(xy) | bitgrid.pack(self.distance2(xy) > near2_m2)
+                ok &= self.shadow_bits(xy) | bitgrid.farther(self._xs, self._ys, xy, near2_m2)
         return ok
 
     def blocked_by_all(self, k: int) -> np.ndarray:
@@ -151,12 +153,7 @@ class SpaceTimeProblem:
 
     def nearest_d2(self, k: int, bits: np.ndarray) -> tuple[float, tuple[int, int]]:
         """The least squared distance to a higher vehicle over the cells of ``bits`` at step k."""
-        rows = np.flatnonzero(bits.any(axis=1))
-        iy, ix = np.nonzero(bitgrid.unpack(bits[rows], self.nx))
-        iy = rows[iy]
-        d2 = np.min([(self._xs[ix] - x) ** 2 + (self._ys[iy] - y) ** 2 for x, y in self.positions(k)], axis=0)
-        i = int(np.argmin(d2))
-        return float(d2[i]), (int(ix[i]), int(iy[i]))
+        return bitgrid.nearest(bits, self._xs, self._ys, self.positions(k))
 
     def grow(self, bits: np.ndarray) -> np.ndarray:
         return grow(bits, self.free_bits, self.model.moves)

@@ -49,3 +49,53 @@ def test_compiled_and_numpy_dilations_give_the_same_words():
     before = m.copy()
     assert np.array_equal(bitgrid.dilate_within(m, free, moves), numpy_words)
     assert np.array_equal(m, before)  # the input is not touched
+
+
+def _numpy_paths():
+    """bitgrid's compiled kernels off inside the block."""
+    import contextlib
+
+    @contextlib.contextmanager
+    def off():
+        saved = bitgrid._farther_jit, bitgrid._nearest_jit
+        bitgrid._farther_jit = bitgrid._nearest_jit = None
+        try:
+            yield
+        finally:
+            bitgrid._farther_jit, bitgrid._nearest_jit = saved
+    return off()
+
+
+_coords = st.floats(-2000.0, 2000.0, allow_nan=False)
+
+
+@st.composite
+def _cells(draw):
+    """Cell centres of a grid (some rows and columns beyond one word) and a few points, some on
+    cell centres (ties between cells) and some on each other."""
+    nx, ny = draw(st.integers(1, 150)), draw(st.integers(1, 12))
+    x0, y0, res = draw(_coords), draw(_coords), draw(st.floats(0.5, 40.0))
+    xs, ys = x0 + res * (np.arange(nx) + 0.5), y0 + res * (np.arange(ny) + 0.5)
+    cell = st.tuples(st.sampled_from(list(xs)), st.sampled_from(list(ys)))
+    points = draw(st.lists(st.one_of(st.tuples(_coords, _coords), cell), min_size=1, max_size=3))
+    return xs, ys, [(float(x), float(y)) for x, y in points]
+
+
+@pytest.mark.skipif(bitgrid.numba is None, reason="numba (the 'fast' extra) is not installed")
+@settings(max_examples=80, deadline=None)
+@given(_cells(), st.floats(0.0, 1.0), st.booleans(), st.integers(0, 2**32 - 1))
+def test_compiled_distance_masks_and_nearest_cells_equal_the_numpy_ones(cells, q, strict, seed):
+    xs, ys, points = cells
+    d2 = float(np.quantile(bitgrid.distance2(xs, ys, points[0]), q))  # a threshold some cells tie with
+    with _numpy_paths():
+        want_far = bitgrid.farther(xs, ys, points[0], d2, strict)
+    got_far = bitgrid.farther(xs, ys, points[0], d2, strict)
+    assert got_far.dtype == want_far.dtype and np.array_equal(got_far, want_far)
+    rng = np.random.default_rng(seed)
+    bits = bitgrid.pack(rng.random((len(ys), len(xs))) < rng.choice([0.01, 0.3, 1.0]))
+    if not bits.any():
+        bits = bitgrid.single(bits.shape, len(xs) - 1, len(ys) - 1)
+    with _numpy_paths():
+        want = bitgrid.nearest(bits, xs, ys, points)
+    got = bitgrid.nearest(bits, xs, ys, points)
+    assert got == want and type(got[0]) is type(want[0]) and all(type(v) is int for v in got[1])
