@@ -78,7 +78,7 @@ def one_layout(a: np.ndarray) -> np.ndarray:
     """``a`` as a writable C-contiguous array (a copy only when it is not one): numba compiles,
     or loads from its cache, one signature per layout and read-only flag, at the first call with
     it. One layout keeps that to the first tick (companion.app.warmup pays it before the flight)."""
-    return a if a.flags.c_contiguous and a.flags.writeable else np.array(a, order="C")
+    return a if a.flags.carray else np.array(a, order="C")  # carray: C-contiguous, aligned and writable
 
 
 def _compiled_polygons(px: np.ndarray, py: np.ndarray, t_s: np.ndarray, snap: ObstacleSnapshot,
