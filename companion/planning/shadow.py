@@ -69,7 +69,7 @@ class SightShadows:
             self._piece_v = np.concatenate([v for v, _, _ in self._pieces])
             self._piece_n = np.concatenate([n for _, n, _ in self._pieces])
             self._piece_off = np.concatenate([o for _, _, o in self._pieces])
-        self._bounds = _bounding_discs(self._circle_rows, [v for v, _, _ in self._pieces])
+        self._bounds = _bounding_discs(self._circle_rows, self._pieces)
         self._extent = max(float(np.abs(xs).max()), float(np.abs(ys).max()), 1.0)
 
     def blocked_from(self, xy: tuple[float, float]) -> np.ndarray:
@@ -131,13 +131,15 @@ _TILE = 8
 _SLACK = 1e-6
 
 
-def _bounding_discs(circles: np.ndarray, pieces: list[np.ndarray]) -> np.ndarray:
-    """(C + K, 3): a disc (x, y, radius) holding each circle, then each convex piece."""
-    rows = [(x, y, r) for x, y, r in circles]
-    for v in pieces:
-        c = v.mean(axis=0)
-        rows.append((c[0], c[1], float(np.hypot(*(v - c).T).max())))
-    return np.array(rows, dtype=float).reshape(-1, 3)
+def _bounding_discs(circles: np.ndarray, pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> np.ndarray:
+    """(C + K, 4): for each circle, then each convex piece (vertices, outward normals, offsets),
+    a centre (x, y), the radius of a disc there that holds it and of one that it holds."""
+    rows = [(x, y, r, r) for x, y, r in circles]
+    for v, normal, offset in pieces:
+        c = v.mean(axis=0)  # inside a convex piece: every edge's line is at least ``inner`` away
+        inner = float(((offset - normal @ c) / np.hypot(normal[:, 0], normal[:, 1])).min())
+        rows.append((c[0], c[1], float(np.hypot(*(v - c).T).max()), max(inner, 0.0)))
+    return np.array(rows, dtype=float).reshape(-1, 4)
 
 
 _blocked_jit = None
@@ -190,13 +192,16 @@ if numba is not None:
         rows start[k]:start[k + 1] of v, normal, offset; ``outside``: p outside edge j;
         ``bounds``: :func:`_bounding_discs` (obstacle o: circle o, else piece o - C).
 
-
-        Tile by tile, an obstacle is a candidate only when the segment from p to the tile's
-        centre comes within its bounding disc plus the tile's half-diagonal: a segment from p to
-        any cell q of the tile lies within that half-diagonal of it (its point at fraction s is
-        s |q - centre| from the one at s of the other), so a non-candidate stays farther than
-        ``slack`` from every such segment, and the numpy mask's per-cell tests, done here on the
-        candidates, could not find it blocking. A cell is blocked when a candidate blocks it."""
+        Tile by tile, with the segment from p to the tile's centre: a segment from p to any cell
+        q of the tile lies within the tile's half-diagonal of it (its point at fraction s is
+        s |q - centre| from the one at s of the other). So an obstacle whose outer disc that
+        segment misses by more than the half-diagonal plus ``slack`` is farther than ``slack``
+        from every cell's segment: the numpy mask's per-cell tests could not find it blocking,
+        and only the other obstacles (candidates) are tested, cell by cell. And when it passes
+        deeper than that into a candidate's inner disc, every cell's segment runs more than
+        ``slack`` deep inside the obstacle: the per-cell tests find each one blocked, beyond
+        their rounding (no edge of a piece has both ends outside, and its vertices lie on both
+        sides of the segment's line), and the whole tile is."""
         n_c, n_k = len(circles), len(start) - 1
         out = np.zeros((len(ys), len(xs)), dtype=np.bool_)
         for c in range(n_c):
@@ -214,15 +219,22 @@ if numba is not None:
                 dx, dy = tx - px, ty - py
                 len2 = dx * dx + dy * dy
                 m = 0
-                for o in range(n_c + n_k):  # the point of segment p -> centre nearest the disc
+                full = False
+                for o in range(n_c + n_k):  # the point of segment p -> centre nearest the discs' centre
                     wx, wy = bounds[o, 0] - px, bounds[o, 1] - py
                     u = 0.0 if len2 == 0.0 else min(max((wx * dx + wy * dy) / len2, 0.0), 1.0)
                     ex, ey = wx - u * dx, wy - u * dy
-                    reach = bounds[o, 2] + half + slack
-                    if ex * ex + ey * ey <= reach * reach:
+                    e2 = ex * ex + ey * ey
+                    reach, deep = bounds[o, 2] + half + slack, bounds[o, 3] - half - slack
+                    if deep > 0.0 and e2 < deep * deep:
+                        full = True
+                        break
+                    if e2 <= reach * reach:
                         cand[m] = o
                         m += 1
-                if m:
+                if full:
+                    out[y0:y1, x0:x1] = True
+                elif m:
                     _blocked_tile(out, xs, ys, x0, x1, y0, y1, px, py, circles, start, v, normal, offset,
                                   outside, cand, m)
         return out

@@ -114,6 +114,30 @@ def test_compiled_shadow_masks_equal_the_numpy_masks_where_segments_graze(world,
     p = (on.x + off * math.cos(angle), on.y + off * math.sin(angle))
     assert np.array_equal(shadows.blocked_from(p), _numpy_mask(shadows, p))
 
+
+@pytest.mark.skipif(shadow_module.numba is None, reason="numba (the 'fast' extra) is not installed")
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(worlds(1, 5), st.floats(6.0, 30.0), st.data())
+def test_compiled_shadow_masks_equal_the_numpy_masks_on_tangents_from_cells(world, resolution_m, data):
+    """p on a line from a cell centre tangent to a circle (nudged by up to a millimetre): that
+    cell's segment grazes the circle, wherever the cell sits in its tile."""
+    circles = [o for o in world.static_obstacles if o.is_circle]
+    assume(circles)
+    grid = rasterise(world, resolution_m)
+    xs, ys = grid.cell_centres()
+    o = data.draw(st.sampled_from(circles))
+    q = (data.draw(st.sampled_from(list(xs))), data.draw(st.sampled_from(list(ys))))
+    d = math.hypot(o.center[0] - q[0], o.center[1] - q[1])
+    assume(d > o.size_m + 1.0)
+    side = data.draw(st.sampled_from([-1.0, 1.0]))
+    angle = math.atan2(o.center[1] - q[1], o.center[0] - q[0]) + side * math.asin(o.size_m / d)
+    length = data.draw(st.floats(math.sqrt(d * d - o.size_m ** 2), 3000.0))
+    nudge = data.draw(st.sampled_from([0.0, 1e-9, -1e-9, 1e-6, -1e-6, 1e-3, -1e-3]))
+    c, s = math.cos(angle), math.sin(angle)
+    p = (q[0] + length * c - nudge * s, q[1] + length * s + nudge * c)
+    shadows = SightShadows(world, grid)
+    assert np.array_equal(shadows.blocked_from(p), _numpy_mask(shadows, p))
+
 # --- the space-time plan ------------------------------------------------------------------------
 
 def _check_plan(mission, plan, sample_s: float = 0.5) -> dict:
