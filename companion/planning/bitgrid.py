@@ -88,6 +88,21 @@ def dilate(m: np.ndarray, kind: int) -> np.ndarray:
     return out
 
 
+def grow(bits: np.ndarray, free: np.ndarray, moves: tuple[int, ...]) -> np.ndarray:
+    """:func:`dilate_within` on the rows that can be reached at all (those of ``bits`` and
+    ``len(moves)`` more each side): a new array, the other rows empty."""
+    if _grow_jit is not None:
+        return _grow_jit(bits, free, np.asarray(moves, dtype=np.int64))
+    rows = np.flatnonzero(bits.any(axis=1))
+    out = np.zeros_like(bits)
+    if not rows.size:
+        return out
+    r = len(moves)
+    y0, y1 = max(rows[0] - r, 0), min(rows[-1] + r + 1, bits.shape[0])
+    out[y0:y1] = dilate_within(bits[y0:y1], free[y0:y1], moves)
+    return out
+
+
 def dilate_within(m: np.ndarray, free: np.ndarray, moves: tuple[int, ...]) -> np.ndarray:
     """``m`` dilated once per entry of ``moves`` (4 or 8), masked by ``free`` after each: a new
     array. Compiled when numba is installed (bit operations: the same words either way; the
@@ -99,7 +114,7 @@ def dilate_within(m: np.ndarray, free: np.ndarray, moves: tuple[int, ...]) -> np
     return m
 
 
-_dilate_within_jit = None
+_dilate_within_jit = _grow_jit = None
 if numba is not None:
     @numba.njit(cache=True, nogil=True)
     def _dilate_within_jit(m, free, moves):
@@ -129,6 +144,23 @@ if numba is not None:
                     nxt[y, w] = o & free[y, w]
             cur, nxt = nxt, cur
         return cur
+
+    @numba.njit(cache=True, nogil=True)
+    def _grow_jit(bits, free, moves):
+        first = last = -1
+        for y in range(bits.shape[0]):
+            for w in range(bits.shape[1]):
+                if bits[y, w]:
+                    first = y if first < 0 else first
+                    last = y
+                    break
+        out = np.zeros_like(bits)
+        if first < 0:
+            return out
+        r = len(moves)
+        y0, y1 = max(first - r, 0), min(last + r + 1, bits.shape[0])
+        out[y0:y1] = _dilate_within_jit(bits[y0:y1], free[y0:y1], moves)
+        return out
 
 
 _farther_jit = _nearest_jit = None

@@ -66,19 +66,6 @@ def step_model(resolution_m: float, speed_m_s: float, nominal_step_s: float, min
     return StepModel(step_s, tuple(moves), math.hypot(min_separation_m, rel_m / 2.0))
 
 
-def grow(bits: np.ndarray, free_bits: np.ndarray, moves: tuple[int, ...]) -> np.ndarray:
-    """Cells reachable from packed ``bits`` in one step of sub-steps ``moves`` through
-    ``free_bits`` (see :mod:`bitgrid`), on the rows that can be reached at all."""
-    rows = np.flatnonzero(bits.any(axis=1))
-    out = np.zeros_like(bits)
-    if not rows.size:
-        return out
-    r = len(moves)
-    y0, y1 = max(rows[0] - r, 0), min(rows[-1] + r + 1, bits.shape[0])
-    out[y0:y1] = bitgrid.dilate_within(bits[y0:y1], free_bits[y0:y1], moves)
-    return out
-
-
 class SpaceTimeProblem:
     """One lower-priority vehicle against the forecasts of the vehicles above it. Masks are
     packed (:mod:`bitgrid`); ``memo`` may be shared by problems on the same grid and model."""
@@ -156,7 +143,8 @@ class SpaceTimeProblem:
         return bitgrid.nearest(bits, self._xs, self._ys, self.positions(k))
 
     def grow(self, bits: np.ndarray) -> np.ndarray:
-        return grow(bits, self.free_bits, self.model.moves)
+        """Cells reachable from packed ``bits`` in one step (sub-steps ``model.moves``)."""
+        return bitgrid.grow(bits, self.free_bits, self.model.moves)
 
     def cell_mask(self, cell: tuple[int, int]) -> np.ndarray:
         return bitgrid.single(self.free_bits.shape, cell[0], cell[1])

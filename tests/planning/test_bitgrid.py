@@ -57,12 +57,12 @@ def _numpy_paths():
 
     @contextlib.contextmanager
     def off():
-        saved = bitgrid._farther_jit, bitgrid._nearest_jit
-        bitgrid._farther_jit = bitgrid._nearest_jit = None
+        saved = bitgrid._farther_jit, bitgrid._nearest_jit, bitgrid._grow_jit, bitgrid._dilate_within_jit
+        bitgrid._farther_jit = bitgrid._nearest_jit = bitgrid._grow_jit = bitgrid._dilate_within_jit = None
         try:
             yield
         finally:
-            bitgrid._farther_jit, bitgrid._nearest_jit = saved
+            bitgrid._farther_jit, bitgrid._nearest_jit, bitgrid._grow_jit, bitgrid._dilate_within_jit = saved
     return off()
 
 
@@ -99,3 +99,17 @@ def test_compiled_distance_masks_and_nearest_cells_equal_the_numpy_ones(cells, q
         want = bitgrid.nearest(bits, xs, ys, points)
     got = bitgrid.nearest(bits, xs, ys, points)
     assert got == want and type(got[0]) is type(want[0]) and all(type(v) is int for v in got[1])
+
+
+@pytest.mark.skipif(bitgrid.numba is None, reason="numba (the 'fast' extra) is not installed")
+@settings(max_examples=60, deadline=None)
+@given(ny=st.integers(1, 40), nx=st.integers(1, 200), seed=st.integers(0, 2**32 - 1),
+       moves=st.lists(st.sampled_from([4, 8]), min_size=1, max_size=6), density=st.sampled_from([0.0, 0.002, 0.05]))
+def test_compiled_growth_equals_the_numpy_growth(ny, nx, seed, moves, density):
+    """grow: the rows a set can reach, dilated; empty sets and sets at the edges too."""
+    rng = np.random.default_rng(seed)
+    bits = bitgrid.pack(rng.random((ny, nx)) < density)
+    free = bitgrid.pack(rng.random((ny, nx)) < 0.8)
+    with _numpy_paths():
+        want = bitgrid.grow(bits, free, tuple(moves))
+    assert np.array_equal(bitgrid.grow(bits, free, tuple(moves)), want)
