@@ -138,15 +138,24 @@ def _first_line(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
-@contextlib.contextmanager
-def fewer_gc_passes(gen0: int = 20_000):
+_GEN0 = 20_000
+
+
+def _fewer_gc_passes(gen0: int) -> tuple[int, int, int]:
     """A run allocates a few small objects per vehicle-tick (results, commands, snapshots) that
     die young and form no cycles, so the default young-generation threshold (700) makes the
     collector scan over and over for nothing: 5-10 % of the bench's CPU. The long-lived objects
-    imported so far are frozen out of the scans, and the threshold raised, until exit."""
+    so far are frozen out of the scans and the threshold is raised; returns the old thresholds."""
     saved = gc.get_threshold()
     gc.freeze()
     gc.set_threshold(gen0, saved[1], saved[2])
+    return saved
+
+
+@contextlib.contextmanager
+def fewer_gc_passes(gen0: int = _GEN0):
+    """:func:`_fewer_gc_passes` until exit."""
+    saved = _fewer_gc_passes(gen0)
     try:
         yield
     finally:
@@ -155,5 +164,7 @@ def fewer_gc_passes(gen0: int = 20_000):
 
 
 def worker_init() -> None:
-    """A worker process lives for the bench only: fewer collector passes for good."""
-    fewer_gc_passes().__enter__()
+    """A worker process lives for the bench only: fewer collector passes for good. (Not by
+    entering :func:`fewer_gc_passes` and dropping it: the dropped generator is closed at once,
+    which ran its ``finally`` and undid the settings before the first task.)"""
+    _fewer_gc_passes(_GEN0)

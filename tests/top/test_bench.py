@@ -114,6 +114,21 @@ def test_rows_do_not_depend_on_the_worker_count():
     assert strip == [{k: v for k, v in r.items() if k not in ("wall_s", "planner_ms_per_tick")} for r in pooled]
 
 
+def _collector_settings() -> tuple:
+    import gc
+    return gc.get_threshold(), gc.get_freeze_count()
+
+
+def test_a_pool_worker_keeps_fewer_collector_passes():
+    """The local pool's workers run with the raised young-generation threshold and the objects
+    of their start frozen, from their first task on (an initialiser that entered the context
+    manager and dropped it had undone both before any task ran)."""
+    from concurrent.futures import ProcessPoolExecutor
+    from companion.bench.executors import worker_init
+    with ProcessPoolExecutor(max_workers=1, initializer=worker_init) as pool:
+        (gen0, _, _), frozen = pool.submit(_collector_settings).result()
+    assert gen0 == 20_000 and frozen > 0
+
 def _timeless(path):
     return [{k: v for k, v in r.items() if k not in ("wall_s", "planner_ms_per_tick")} for r in read_runs_csv(path)]
 
