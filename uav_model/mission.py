@@ -13,7 +13,7 @@ from __future__ import annotations
 import copy
 import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
@@ -27,12 +27,12 @@ from uav_model.frames import GeoOrigin
 from uav_model.mission_errors import (MissionError, StrictLoader, dotted, fail, line_of, mission_error,
                                       schema_reason)
 from uav_model.mission_points import latlon_slips, localise
-from uav_model.mission_types import (VARIANTS, CoordinationSettings, Mission, Normalisation, PlannerSettings,
+from uav_model.mission_types import (VARIANTS, CoordinationSettings, Forecast, Mission, Normalisation, PlannerSettings,
                                      SafetySettings, SightlineCritic, SpawnHeading, Variant, VehicleSpec, shared_goals)
 from uav_model.plant import Plant
 from uav_model.world import Obstacle, Orbit, Patrol, Shuttle, Static, World, make_obstacle
 
-__all__ = ["API_PORT_BASE", "CoordinationSettings", "DEFAULT_ORIGIN", "VARIANTS", "Mission", "MissionError",
+__all__ = ["API_PORT_BASE", "CoordinationSettings", "DEFAULT_ORIGIN", "Forecast", "VARIANTS", "Mission", "MissionError",
            "Normalisation", "PlannerSettings", "SafetySettings", "SightlineCritic", "SpawnHeading", "Variant", "VehicleSpec",
            "load_mission", "mission_error",
            "mission_from_data", "mission_schema", "parse_mission", "shared_goals"]
@@ -166,8 +166,8 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
     safety_raw, sdef = data.get("safety", {}), schema["safety"]["properties"]
     safety = SafetySettings(**{k: float(_opt(safety_raw, sdef, k)) for k in sdef})
     coord_raw, cdef = data.get("coordination", {}), schema["coordination"]["properties"]
-    cast = {"boolean": bool, "number": float, "string": str}
-    coordination = CoordinationSettings(**{k: cast[cdef[k]["type"]](_opt(coord_raw, cdef, k)) for k in cdef})
+    kind = {f.name: type(f.default) for f in fields(CoordinationSettings)}  # bool, float, Forecast
+    coordination = CoordinationSettings(**{k: kind[k](_opt(coord_raw, cdef, k)) for k in cdef})
     report = _Problems(source, root, problems)
     world = _world(data, planner.inflation_ratio, report, broken)
     stations = _stations(data, world, report)

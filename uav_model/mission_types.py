@@ -108,6 +108,13 @@ class SafetySettings:
     telemetry_timeout_s: float
 
 
+class Forecast(Enum):
+    """What the lower-priority vehicles are planned against (``coordination.forecast``)."""
+
+    FLOWN = "flown"  # the first vehicle flown alone, headless, before departure
+    ROUTE = "route"  # the first vehicle on its route at cruise speed
+
+
 @dataclass(frozen=True, slots=True)
 class CoordinationSettings:
     """Coordinated timing (docs/design.md): who may wait, and the space-time plan's step."""
@@ -115,7 +122,7 @@ class CoordinationSettings:
     hold_s_max: float = 0.0  # the first vehicle in priority may hold at its station this long (paper: 0)
     step_s: float = 5.0      # nominal time step of the space-time plan
     replan: bool = True      # re-plan in flight a lower vehicle that lags its timed plan
-    forecast: str = "flown"  # the first vehicle's forecast: "route" (at cruise) or "flown" (alone, headless)
+    forecast: Forecast = Forecast.FLOWN  # the first vehicle's forecast
 
 
 @dataclass(frozen=True)

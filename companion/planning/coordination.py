@@ -32,6 +32,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from uav_model.mission import Forecast
+from companion.planning.flown_forecast import flown_forecast
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.nearpath import best_near
 from companion.planning.shadow import SightShadows
@@ -240,8 +242,7 @@ def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: 
     order = mission.by_priority
     top = order[0]
     memo: dict = {}
-    if len(order) > 1 and mission.coordination.forecast == "flown":
-        from companion.planning.flown_forecast import flown_forecast
+    if len(order) > 1 and mission.coordination.forecast is Forecast.FLOWN:
         first = flown_forecast(mission, routes[top.name], top.name)
     else:
         first = forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s)

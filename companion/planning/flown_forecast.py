@@ -9,7 +9,7 @@ headless first, with the runner that flies the mission (:func:`runner.simulate`)
 off. The lower vehicles change the first one's flight only through the separation rule, which
 binds only when they meet.
 
-Opt-in (``coordination.forecast: flown``). Pure and deterministic: no I/O. It costs one headless
+The default (``coordination.forecast: flown``). Pure and deterministic: no I/O. It costs one headless
 flight of one vehicle (0.06 s of CPU on the reference).
 """
 

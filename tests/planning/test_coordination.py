@@ -12,7 +12,7 @@ import shapely
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from uav_model.mission import load_mission, mission_from_data
+from uav_model.mission import Forecast, load_mission, mission_from_data
 from companion.planning.coordination import Blocking, plan_coordinated, plan_vehicle
 from companion.planning.errors import NoPath
 from companion.planning.grid import rasterise
@@ -186,7 +186,7 @@ def test_reference_plan_with_a_hold_keeps_the_line_blocked_the_whole_flight(refe
 
 def test_reference_replan_mid_flight_from_where_the_vehicle_strayed(reference):
     mission, routes = reference  # a forecast on its route: the geometry this re-plan was checked on
-    mission = replace(mission, coordination=replace(mission.coordination, hold_s_max=200.0, forecast="route"))
+    mission = replace(mission, coordination=replace(mission.coordination, hold_s_max=200.0, forecast=Forecast.ROUTE))
     plan = plan_coordinated(mission, routes)
     grid = rasterise(mission.world, mission.planner.grid_resolution_m)
     strayed = tuple(plan.timed["b"].planned_position_at(120.0) + np.array([40.0, -30.0]))
@@ -286,7 +286,7 @@ def test_the_first_vehicle_is_forecast_where_it_flies_not_on_its_route():
     flown = simulate(mission, routes=scenario.routes).tracks["a"]
     xy = np.column_stack([flown.x_m, flown.y_m])
     off = {}
-    for kind in ("flown", "route"):
+    for kind in Forecast:
         m = replace(mission, coordination=replace(mission.coordination, forecast=kind))
         off[kind] = float(np.max(plan_coordinated(m, scenario.routes).timed["a"].progress_at(xy)[1]))
-    assert off["flown"] < 40.0 < 80.0 < off["route"], off
+    assert off[Forecast.FLOWN] < 40.0 < 80.0 < off[Forecast.ROUTE], off
