@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from companion.planning.dwa import kernels
+from companion.planning.dwa import kernels, libm
 from companion.planning.dwa.geometry import one_layout
 from companion.planning.dwa.types import LocalGoals
 
@@ -74,7 +74,7 @@ def heading_from_ends(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray,
             at_station = n_reached == count
         target = nodes[np.minimum(n_reached, count - 1)]
         tx, ty = target[:, 0], target[:, 1]
-    bearing = np.arctan2(ty - ey, tx - ex)
+    bearing = libm.arctan2(ty - ey, tx - ex)  # the compiled kernels' bits (see libm)
     deviation = np.abs((final_heading - bearing + np.pi) % (2.0 * np.pi) - np.pi)
     heading = 180.0 - np.degrees(deviation)
     if at_station is None:

@@ -3,8 +3,9 @@ the sightline critics, culling, the single-target heading critic), when numba is
 ``fast`` extra); None otherwise, and the numpy kernels run.
 
 Each kernel does, per element, exactly the floating-point operations of its numpy twin in the
-same order (no fast-math, no contraction into fused multiply-adds), so the results are bit for
-bit the same: ``tests/planning/test_kernels.py`` checks this against the numpy code. What numpy
+same order (no fast-math, no contraction into fused multiply-adds), and both call the C
+library's elementary functions (numpy's AVX-512 arctan2 does not: see ``libm``), so the results
+are bit for bit the same: ``tests/planning/test_kernels.py`` checks this against the numpy code. What numpy
 does as a matrix product stays in numpy (BLAS may fuse multiply-adds), and so do sums (numpy's
 pairwise summation is not a loop's). What is saved is numpy's temporaries, large for a speed
 window against polygons, and its per-call overhead on small arrays.
