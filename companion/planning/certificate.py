@@ -2,8 +2,10 @@
 kept blocked, for the whole flight and at closest approach, and if not, after what departure hold?
 
 Both questions are decided exactly on the space-time graph of :mod:`spacetime` (the mission
-grid, the second vehicle's step, waits allowed for it), against the first vehicle flying its A*
-route at cruise speed after a hold at its station. A longer hold never hurts: the second vehicle
+grid, the second vehicle's step, waits allowed for it), against the first vehicle after a hold at
+its station, forecast as the coordinated plan forecasts it (:func:`coordination.first_forecast`:
+by default flown alone headless, ``coordination.forecast: route`` its A* route at cruise), so
+that the certificate and the plan judge the same flight. A longer hold never hurts: the second vehicle
 can spend it waiting where it is (its start is as blocked as at time 0), so the least hold is
 found by bisection over multiples of the step, up to the longest hold that still lets the first
 vehicle arrive within the time limit.
@@ -15,7 +17,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
-from companion.planning.coordination import Blocking, feasible, problem_for
+from companion.planning.coordination import Blocking, feasible, first_forecast, problem_for
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.shadow import SightShadows
 from companion.planning.timed import TimedRoute, forecast, held
@@ -104,23 +106,26 @@ def least_hold(mission: "Mission", routes: dict[str, "Route"], blocking: Blockin
 
 
 def certify(mission: "Mission", routes: dict[str, "Route"], *, grid: OccupancyGrid | None = None,
-            shadows: SightShadows | None = None, max_hold_s: float | None = None) -> OcclusionCertificate | None:
+            shadows: SightShadows | None = None, max_hold_s: float | None = None,
+            top: TimedRoute | None = None) -> OcclusionCertificate | None:
     """The certificate of the two vehicles first in priority (None with a single vehicle).
     Holds are searched up to ``max_hold_s`` (default: the longest that lets the first vehicle
-    still arrive within the time limit)."""
+    still arrive within the time limit). ``top``: the first vehicle's forecast without a hold
+    (default: :func:`coordination.first_forecast`, the one the coordinated plan uses)."""
     if len(mission.vehicles) < 2:
         return None
     grid = grid or rasterise(mission.world, mission.planner.grid_resolution_m)
     shadows = shadows or SightShadows(mission.world, grid)
     higher, lower = mission.by_priority[0], mission.by_priority[1]
-    flight_s = routes[higher.name].length_m / higher.speed_m_s
+    top = top or first_forecast(mission, routes)
+    flight_s = float(top.t_s[-1] - top.t_s[0])
     searched = max(0.0, mission.safety.time_limit_s - flight_s) if max_hold_s is None else max_hold_s
     step = problem_for(mission, grid, shadows, lower.name, (), higher.speed_m_s).model.step_s
     memo: dict = {}
-    whole = least_hold(mission, routes, Blocking.WHOLE_FLIGHT, searched, grid, shadows, memo)
+    whole = least_hold(mission, routes, Blocking.WHOLE_FLIGHT, searched, grid, shadows, memo, top=top)
     near = whole if whole == 0.0 else least_hold(  # whole-flight blocking is blocked at closest approach
         mission, routes, Blocking.CLOSEST_APPROACH, searched if whole is None else whole, grid, shadows, memo,
-        known_at_max=whole is not None)
+        known_at_max=whole is not None, top=top)
     limit = mission.coordination.hold_s_max
     return OcclusionCertificate(
         higher=higher.name, lower=lower.name, hold_s_max=limit, step_s=step,

@@ -232,6 +232,16 @@ def near_margin_m(mission: "Mission", name: str, fastest_other_m_s: float) -> fl
     return (v.speed_m_s + fastest_other_m_s) * model.step_s
 
 
+def first_forecast(mission: "Mission", routes: dict[str, "Route"]) -> TimedRoute:
+    """Where the first vehicle in priority will be, and when, departing at t = 0: what the
+    lower vehicles are planned against, and what the occlusion certificate judges
+    (``coordination.forecast``: flown alone headless, or its sparse route at cruise)."""
+    top = mission.by_priority[0]
+    if mission.coordination.forecast is Forecast.FLOWN:
+        return flown_forecast(mission, routes[top.name], top.name)
+    return forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s)
+
+
 def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: float | None = None,
                      grid: OccupancyGrid | None = None, shadows: SightShadows | None = None) -> CoordinatedPlan:
     """Timed routes for every vehicle (see the module doc). ``hold_s``: the first vehicle's
@@ -242,10 +252,8 @@ def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: 
     order = mission.by_priority
     top = order[0]
     memo: dict = {}
-    if len(order) > 1 and mission.coordination.forecast is Forecast.FLOWN:
-        first = flown_forecast(mission, routes[top.name], top.name)
-    else:
-        first = forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s)
+    first = first_forecast(mission, routes) if len(order) > 1 else forecast(
+        top.name, routes[top.name].sparse_enu_m, top.speed_m_s)
     if hold_s is None:
         hold_s = 0.0
         if len(order) > 1 and mission.coordination.hold_s_max > 0:
