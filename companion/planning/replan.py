@@ -41,10 +41,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from uav_model.mission import Forecast
 from companion.planning.coordination import Blocking, plan_vehicle
 from companion.planning.grid import rasterise
 from companion.planning.shadow import SightShadows
-from companion.planning.timed import PriorityClocks, TimedRoute, forecast_from, sight_near_m
+from companion.planning.timed import PriorityClocks, TimedRoute, forecast_along, forecast_from, sight_near_m
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
@@ -238,8 +239,9 @@ class TimedFleet:
 
     def _forecast(self, other: str, t_s: float) -> TimedRoute:
         """Where vehicle ``other`` will be from ``t_s``, for those below it: the first (it waits
-        for nobody) at cruise along the rest of its route from where it is; every other on its
-        own plan, shifted by how far its clock is behind sim time; an arrived one parked."""
+        for nobody) along the rest of its route from where it is, as it was forecast (the flown
+        forecast at its own pace, the route at cruise); every other on its own plan, shifted by
+        how far its clock is behind sim time; an arrived one parked."""
         route = self.routes[other]
         if other in self._done or other not in self._xy:
             return TimedRoute(other, np.array([t_s]), route.xy_enu_m[-1:])
@@ -247,6 +249,8 @@ class TimedFleet:
             return route  # still holding: it departs on its schedule (sim time)
         if other == self.order[0]:
             v = self.mission.vehicle(other)
+            if self.mission.coordination.forecast is Forecast.FLOWN:
+                return forecast_along(route, tuple(self._xy[other]), t_s, v.speed_m_s)
             return forecast_from(other, route.path_xy, tuple(self._xy[other]), t_s, v.speed_m_s)
         return TimedRoute(other, route.t_s + (t_s - self.now(other, t_s)), route.xy_enu_m)
 

@@ -197,6 +197,17 @@ def held(route: TimedRoute, hold_s: float) -> TimedRoute:
                       np.vstack([route.xy_enu_m[:1], route.xy_enu_m]))
 
 
+def _nearest_on(p: np.ndarray, here: np.ndarray) -> tuple[int, float, np.ndarray]:
+    """The point of the polyline ``p`` (M >= 2, 2) nearest ``here``: its segment, the fraction
+    along it, and the point (the first segment on ties)."""
+    a, d = p[:-1], np.diff(p, axis=0)
+    len2 = np.einsum("ij,ij->i", d, d)
+    u = np.clip(np.einsum("ij,ij->i", here - a, d) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
+    foot = a + d * u[:, None]
+    i = int(np.argmin(np.hypot(*(foot - here).T)))
+    return i, float(u[i]), foot[i]
+
+
 def forecast_from(vehicle: str, route_enu_m: np.ndarray, xy_enu_m: tuple[float, float], t_s: float,
                   speed_m_s: float) -> TimedRoute:
     """A vehicle seen at ``xy_enu_m`` at time ``t_s`` flying the rest of ``route_enu_m`` at
@@ -206,13 +217,29 @@ def forecast_from(vehicle: str, route_enu_m: np.ndarray, xy_enu_m: tuple[float, 
     here = np.asarray(xy_enu_m, dtype=float)
     if len(p) < 2:
         return forecast(vehicle, np.vstack([here, p]), speed_m_s, start_s=t_s)
-    a, d = p[:-1], np.diff(p, axis=0)
-    len2 = np.einsum("ij,ij->i", d, d)
-    u = np.clip(np.einsum("ij,ij->i", here - a, d) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
-    foot = a + d * u[:, None]
-    i = int(np.argmin(np.hypot(*(foot - here).T)))
-    rest = np.vstack([here, foot[i], p[i + 1:]])
+    i, _, foot = _nearest_on(p, here)
+    rest = np.vstack([here, foot, p[i + 1:]])
     return forecast(vehicle, rest, speed_m_s, start_s=t_s)
+
+
+def forecast_along(route: TimedRoute, xy_enu_m: tuple[float, float], t_s: float, speed_m_s: float) -> TimedRoute:
+    """A vehicle seen at ``xy_enu_m`` at time ``t_s`` going on as its timed ``route`` has it fly:
+    to the route's nearest point at ``speed_m_s``, then the rest at the route's own pace, shifted
+    to begin when it gets there. For a flown forecast (:mod:`flown_forecast`) that keeps its
+    slower corners and final approach, which :func:`forecast_from` would fly at cruise. Waits
+    are left out (only their last instant is kept): a vehicle seen once it left does not wait
+    again."""
+    keep = np.ones(len(route.t_s), dtype=bool)
+    keep[:-1] = np.any(route.xy_enu_m[1:] != route.xy_enu_m[:-1], axis=1)
+    p, t = route.xy_enu_m[keep], route.t_s[keep]
+    here = np.asarray(xy_enu_m, dtype=float)
+    if len(p) < 2:
+        return forecast(route.vehicle, np.vstack([here, p]), speed_m_s, start_s=t_s)
+    i, u, foot = _nearest_on(p, here)
+    at_foot = t_s + float(np.hypot(*(foot - here))) / speed_m_s
+    shift = at_foot - (t[i] + u * (t[i + 1] - t[i]))
+    return TimedRoute(route.vehicle, np.concatenate([[t_s, at_foot], t[i + 1:] + shift]),
+                      np.vstack([here, foot, p[i + 1:]]))
 
 
 class ScheduleClock:

@@ -21,7 +21,7 @@ from companion.planning.routes import detour_route, plan_routes
 from companion.planning import shadow as shadow_module
 from companion.planning.shadow import SightShadows
 from companion.planning.spacetime import step_model
-from companion.planning.timed import TimedRoute, forecast, forecast_from
+from companion.planning.timed import TimedRoute, forecast, forecast_along, forecast_from, held
 from world_strategies import worlds
 
 REFERENCE = Path(__file__).resolve().parents[2] / "missions" / "paper_reference.yaml"
@@ -45,6 +45,29 @@ def test_forecast_from_where_a_vehicle_strayed_flies_the_rest_of_its_route():
     f = forecast_from("a", route, (60.0, 10.0), 30.0, speed_m_s=10.0)
     np.testing.assert_allclose(f.planned_position_at(np.array([30.0, 31.0, 35.0, 49.0, 200.0])),
                                [[60, 10], [60, 0], [100, 0], [100, 100], [100, 100]])
+
+
+def test_forecast_along_keeps_the_pace_of_the_rest_of_a_flown_forecast():
+    """Seen at (60, 10) at t = 30 s: 1 s to the route (10 m at 10 m/s), then the rest as the
+    forecast flew it: 40 m in 14.4 s (its slow stretch, 50 m in 18 s), then 100 m in 10 s, not
+    at cruise (forecast_from: 4 s and 10 s). A departure hold is not flown again."""
+    flown = held(TimedRoute("a", np.array([0.0, 10.0, 28.0, 38.0]),
+                            np.array([[0.0, 0.0], [50.0, 0.0], [100.0, 0.0], [100.0, 100.0]])), 20.0)
+    f = forecast_along(flown, (60.0, 10.0), 30.0, speed_m_s=10.0)
+    np.testing.assert_allclose(f.t_s, [30.0, 31.0, 45.4, 55.4])
+    np.testing.assert_allclose(f.xy_enu_m, [[60, 10], [60, 0], [100, 0], [100, 100]])
+    assert f.wait_s == 0.0
+
+
+def test_forecast_along_a_cruise_forecast_is_forecast_from():
+    """On a route timed at cruise the two re-forecasts agree (to rounding), so ``forecast:
+    route`` could use either; it keeps forecast_from, bit for bit as before."""
+    route = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 100.0], [-50.0, 120.0]])
+    for xy, t in (((60.0, 10.0), 30.0), ((0.0, 0.0), 3.0), ((130.0, 70.0), 12.5), ((-80.0, 150.0), 90.0)):
+        along = forecast_along(held(forecast("a", route, 10.0), 7.0), xy, t, 10.0)
+        strayed = forecast_from("a", route, xy, t, 10.0)
+        probe = np.linspace(t, t + 60.0, 121)
+        np.testing.assert_allclose(along.planned_position_at(probe), strayed.planned_position_at(probe), atol=1e-9)
 
 
 def test_target_speed_catches_up_and_waits_where_the_plan_waits():
