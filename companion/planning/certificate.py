@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 from companion.planning.coordination import Blocking, feasible, first_forecast, problem_for
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.shadow import SightShadows
-from companion.planning.timed import TimedRoute, forecast, held
+from companion.planning.timed import TimedRoute, held
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
@@ -72,17 +72,15 @@ class OcclusionCertificate:
                 f"  at closest approach: {part(self.closest_approach, self.closest_approach_min_hold_s)}")
 
 
-def least_hold(mission: "Mission", routes: dict[str, "Route"], blocking: Blocking, max_hold_s: float,
+def least_hold(mission: "Mission", top: TimedRoute, blocking: Blocking, max_hold_s: float,
                grid: OccupancyGrid, shadows: SightShadows, memo: dict | None = None,
-               margin_m: float = 0.0, known_at_max: bool = False,
-               top: TimedRoute | None = None) -> float | None:
+               margin_m: float = 0.0, known_at_max: bool = False) -> float | None:
     """The least hold (a multiple of the lower vehicle's step, <= ``max_hold_s``) of the first
     vehicle that makes ``blocking`` feasible for the second, or None. ``margin_m``: see
     :func:`coordination.solve`; ``known_at_max``: the caller knows ``max_hold_s`` suffices.
-    ``top``: the first vehicle's forecast without a hold (default: its route at cruise), held
-    back by each hold tried (:func:`timed.held`)."""
+    ``top``: the first vehicle's forecast without a hold (:func:`coordination.first_forecast`),
+    held back by each hold tried (:func:`timed.held`)."""
     higher, lower = mission.by_priority[0], mission.by_priority[1]
-    top = top or forecast(higher.name, routes[higher.name].sparse_enu_m, higher.speed_m_s)
     memo = {} if memo is None else memo
 
     def ok(i: int) -> bool:
@@ -106,26 +104,25 @@ def least_hold(mission: "Mission", routes: dict[str, "Route"], blocking: Blockin
 
 
 def certify(mission: "Mission", routes: dict[str, "Route"], *, grid: OccupancyGrid | None = None,
-            shadows: SightShadows | None = None, max_hold_s: float | None = None,
-            top: TimedRoute | None = None) -> OcclusionCertificate | None:
+            shadows: SightShadows | None = None, max_hold_s: float | None = None) -> OcclusionCertificate | None:
     """The certificate of the two vehicles first in priority (None with a single vehicle).
     Holds are searched up to ``max_hold_s`` (default: the longest that lets the first vehicle
-    still arrive within the time limit). ``top``: the first vehicle's forecast without a hold
-    (default: :func:`coordination.first_forecast`, the one the coordinated plan uses)."""
+    still arrive within the time limit). The first vehicle is forecast as the coordinated plan
+    forecasts it (:func:`coordination.first_forecast`)."""
     if len(mission.vehicles) < 2:
         return None
     grid = grid or rasterise(mission.world, mission.planner.grid_resolution_m)
     shadows = shadows or SightShadows(mission.world, grid)
     higher, lower = mission.by_priority[0], mission.by_priority[1]
-    top = top or first_forecast(mission, routes)
+    top = first_forecast(mission, routes)
     flight_s = float(top.t_s[-1] - top.t_s[0])
     searched = max(0.0, mission.safety.time_limit_s - flight_s) if max_hold_s is None else max_hold_s
     step = problem_for(mission, grid, shadows, lower.name, (), higher.speed_m_s).model.step_s
     memo: dict = {}
-    whole = least_hold(mission, routes, Blocking.WHOLE_FLIGHT, searched, grid, shadows, memo, top=top)
+    whole = least_hold(mission, top, Blocking.WHOLE_FLIGHT, searched, grid, shadows, memo)
     near = whole if whole == 0.0 else least_hold(  # whole-flight blocking is blocked at closest approach
-        mission, routes, Blocking.CLOSEST_APPROACH, searched if whole is None else whole, grid, shadows, memo,
-        known_at_max=whole is not None, top=top)
+        mission, top, Blocking.CLOSEST_APPROACH, searched if whole is None else whole, grid, shadows, memo,
+        known_at_max=whole is not None)
     limit = mission.coordination.hold_s_max
     return OcclusionCertificate(
         higher=higher.name, lower=lower.name, hold_s_max=limit, step_s=step,

@@ -235,9 +235,11 @@ def near_margin_m(mission: "Mission", name: str, fastest_other_m_s: float) -> fl
 def first_forecast(mission: "Mission", routes: dict[str, "Route"]) -> TimedRoute:
     """Where the first vehicle in priority will be, and when, departing at t = 0: what the
     lower vehicles are planned against, and what the occlusion certificate judges
-    (``coordination.forecast``: flown alone headless, or its sparse route at cruise)."""
+    (``coordination.forecast``: flown alone headless, or its sparse route at cruise). A vehicle
+    alone is planned against nobody: its route at cruise (and the flown forecast, which flies
+    the vehicle alone, does not fly it again)."""
     top = mission.by_priority[0]
-    if mission.coordination.forecast is Forecast.FLOWN:
+    if len(mission.vehicles) > 1 and mission.coordination.forecast is Forecast.FLOWN:
         return flown_forecast(mission, routes[top.name], top.name)
     return forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s)
 
@@ -252,8 +254,7 @@ def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: 
     order = mission.by_priority
     top = order[0]
     memo: dict = {}
-    first = first_forecast(mission, routes) if len(order) > 1 else forecast(
-        top.name, routes[top.name].sparse_enu_m, top.speed_m_s)
+    first = first_forecast(mission, routes)
     if hold_s is None:
         hold_s = 0.0
         if len(order) > 1 and mission.coordination.hold_s_max > 0:
@@ -261,8 +262,8 @@ def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: 
             margin = near_margin_m(mission, order[1].name, top.speed_m_s)
             for blocking, margin_m in ((Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
                                        (Blocking.CLOSEST_APPROACH, 0.0)):
-                found = least_hold(mission, routes, blocking, mission.coordination.hold_s_max, grid, shadows,
-                                   memo, margin_m, top=first)
+                found = least_hold(mission, first, blocking, mission.coordination.hold_s_max, grid, shadows,
+                                   memo, margin_m)
                 if found is not None:
                     hold_s = found
                     break

@@ -152,8 +152,9 @@ def test_a_lagging_lower_vehicle_is_replanned_in_flight_beside_the_loop(plan):
     async def fly() -> int:
         pilots["b"]._tick(await _lagging_b(plan, vehicles))
         assert ctx.replan_task is not None  # the tick returned with the re-plan still running
+        counted = asyncio.create_task(_turns_until_done(ctx))  # from now: the next tick's await counts too
         pilots["b"]._tick(await _put(vehicles["b"], plan.mission.vehicle("b").start_enu_m, 30.2))
-        return await _turns_until_done(ctx)
+        return await counted
 
     turns = asyncio.run(fly())
     assert turns >= 1, turns  # the loop kept turning while the thread planned (how often: the CPU's speed)
