@@ -8,11 +8,14 @@ import sys
 import textwrap
 from pathlib import Path
 
+import importlib.util
+
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
-pytest.importorskip("numba")
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("numba") is None,
+                                reason="needs the fast extra (numba): pip install -e '.[fast]'")
 
 # In a fresh interpreter: the dispatchers of this one may have signatures from other tests.
 SCRIPT = textwrap.dedent("""

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from uav_model.plant import multicopter
 from uav_model.plant.state import KinematicState, VelocityCommand, VelocityFrame
 
-pytestmark = pytest.mark.skipif(multicopter.numba is None, reason="numba (the 'fast' extra) is not installed")
+pytestmark = pytest.mark.skipif(multicopter.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 
 value = st.floats(-30.0, 30.0, allow_nan=False)
 states = st.builds(KinematicState, st.floats(-2000.0, 2000.0), st.floats(-2000.0, 2000.0), st.floats(-600.0, 10.0),

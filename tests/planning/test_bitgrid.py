@@ -37,7 +37,7 @@ def test_dilate_within_matches_a_boolean_dilation(ny, nx, seed, moves):
     assert np.array_equal(bitgrid.unpack(got, nx), want)
 
 
-@pytest.mark.skipif(bitgrid.numba is None, reason="numba (the 'fast' extra) is not installed")
+@pytest.mark.skipif(bitgrid.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 def test_compiled_and_numpy_dilations_give_the_same_words():
     rng = np.random.default_rng(7)
     m = bitgrid.pack(rng.random((50, 300)) < 0.03)
@@ -81,7 +81,7 @@ def _cells(draw):
     return xs, ys, [(float(x), float(y)) for x, y in points]
 
 
-@pytest.mark.skipif(bitgrid.numba is None, reason="numba (the 'fast' extra) is not installed")
+@pytest.mark.skipif(bitgrid.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 @settings(max_examples=80, deadline=None)
 @given(_cells(), st.floats(0.0, 1.0), st.booleans(), st.integers(0, 2**32 - 1))
 def test_compiled_distance_masks_and_nearest_cells_equal_the_numpy_ones(cells, q, strict, seed):
@@ -101,7 +101,7 @@ def test_compiled_distance_masks_and_nearest_cells_equal_the_numpy_ones(cells, q
     assert got == want and type(got[0]) is type(want[0]) and all(type(v) is int for v in got[1])
 
 
-@pytest.mark.skipif(bitgrid.numba is None, reason="numba (the 'fast' extra) is not installed")
+@pytest.mark.skipif(bitgrid.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 @settings(max_examples=60, deadline=None)
 @given(ny=st.integers(1, 40), nx=st.integers(1, 200), seed=st.integers(0, 2**32 - 1),
        moves=st.lists(st.sampled_from([4, 8]), min_size=1, max_size=6), density=st.sampled_from([0.0, 0.002, 0.05]))

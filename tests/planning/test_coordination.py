@@ -108,7 +108,7 @@ def _numpy_mask(shadows: SightShadows, p) -> np.ndarray:
         shadow_module._blocked_jit = saved
 
 
-@pytest.mark.skipif(shadow_module.numba is None, reason="numba (the 'fast' extra) is not installed")
+@pytest.mark.skipif(shadow_module.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(worlds(0, 5), st.tuples(st.floats(-50.0, 1050.0), st.floats(-50.0, 1050.0)))
 def test_compiled_shadow_masks_equal_the_numpy_masks(world, p):
@@ -121,7 +121,7 @@ def test_compiled_shadow_masks_equal_the_numpy_masks(world, p):
 
 
 
-@pytest.mark.skipif(shadow_module.numba is None, reason="numba (the 'fast' extra) is not installed")
+@pytest.mark.skipif(shadow_module.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(worlds(1, 5), st.floats(6.0, 30.0), st.data())
 def test_compiled_shadow_masks_equal_the_numpy_masks_where_segments_graze(world, resolution_m, data):
@@ -138,7 +138,7 @@ def test_compiled_shadow_masks_equal_the_numpy_masks_where_segments_graze(world,
     assert np.array_equal(shadows.blocked_from(p), _numpy_mask(shadows, p))
 
 
-@pytest.mark.skipif(shadow_module.numba is None, reason="numba (the 'fast' extra) is not installed")
+@pytest.mark.skipif(shadow_module.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(worlds(1, 5), st.floats(6.0, 30.0), st.data())
 def test_compiled_shadow_masks_equal_the_numpy_masks_on_tangents_from_cells(world, resolution_m, data):

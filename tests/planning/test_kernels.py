@@ -17,7 +17,7 @@ from companion.planning.dwa.heading import heading_from_ends
 from companion.planning.dwa.sightline import sightline_scores
 from companion.planning.dwa.sightline_slope import open_clearance
 
-needs_numba = pytest.mark.skipif(kernels.circle_clearance is None, reason="numba not installed (the fast extra)")
+needs_numba = pytest.mark.skipif(kernels.circle_clearance is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 
 coord = st.floats(-300.0, 300.0, allow_nan=False)
 speed = st.sampled_from([0.0, 0.0, -4.0, 2.5])  # static as often as moving

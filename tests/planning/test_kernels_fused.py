@@ -18,7 +18,7 @@ from companion.planning.dwa.legality import Rule, legal_rollouts
 from companion.planning.dwa.step import _obstacle_rule
 from tests.planning.test_kernels import choices, worlds
 
-needs_numba = pytest.mark.skipif(kernels.pick is None, reason="numba not installed (the fast extra)")
+needs_numba = pytest.mark.skipif(kernels.pick is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 
 
 def same_bits(a: np.ndarray, b: np.ndarray) -> bool:

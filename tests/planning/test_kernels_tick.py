@@ -15,7 +15,7 @@ from companion.planning.dwa.heading import heading_from_ends
 from companion.planning.dwa.sightline import _sightline_scores
 from tests.planning.test_kernels import worlds
 
-needs_numba = pytest.mark.skipif(kernels.heading_goals is None, reason="numba not installed (the fast extra)")
+needs_numba = pytest.mark.skipif(kernels.heading_goals is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 
 
 def same_bits(a: np.ndarray, b: np.ndarray) -> bool:

@@ -31,7 +31,7 @@ try:
     import distributed
 except ImportError:  # the `dask` extra: .ci/run installs it, the README's install does not
     distributed = None
-needs_dask = pytest.mark.skipif(distributed is None, reason="dask[distributed] is not installed: pip install -e '.[dask]'")
+needs_dask = pytest.mark.skipif(distributed is None, reason="needs the dask extra: pip install -e '.[dask]'")
 
 SMALL = {"side_m": 1000.0, "static_count": 2, "static_circumradius_m": [40.0, 90.0],
          "moving_count": 1, "moving_radius_m": [20.0, 30.0], "moving_path_m": [150.0, 300.0],

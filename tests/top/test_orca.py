@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import importlib.util
+
 import pytest
 
-pytest.importorskip("pyrvo", reason="the orca extra is not installed: pip install -e '.[orca]'")  # .ci/run installs it
+from companion.bench.execute import run_bench
+from companion.bench.orca import ORCA, simulate_orca
+from companion.scenarios import ScenarioConfig, generate_scenario
 
-from companion.bench.execute import run_bench  # noqa: E402
-from companion.bench.orca import ORCA, simulate_orca  # noqa: E402
-from companion.scenarios import ScenarioConfig, generate_scenario  # noqa: E402
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("pyrvo") is None,
+                                reason="needs the orca extra: pip install -e '.[orca]'")
 
 SMALL = {"side_m": 1000.0, "static_count": 2, "static_circumradius_m": [40.0, 90.0],
          "moving_count": 1, "moving_radius_m": [20.0, 30.0], "moving_path_m": [150.0, 300.0],
