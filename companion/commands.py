@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_base, embedded_stub
+from companion.sitl.px4 import Px4Options, add_sim_options, px4_options, px4_sitl
 from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
@@ -38,7 +39,6 @@ if TYPE_CHECKING:
     from companion.sitl.inprocess import InProcessOptions
 
 log = logging.getLogger("companion")
-
 
 
 # -- argument helpers ---------------------------------------------------------------------
@@ -108,6 +108,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--progress-every", type=_positive, default=20.0, metavar="S",
                    help="a progress line per vehicle every S sim seconds (default 20)")
     p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
+    add_sim_options(p)
     add_no_fence_option(p)
     p.add_argument("--shared-clock", action="store_true", default=None,
                    help="with --connect: assert that every vehicle stamps telemetry with one sim clock (an external "
@@ -298,18 +299,18 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect) if args.connect else None
     inproc = _inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out)
+    px4 = px4_options(args, plan.mission, out)
     _quiet_mavsdk(out)
-    settings = RunSettings(shared_clock=True if conns is None else args.shared_clock,
+    settings = RunSettings(shared_clock=True if conns is None and px4 is None else args.shared_clock,
                            connect_timeout_s=args.connect_timeout, progress_every_s=args.progress_every,
                            land=not args.no_land, failsafe_hold=not args.keep_failsafe)
     checks = PreflightSettings(station_tolerance_m=args.station_tolerance, plan_from_current=args.plan_from_current,
                                set_failsafe_hold=not args.keep_failsafe)
     stub = None
-    if conns is None and inproc is None:
+    if conns is None and inproc is None and px4 is None:
         stub = StubOptions(speedup=args.speedup or 1.0, api_port_base=args.port_base, gcs_port=args.gcs_port,
-                           loss=args.loss, latency_ms=args.latency_ms, seed=args.seed,
-                           blackouts=tuple(args.blackout), tlog_dir=out,
-                           log_path=None if out is None else out / "sim_bridge.log")
+                           loss=args.loss, latency_ms=args.latency_ms, seed=args.seed, blackouts=tuple(args.blackout),
+                           tlog_dir=out, log_path=None if out is None else out / "sim_bridge.log")
     elif conns is not None and (args.speedup not in (None, 1.0) or args.loss or args.latency_ms or args.blackout):
         print("companion: note: --speedup/--loss/--latency-ms/--blackout only apply to the embedded stub; "
               "ignored with --connect", file=sys.stderr)
@@ -320,7 +321,7 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
         print(f"schedule: departure hold of {plan.mission.by_priority[0].name} {plan.coordinated.hold_s:.1f} s; "
               + ", ".join(f"{n} {b.value}" for n, b in plan.coordinated.blocking.items()), flush=True)
     try:
-        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks))
+        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks, px4))
     except PreflightRefused as exc:
         print(f"companion: refused: {exc}; nothing was armed", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -353,7 +354,7 @@ def _inprocess_options(args: argparse.Namespace) -> InProcessOptions:
 
 async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions | None,
                settings: RunSettings, out: Path | None, inproc: InProcessOptions | None = None,
-               checks: PreflightSettings = PreflightSettings()) -> RunResult:
+               checks: PreflightSettings = PreflightSettings(), px4: Px4Options | None = None) -> RunResult:
     started = time.monotonic()
     report = _printer(started)
     stop = asyncio.Event()
@@ -371,8 +372,7 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
         loop.add_signal_handler(sig, on_signal, sig)
     try:
         extra = {"connections": conns or "embedded", "speedup": None if stub is None else stub.speedup,
-                 "loss": None if stub is None else stub.loss,
-                 "latency_ms": None if stub is None else stub.latency_ms}
+                 "loss": None if stub is None else stub.loss, "latency_ms": None if stub is None else stub.latency_ms}
         if inproc is not None:
             from companion.sitl.inprocess import open_inprocess_fleet
             extra.update(connections="in-process", speedup=inproc.speedup)
@@ -381,6 +381,10 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
             async with open_inprocess_fleet(plan.mission, inproc) as fleet:
                 return await run_mission(plan, fleet.connections(), settings, out, report, stop, extra,
                                          open_vehicle=fleet.open_vehicle, checks=checks)
+        if px4 is not None:
+            extra.update(connections="px4", speedup=px4.speedup)
+            async with px4_sitl(plan.mission, px4, report) as px4_conns:
+                return await run_mission(plan, px4_conns, settings, out, report, stop, extra, checks=checks)
         if stub is None:
             assert conns is not None
             return await run_mission(plan, conns, settings, out, report, stop, extra, checks=checks)
