@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import re
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -20,7 +21,7 @@ import pytest
 
 from companion.cli_common import BadInput
 from companion.planning.metrics import Track
-from companion.sitl.px4 import GCS_PORT, PX4_DIR_ENV, Px4Fleet, Px4Options, find_px4
+from companion.sitl.px4 import API_PORT_BASE, GCS_PORT, PX4_DIR_ENV, Px4Fleet, Px4Options, find_px4
 from companion.testing.telemetry import BackgroundRecorder, Telemetry
 from uav_model.mission import Mission, load_mission
 
@@ -50,14 +51,27 @@ class Px4Sitl(Telemetry):
     def __init__(self, mission: Mission, mission_path: Path, recorder: BackgroundRecorder, fleet: Px4Fleet):
         super().__init__(mission, mission_path, recorder)
         self.fleet = fleet
+        # Where the companion listens for vehicle i (+ i): PX4's own ports, or a relay's
+        # (companion.testing.relay.UplinkCut) put between them.
+        self.listen_port_base = API_PORT_BASE
 
     @property
     def speedup(self) -> float:
         return self.fleet.options.speedup
 
     def connect_args(self) -> list[str]:
-        """``--connect name=udpin://127.0.0.1:14540+i`` arguments for ``companion run`` / ``upload``."""
-        return [arg for name, url in self.fleet.connections().items() for arg in ("--connect", f"{name}={url}")]
+        """``--connect name=udpin://127.0.0.1:PORT`` arguments for ``companion run`` / ``upload``
+        (PORT: ``listen_port_base`` + i)."""
+        return [arg for v in self.mission.vehicles
+                for arg in ("--connect", f"{v.name}=udpin://127.0.0.1:{self.listen_port_base + v.index}")]
+
+    def loss_timeout_s(self, name: str) -> float:
+        """Vehicle ``name``'s COM_OF_LOSS_T in sim seconds, as its startup script set it (PX4 SITL
+        scales it with the speed factor)."""
+        found = re.findall(r"COM_OF_LOSS_T: curr: [-\d.]+ -> new: ([-\d.]+)", self.log_text(name))
+        if not found:
+            raise AssertionError(f"vehicle {name!r}: no COM_OF_LOSS_T in its PX4 log")
+        return float(found[-1])
 
     def companion_args(self) -> list[str]:
         """What ``companion run`` needs to fly these vehicles (each PX4 has its own clock)."""
