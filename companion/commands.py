@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_base, embedded_stub
+from companion.app.event_loop import leave, run_bounded
 from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
@@ -269,7 +270,7 @@ def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect)
     _quiet_mavsdk(None)
     try:
-        asyncio.run(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
+        run_bounded(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
     except PreflightRefused as exc:  # the geofence refused or read back different
         print(f"companion: refused: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -320,19 +321,19 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
         print(f"schedule: departure hold of {plan.mission.by_priority[0].name} {plan.coordinated.hold_s:.1f} s; "
               + ", ".join(f"{n} {b.value}" for n, b in plan.coordinated.blocking.items()), flush=True)
     try:
-        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks))
+        result = run_bounded(_run(plan, conns, stub, settings, out, inproc, checks))
     except PreflightRefused as exc:
         print(f"companion: refused: {exc}; nothing was armed", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return leave(EXIT_BAD_INPUT)
     except CompanionError as exc:
         print(f"companion: {exc}", file=sys.stderr)
-        return EXIT_FAILED
+        return leave(EXIT_FAILED)
     print(summary_table(plan, result), flush=True)
     if out is not None:
         tlog = ("the stub's .tlog" if stub is not None else "no .tlog (in process: no link to record)"
                 if inproc is not None else "no .tlog (MAVSDK cannot record one; use a GCS)")
         print(f"wrote {out}/summary.json, flight.csv, traffic.csv, trajectory.png and {tlog}", flush=True)
-    return EXIT_OK if result.success else EXIT_FAILED
+    return leave(EXIT_OK if result.success else EXIT_FAILED)
 
 
 def _inprocess_options(args: argparse.Namespace) -> InProcessOptions:
