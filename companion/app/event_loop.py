@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 WORKER_PREFIX = "companion-worker"
-THREAD_GRACE_S = 10.0  # wall: what a worker thread still running at the end gets to finish
+THREAD_GRACE_S = 5.0  # wall: what a worker thread still running at the end gets to finish
 
 
 def run_bounded(main: Coroutine[Any, Any, T]) -> T:

@@ -57,7 +57,9 @@ COMMAND_TIMEOUT_S = 5.0  # wall; MAVSDK itself retries a COMMAND_LONG for ~0.5 s
 # than MAVSDK's callback queue and a loaded event loop keep up with. 20 Hz is the stub's rate and
 # ten samples per planner step.
 STREAM_RATE_HZ = 20.0
+STREAM_RATE_ATTEMPTS = 3  # a loaded machine can lose a COMMAND_ACK
 MISSION_TRANSFER_TIMEOUT_S = 30.0  # wall; the protocol has its own per-item timeouts
+SHUTDOWN_TIMEOUT_S = 5.0  # wall; destroying an instance joins its threads (then companion.app.event_loop.leave)
 _RETRYABLE = frozenset({"BUSY", "TIMEOUT", "CONNECTION_ERROR", "UNKNOWN"})
 
 _MODES = {
@@ -239,10 +241,14 @@ class MavsdkVehicle(BoardReaders):
         t = self._telemetry
         for what, call in (("attitude", t.set_rate_attitude_euler), ("position", t.set_rate_position),
                            ("velocity", t.set_rate_velocity_ned)):
-            try:
-                await self._command(f"set {what} rate", lambda: call(rate_hz))
-            except CommandRefused as exc:
-                log.warning("%s (keeping the autopilot's own rate)", exc)
+            for attempt in range(1, STREAM_RATE_ATTEMPTS + 1):
+                try:
+                    await self._command(f"set {what} rate", lambda: call(rate_hz))
+                    break
+                except CommandRefused as exc:
+                    if not exc.retryable or attempt == STREAM_RATE_ATTEMPTS:
+                        log.warning("%s (keeping the autopilot's own rate)", exc)
+                        break
 
     def start_pumps(self, tg: asyncio.TaskGroup) -> list[asyncio.Task]:
         pumps = (self._pump_attitude, self._pump_position, self._pump_velocity, self._pump_mode,
@@ -373,7 +379,7 @@ async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frame
     finally:
         # Joins MAVSDK's threads: keep it off the event loop, and do not wait forever for it.
         try:
-            async with asyncio.timeout(10.0):
+            async with asyncio.timeout(SHUTDOWN_TIMEOUT_S):
                 await asyncio.to_thread(sdk.destroy)
         except TimeoutError:
-            log.warning("vehicle %s: MAVSDK did not shut down within 10 s", name)
+            log.warning("vehicle %s: MAVSDK did not shut down within %g s", name, SHUTDOWN_TIMEOUT_S)

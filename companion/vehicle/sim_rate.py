@@ -20,6 +20,7 @@ from collections import deque
 WINDOW_WALL_S = 12.0  # points kept: bursts shorter than a quarter of this cannot move the rate
 MIN_SPAN_WALL_S = 2.0  # a rate from fewer wall seconds than this is not given
 MIN_GAP_WALL_S = 0.02  # one point per this much wall time: the envelope needs no more
+UPDATE_EVERY_WALL_S = 0.25  # the hull is worked out again at most this often (telemetry comes at 100s/s)
 
 
 def _cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
@@ -52,6 +53,7 @@ class SimRateEstimator:
         self.min_span_s = min_span_s
         self._points: deque[tuple[float, float]] = deque()
         self._rate: float | None = None
+        self._updated_wall_s = float("-inf")
 
     @property
     def rate(self) -> float | None:
@@ -60,6 +62,7 @@ class SimRateEstimator:
     def reset(self) -> None:
         self._points.clear()
         self._rate = None
+        self._updated_wall_s = float("-inf")
 
     def add(self, wall_s: float, sim_s: float) -> None:
         pts = self._points
@@ -76,10 +79,12 @@ class SimRateEstimator:
         self._update()
 
     def _update(self) -> None:
-        pts = list(self._points)
+        pts = self._points
         span = pts[-1][0] - pts[0][0] if pts else 0.0
-        if span < self.min_span_s:
+        if span < self.min_span_s or pts[-1][0] - self._updated_wall_s < UPDATE_EVERY_WALL_S:
             return  # keep the last rate (None at first): a fresh window has no say yet
+        self._updated_wall_s = pts[-1][0]
+        pts = list(pts)
         hull = upper_envelope(pts)
         t1, t3 = pts[0][0] + span / 4.0, pts[0][0] + 3.0 * span / 4.0
         rate = (envelope_at(hull, t3) - envelope_at(hull, t1)) / (t3 - t1)
