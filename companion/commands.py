@@ -25,7 +25,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_base, embedded_stub
-from companion.sitl.px4 import Px4Options, add_sim_options, px4_options, px4_sitl
+from companion.sitl.options import add_sim_options, inprocess_options, px4_options
+from companion.sitl.px4 import Px4Options, px4_sitl
+from companion.app.event_loop import leave, run_bounded
 from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
@@ -39,6 +41,7 @@ if TYPE_CHECKING:
     from companion.sitl.inprocess import InProcessOptions
 
 log = logging.getLogger("companion")
+
 
 
 # -- argument helpers ---------------------------------------------------------------------
@@ -270,7 +273,7 @@ def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect)
     _quiet_mavsdk(None)
     try:
-        asyncio.run(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
+        run_bounded(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
     except PreflightRefused as exc:  # the geofence refused or read back different
         print(f"companion: refused: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -297,7 +300,7 @@ async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, rep
 @_planned
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect) if args.connect else None
-    inproc = _inprocess_options(args) if args.in_process else None
+    inproc = inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out)
     px4 = px4_options(args, plan.mission, out)
     _quiet_mavsdk(out)
@@ -309,8 +312,9 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     stub = None
     if conns is None and inproc is None and px4 is None:
         stub = StubOptions(speedup=args.speedup or 1.0, api_port_base=args.port_base, gcs_port=args.gcs_port,
-                           loss=args.loss, latency_ms=args.latency_ms, seed=args.seed, blackouts=tuple(args.blackout),
-                           tlog_dir=out, log_path=None if out is None else out / "sim_bridge.log")
+                           loss=args.loss, latency_ms=args.latency_ms, seed=args.seed,
+                           blackouts=tuple(args.blackout), tlog_dir=out,
+                           log_path=None if out is None else out / "sim_bridge.log")
     elif conns is not None and (args.speedup not in (None, 1.0) or args.loss or args.latency_ms or args.blackout):
         print("companion: note: --speedup/--loss/--latency-ms/--blackout only apply to the embedded stub; "
               "ignored with --connect", file=sys.stderr)
@@ -321,35 +325,19 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
         print(f"schedule: departure hold of {plan.mission.by_priority[0].name} {plan.coordinated.hold_s:.1f} s; "
               + ", ".join(f"{n} {b.value}" for n, b in plan.coordinated.blocking.items()), flush=True)
     try:
-        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks, px4))
+        result = run_bounded(_run(plan, conns, stub, settings, out, inproc, checks, px4))
     except PreflightRefused as exc:
         print(f"companion: refused: {exc}; nothing was armed", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return leave(EXIT_BAD_INPUT)
     except CompanionError as exc:
         print(f"companion: {exc}", file=sys.stderr)
-        return EXIT_FAILED
+        return leave(EXIT_FAILED)
     print(summary_table(plan, result), flush=True)
     if out is not None:
         tlog = ("the stub's .tlog" if stub is not None else "no .tlog (in process: no link to record)"
                 if inproc is not None else "no .tlog (MAVSDK cannot record one; use a GCS)")
         print(f"wrote {out}/summary.json, flight.csv, traffic.csv, trajectory.png and {tlog}", flush=True)
-    return EXIT_OK if result.success else EXIT_FAILED
-
-
-def _inprocess_options(args: argparse.Namespace) -> InProcessOptions:
-    """--in-process: refuse what only the UDP path has; the speed factor is checked by the sim clock."""
-    from companion.sitl.inprocess import InProcessOptions
-    from sim_bridge.clock import ClockError
-    if args.connect:
-        raise BadInput("--in-process flies the stub's vehicles inside the companion; "
-                       "it cannot be combined with --connect")
-    if args.loss or args.latency_ms or args.blackout:
-        raise BadInput("--loss/--latency-ms/--blackout act on the embedded stub's UDP link; "
-                       "there is none with --in-process")
-    try:
-        return InProcessOptions(speedup=args.speedup)
-    except ClockError as exc:
-        raise BadInput(f"--speedup: {exc}") from None
+    return leave(EXIT_OK if result.success else EXIT_FAILED)
 
 
 async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions | None,
@@ -372,7 +360,8 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
         loop.add_signal_handler(sig, on_signal, sig)
     try:
         extra = {"connections": conns or "embedded", "speedup": None if stub is None else stub.speedup,
-                 "loss": None if stub is None else stub.loss, "latency_ms": None if stub is None else stub.latency_ms}
+                 "loss": None if stub is None else stub.loss,
+                 "latency_ms": None if stub is None else stub.latency_ms}
         if inproc is not None:
             from companion.sitl.inprocess import open_inprocess_fleet
             extra.update(connections="in-process", speedup=inproc.speedup)

@@ -20,7 +20,6 @@ started it dies (PR_SET_PDEATHSIG), so a crashed companion leaves no PX4 behind.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import ctypes
 import os
@@ -47,32 +46,6 @@ SIH_QUADX = {"PX4_SYS_AUTOSTART": "10040", "PX4_SIM_MODEL": "sihsim_quadx", "PX4
 READY_MARK = b"Startup script returned successfully"
 HOW_TO_SET = f"give --px4-dir DIR or set {PX4_DIR_ENV}=DIR (a PX4 SITL build: bin/px4 and etc/)"
 _PR_SET_PDEATHSIG = 1
-
-
-def add_sim_options(parser: argparse.ArgumentParser) -> None:
-    """``companion run``'s ``--sim`` and ``--px4-dir``."""
-    parser.add_argument("--sim", choices=("stub", "px4"), default="stub",
-                        help="without --connect: fly the bundled stub (default) or real PX4 SITL with SIH physics, "
-                             "one instance per vehicle at its start station (needs --px4-dir or PX4_SITL_DIR)")
-    parser.add_argument("--px4-dir", type=Path, default=None, metavar="DIR",
-                        help=f"--sim px4: a PX4 SITL build directory with bin/px4 and etc/ (default: ${PX4_DIR_ENV})")
-
-
-def px4_options(args: argparse.Namespace, mission: Mission, out: Path | None) -> Px4Options | None:
-    """``--sim px4``'s launch options (None for the stub); BadInput for what PX4 SITL cannot take."""
-    if args.sim != "px4":
-        if args.px4_dir is not None:
-            raise BadInput("--px4-dir only applies with --sim px4")
-        return None
-    if args.connect or args.in_process:
-        raise BadInput(f"--sim px4 starts PX4 SITL itself; it cannot be combined with "
-                       f"{'--connect' if args.connect else '--in-process'}")
-    if args.loss or args.latency_ms or args.blackout:
-        raise BadInput("--loss/--latency-ms/--blackout are the embedded stub's fault injection; PX4 SITL has none")
-    if args.port_base is not None or args.gcs_port != GCS_PORT:
-        raise BadInput(f"--port-base/--gcs-port: PX4 SITL's ports are fixed ({API_PORT_BASE} + i, {GCS_PORT})")
-    check_system_ids(mission)
-    return Px4Options(find_px4(args.px4_dir), speedup=args.speedup or 1.0, log_dir=out)
 
 
 def find_px4(given: str | os.PathLike | None = None, env: Mapping[str, str] = os.environ) -> Path:
