@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 from companion.cli_common import BadInput
 from companion.planning.metrics import Track
@@ -28,6 +29,21 @@ from uav_model.mission import Mission, load_mission
 SKIP_REASON = (f"PX4 SITL not found: set {PX4_DIR_ENV}=DIR or pass --px4-dir DIR (a PX4 SITL build with bin/px4 "
                f"and etc/, e.g. {PX4_DIR_ENV}=../shared/px4-sih/sitl)")
 LOCK_PATH = Path(tempfile.gettempdir()) / "astar-bdwa-px4-tier.lock"
+# PX4's GCS link streams attitude, targets and outputs at 50-100 Hz of sim time (400/s of wall
+# time at 4x, per vehicle): more than a Python recorder parses on a busy machine, and what it
+# drops includes STATUSTEXT. The recorder asks for what a test reads, as a GCS does.
+GCS_STREAMS_HZ = {
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 10.0, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 0.0, mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 0.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: 0.0, mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 0.0,
+    mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 0.0, mavlink.MAVLINK_MSG_ID_VFR_HUD: 0.0,
+}
+
+
+def command_long(system_id: int, command: int, *params: float) -> mavlink.MAVLink_command_long_message:
+    """A COMMAND_LONG to autopilot ``system_id`` (params beyond those given are 0)."""
+    p = [float(v) for v in params] + [0.0] * (7 - len(params))
+    return mavlink.MAVLink_command_long_message(system_id, 1, command, 0, *p)
 
 
 def px4_dir_or_skip(config: pytest.Config) -> Path:
@@ -77,6 +93,25 @@ class Px4Sitl(Telemetry):
         """What ``companion run`` needs to fly these vehicles (each PX4 has its own clock)."""
         return self.connect_args()
 
+    def send(self, name: str, msg) -> None:
+        """Send one MAVLink message to vehicle ``name`` on its GCS link (commands, setpoints...)."""
+        sysid = self.mission.vehicle(name).system_id
+
+        async def on_loop() -> None:
+            self.recorder.send(sysid, msg)
+        self.telemetry.call(on_loop())
+
+    def command(self, name: str, command: int, *params: float) -> None:
+        """A COMMAND_LONG to vehicle ``name`` on its GCS link (its answer is not awaited)."""
+        self.send(name, command_long(self.mission.vehicle(name).system_id, command, *params))
+
+    def calm_gcs_link(self) -> None:
+        """Ask every vehicle for the GCS streams in GCS_STREAMS_HZ (0: off), twice: UDP."""
+        for _ in range(2):
+            for v in self.mission.vehicles:
+                for msg_id, hz in GCS_STREAMS_HZ.items():
+                    self.command(v.name, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz if hz else -1)
+
     def log_text(self, name: str) -> str:
         """Vehicle ``name``'s PX4 console output so far."""
         return self.fleet.log_text(name)
@@ -118,7 +153,9 @@ class Px4Factory:
                                 what=f"heartbeats from systems {ids} on the GCS link (port {GCS_PORT})")
         except TimeoutError as exc:
             raise AssertionError(f"PX4: {exc}\n{fleet.log_text(mission.vehicles[0].name)[-2000:]}") from None
-        return Px4Sitl(mission, mission_path, recorder, fleet)
+        sitl = Px4Sitl(mission, mission_path, recorder, fleet)
+        sitl.calm_gcs_link()
+        return sitl
 
     def close(self) -> None:
         try:
