@@ -105,7 +105,7 @@ class Px4Options:
     speedup: float = 1.0  # PX4_SIM_SPEED_FACTOR; PX4 scales its loss timeouts with it
     log_dir: Path | None = None  # px4-<vehicle>.log here (None: in the work directory)
     params: Mapping[str, str] = field(default_factory=dict)  # PX4 parameters at boot (PX4_PARAM_<NAME>)
-    ready_timeout_s: float = 60.0  # wall: boot to the end of PX4's startup script (slow on a loaded machine)
+    ready_timeout_s: float = 90.0  # wall: boot to the end of PX4's startup script (1-7 s idle, 30+ s at load 25)
     stop_grace_s: float = 5.0  # wall: SIGTERM to SIGKILL
 
 

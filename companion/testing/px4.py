@@ -134,7 +134,7 @@ class Px4Factory:
         fcntl.flock(self._lock, fcntl.LOCK_EX)  # released by close(), or by the OS if this process dies
 
     def __call__(self, mission_path: str | os.PathLike, *, speedup: float = 4.0,
-                 params: Mapping[str, str] = {}, ready_timeout_s: float = 30.0) -> Px4Sitl:
+                 params: Mapping[str, str] = {}, ready_timeout_s: float = 90.0) -> Px4Sitl:
         """Start one PX4 per vehicle at its station; return once every one is heard on the GCS
         link. ``params``: PX4 parameters set at boot (name -> value)."""
         if self._running:
