@@ -245,6 +245,7 @@ class MavsdkVehicle(BoardReaders):
             for attempt in range(1, STREAM_RATE_ATTEMPTS + 1):
                 try:
                     await self._command(f"set {what} rate", lambda: call(rate_hz))
+                    log.info("vehicle %s: %s at %g Hz (attempt %d)", self._name, what, rate_hz, attempt)
                     break
                 except CommandRefused as exc:
                     if not exc.retryable or attempt == STREAM_RATE_ATTEMPTS:
