@@ -18,7 +18,7 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
+from collections.abc import AsyncGenerator, AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
 from typing import TypeVar
 
@@ -52,12 +52,11 @@ MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
 MAV_MISSION_TYPE_MISSION = 0
 MAV_MISSION_TYPE_FENCE = 1
 COMMAND_TIMEOUT_S = 5.0  # wall; MAVSDK itself retries a COMMAND_LONG for ~0.5 s x 3
-# The streams the pumps read, in Hz of the vehicle's clock (SET_MESSAGE_INTERVAL): PX4 sends ATTITUDE
-# at 100 Hz and GLOBAL_POSITION_INT at 50 Hz of sim time, 400 and 200 a second of wall at 4x, more
-# than MAVSDK's callback queue and a loaded event loop keep up with. 20 Hz is the stub's rate and
-# ten samples per planner step.
-STREAM_RATE_HZ = 20.0
-STREAM_RATE_ATTEMPTS = 3  # a loaded machine can lose a COMMAND_ACK
+# The pumped streams, in Hz of the vehicle's clock (SET_MESSAGE_INTERVAL): PX4 sends ATTITUDE at 100 Hz
+# of sim time (400/s of wall at 4x), more than MAVSDK's callback queue and a loaded loop keep up with.
+STREAM_RATE_HZ = 20.0  # the stub's rate: ten samples per planner step
+STREAM_RATE_ATTEMPTS = 10  # a loaded machine loses acks, and MAVSDK refuses while it misses heartbeats
+STREAM_RATE_RETRY_S = 2.0  # wall, between attempts
 MISSION_TRANSFER_TIMEOUT_S = 30.0  # wall; the protocol has its own per-item timeouts
 SHUTDOWN_TIMEOUT_S = 5.0  # wall; destroying an instance joins its threads (then companion.app.event_loop.leave)
 _RETRYABLE = frozenset({"BUSY", "TIMEOUT", "CONNECTION_ERROR", "UNKNOWN"})
@@ -116,6 +115,7 @@ class MavsdkVehicle(BoardReaders):
         self._pos: tuple[float, float, float] | None = None  # (x_east_m, y_north_m, alt_rel_m)
         self._vel: tuple[float, float] = (0.0, 0.0)  # (vx_east, vy_north)
         self._att_fresh = self._pos_fresh = False
+        self._streams: list[AsyncGenerator] = []  # the pumps' subscriptions, closed before shutdown
 
     # -- port: readers --------------------------------------------------------------------
     @property
@@ -236,23 +236,37 @@ class MavsdkVehicle(BoardReaders):
         await self._command("land", self._action.land)
 
     # -- pumps ----------------------------------------------------------------------------
-    async def limit_stream_rates(self, rate_hz: float = STREAM_RATE_HZ) -> None:
-        """Ask for the pumped streams at ``rate_hz``; an autopilot that refuses keeps its own rates."""
+    async def _limit_stream_rates(self, rate_hz: float = STREAM_RATE_HZ) -> None:
+        """Ask for the pumped streams at ``rate_hz``, again while the answer may change; an autopilot
+        that refuses keeps its own rates. Runs beside the pumps: a slow answer delays nothing."""
         t = self._telemetry
         for what, call in (("attitude", t.set_rate_attitude_euler), ("position", t.set_rate_position),
                            ("velocity", t.set_rate_velocity_ned)):
             for attempt in range(1, STREAM_RATE_ATTEMPTS + 1):
                 try:
                     await self._command(f"set {what} rate", lambda: call(rate_hz))
+                    log.info("vehicle %s: %s at %g Hz (attempt %d)", self._name, what, rate_hz, attempt)
                     break
                 except CommandRefused as exc:
                     if not exc.retryable or attempt == STREAM_RATE_ATTEMPTS:
-                        log.warning("%s (keeping the autopilot's own rate)", exc)
+                        log.warning("%s after %d attempt(s) (keeping the autopilot's own rate)", exc, attempt)
                         break
+                await asyncio.sleep(STREAM_RATE_RETRY_S)
+
+    def _stream(self, gen: AsyncGenerator[T, None]) -> AsyncGenerator[T, None]:
+        self._streams.append(gen)
+        return gen
+
+    async def close_streams(self) -> None:
+        """Unsubscribe while MAVSDK runs: a pump cancelled in its loop body leaves its stream open,
+        and closing it after ``destroy`` (at the loop's shutdown) blocks in the C library."""
+        for gen in self._streams:
+            await gen.aclose()
+        self._streams.clear()
 
     def start_pumps(self, tg: asyncio.TaskGroup) -> list[asyncio.Task]:
-        pumps = (self._pump_attitude, self._pump_position, self._pump_velocity, self._pump_mode,
-                 self._pump_armed, self._pump_landed, self._pump_health, self._pump_battery,
+        pumps = (self._limit_stream_rates, self._pump_attitude, self._pump_position, self._pump_velocity,
+                 self._pump_mode, self._pump_armed, self._pump_landed, self._pump_health, self._pump_battery,
                  self._pump_traffic, self._pump_text, self._pump_gps, self._pump_home)
         return [tg.create_task(p(), name=f"{self._name}:{p.__name__}") for p in pumps]
 
@@ -267,7 +281,7 @@ class MavsdkVehicle(BoardReaders):
                                    heading_enu_rad=heading)
 
     async def _pump_attitude(self) -> None:
-        async for a in self._telemetry.subscribe_attitude_euler():
+        async for a in self._stream(self._telemetry.subscribe_attitude_euler()):
             t_sim = a.timestamp_us / 1e6
             await self._board.note_clock(t_sim)
             self._att = (t_sim, frames.ned_yaw_to_enu_heading(math.radians(a.yaw_deg)))
@@ -275,7 +289,7 @@ class MavsdkVehicle(BoardReaders):
             await self._maybe_emit()
 
     async def _pump_position(self) -> None:
-        async for p in self._telemetry.subscribe_position():
+        async for p in self._stream(self._telemetry.subscribe_position()):
             if not (math.isfinite(p.latitude_deg) and math.isfinite(p.longitude_deg)):
                 continue
             x, y, _ = frames.geodetic_to_local(self._origin, p.latitude_deg, p.longitude_deg)
@@ -284,45 +298,45 @@ class MavsdkVehicle(BoardReaders):
             await self._maybe_emit()
 
     async def _pump_velocity(self) -> None:
-        async for v in self._telemetry.subscribe_velocity_ned():
+        async for v in self._stream(self._telemetry.subscribe_velocity_ned()):
             east, north, _ = frames.ned_to_enu(v.north_m_s, v.east_m_s, v.down_m_s)
             self._vel = (east, north)
 
     async def _pump_mode(self) -> None:
-        async for m in self._telemetry.subscribe_flight_mode():
+        async for m in self._stream(self._telemetry.subscribe_flight_mode()):
             await self._board.put_status(mode=_MODES.get(m, FlightMode.OTHER))
 
     async def _pump_armed(self) -> None:
-        async for armed in self._telemetry.subscribe_armed():
+        async for armed in self._stream(self._telemetry.subscribe_armed()):
             await self._board.put_status(armed=bool(armed))
 
     async def _pump_landed(self) -> None:
-        async for s in self._telemetry.subscribe_landed_state():
+        async for s in self._stream(self._telemetry.subscribe_landed_state()):
             await self._board.put_status(landed=_LANDED.get(s, LandedState.UNKNOWN))
 
     async def _pump_health(self) -> None:
-        async for ok in self._telemetry.subscribe_health_all_ok():
+        async for ok in self._stream(self._telemetry.subscribe_health_all_ok()):
             await self._board.put_status(health_ok=bool(ok))
 
     async def _pump_text(self) -> None:
-        async for t in self._telemetry.subscribe_status_text():
+        async for t in self._stream(self._telemetry.subscribe_status_text()):
             await self._board.put_text(str(t.text))
 
     async def _pump_gps(self) -> None:
-        async for g in self._telemetry.subscribe_gps_info():
+        async for g in self._stream(self._telemetry.subscribe_gps_info()):
             await self._board.put_status(gps_fix_type=int(g.fix_type))
 
     async def _pump_home(self) -> None:
-        async for h in self._telemetry.subscribe_health():
+        async for h in self._stream(self._telemetry.subscribe_health()):
             await self._board.put_status(home_ok=bool(h.is_home_position_ok))
 
     async def _pump_battery(self) -> None:
-        async for b in self._telemetry.subscribe_battery():
+        async for b in self._stream(self._telemetry.subscribe_battery()):
             pct = float(b.remaining_percent)
             await self._board.put_status(battery_pct=pct if math.isfinite(pct) else None)
 
     async def _pump_traffic(self) -> None:
-        async for a in self._transponder.subscribe_transponder():
+        async for a in self._stream(self._transponder.subscribe_transponder()):
             callsign = str(a.callsign).strip().strip("\x00")
             if not callsign or not (math.isfinite(a.latitude_deg) and math.isfinite(a.longitude_deg)):
                 continue
@@ -361,7 +375,6 @@ async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frame
             raise LinkError(f"the autopilot on {url} has system id {got}, the mission expects {system_id}",
                             vehicle=name)
         vehicle = MavsdkVehicle(name, system_id, system, origin)
-        await vehicle.limit_stream_rates()  # before the pumps: their callbacks are the flood
         try:
             async with asyncio.TaskGroup() as tg:
                 pumps = vehicle.start_pumps(tg)
@@ -376,6 +389,8 @@ async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frame
             if len(group.exceptions) == 1:
                 raise group.exceptions[0] from None
             raise
+        finally:
+            await vehicle.close_streams()
     finally:
         # Joins MAVSDK's threads: keep it off the event loop, and do not wait forever for it.
         try:

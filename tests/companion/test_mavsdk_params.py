@@ -63,49 +63,60 @@ class ScriptedParams:
         await self._set(name, value)
 
 
-def test_a_list_that_times_out_is_read_again():
-    fake = ScriptedParams(lists=[ParamResult.TIMEOUT, "ok"])
+def test_a_parameter_is_read_by_name_as_float_else_int_without_the_list():
+    fake = ScriptedParams()
     params = MavsdkParams(fake, "a")
-    assert asyncio.run(params.get("COM_OF_LOSS_T")) == 4.0
-    assert fake.list_calls == 2 and not fake.reads
-
-
-def test_a_list_that_keeps_timing_out_is_read_by_name_instead():
-    fake = ScriptedParams(lists=[ParamResult.TIMEOUT] * 2, singles=[ParamResult.TIMEOUT])
-    params = MavsdkParams(fake, "b")
 
     async def scenario():
-        return await params.get("COM_OF_LOSS_T"), await params.get("COM_OBL_RC_ACT"), params.known("COM_OF_LOSS_T")
+        return await params.get("COM_OF_LOSS_T"), await params.get("COM_OBL_RC_ACT"), await params.get("COM_OF_LOSS_T")
     assert asyncio.run(scenario()) == (4.0, 5.0, 4.0)
-    assert fake.list_calls == 2  # the list is not asked for again
-    assert fake.reads == [("COM_OF_LOSS_T", "float"), ("COM_OF_LOSS_T", "float"),
-                          ("COM_OBL_RC_ACT", "float"), ("COM_OBL_RC_ACT", "int")]
+    assert fake.list_calls == 0  # PX4's ~900-message list is never asked for
+    assert fake.reads == [("COM_OF_LOSS_T", "float"), ("COM_OBL_RC_ACT", "float"), ("COM_OBL_RC_ACT", "int")]
+    assert params.known("COM_OF_LOSS_T") == 4.0
+
+
+def test_a_read_without_an_answer_asks_the_list_whether_the_name_exists():
+    fake = ScriptedParams(lists=["ok"], singles=[ParamResult.TIMEOUT])
+    params = MavsdkParams(fake, "a")
+
+    async def scenario():
+        return await params.get("MIS_TAKEOFF_ALT"), await params.get("COM_OF_LOSS_T")
+    assert asyncio.run(scenario()) == (None, 4.0)  # absent (not PX4), and the other from the list
+    assert fake.list_calls == 1 and fake.reads == [("MIS_TAKEOFF_ALT", "float")]
+
+
+def test_a_lost_answer_is_read_again_when_the_list_is_lost_too():
+    fake = ScriptedParams(lists=[ParamResult.TIMEOUT] * 2, singles=[ParamResult.TIMEOUT])
+    params = MavsdkParams(fake, "b")
+    assert asyncio.run(params.get("COM_OF_LOSS_T")) == 4.0
+    assert fake.list_calls == 2 and fake.reads == [("COM_OF_LOSS_T", "float")] * 2
 
 
 def test_a_parameter_that_cannot_be_read_at_all_is_named_with_the_tries():
     fake = ScriptedParams(lists=[ParamResult.TIMEOUT] * 2, singles=[ParamResult.TIMEOUT] * 3)
     with pytest.raises(CommandRefused) as err:
         asyncio.run(MavsdkParams(fake, "b").get("COM_DISARM_PRFLT"))
-    assert str(err.value).startswith("vehicle 'b': read COM_DISARM_PRFLT refused: TIMEOUT (the list: "
-                                     "2 attempt(s) in ")
-    assert str(err.value).endswith("; by name: 3 attempt(s))")
+    text = str(err.value)
+    assert text.startswith("vehicle 'b': read COM_DISARM_PRFLT refused: TIMEOUT (by name: 3 attempt(s) in "), text
+    assert "; the list: 2 attempt(s) in " in text and text.endswith(" s wall)"), text
+    assert fake.list_calls == 2  # the list is asked for once (two tries), not for every try by name
 
 
-def test_a_list_that_never_answers_ends_at_the_bound():
-    fake = ScriptedParams(lists=["hang"], singles=[ParamResult.NO_SYSTEM])
-    with pytest.raises(CommandRefused, match=r"read MIS_TAKEOFF_ALT refused: NO_SYSTEM \(the list: 1 attempt"):
+def test_a_list_that_never_answers_ends_at_its_bound():
+    fake = ScriptedParams(lists=["hang"], singles=[ParamResult.TIMEOUT] * 3)
+    with pytest.raises(CommandRefused, match=r"read MIS_TAKEOFF_ALT refused: TIMEOUT .*the list: 1 attempt"):
         asyncio.run(MavsdkParams(fake, "a", list_timeout_s=0.2).get("MIS_TAKEOFF_ALT"))
 
 
 def test_a_refusal_that_will_not_change_is_not_tried_again():
-    fake = ScriptedParams(lists=[ParamResult.NO_SYSTEM], singles=[ParamResult.NO_SYSTEM])
+    fake = ScriptedParams(singles=[ParamResult.NO_SYSTEM])
     with pytest.raises(CommandRefused, match="NO_SYSTEM"):
         asyncio.run(MavsdkParams(fake, "a").get("COM_OF_LOSS_T"))
-    assert fake.list_calls == 1 and len(fake.reads) == 1
+    assert fake.list_calls == 0 and len(fake.reads) == 1
 
 
 def test_a_set_is_sent_as_the_type_read_and_retried_on_a_timeout():
-    fake = ScriptedParams(lists=["ok"], sets=[ParamResult.TIMEOUT, None])
+    fake = ScriptedParams(sets=[ParamResult.TIMEOUT, None])
     params = MavsdkParams(fake, "a")
 
     async def scenario():
@@ -114,9 +125,10 @@ def test_a_set_is_sent_as_the_type_read_and_retried_on_a_timeout():
         return await params.get("COM_OBL_RC_ACT")
     assert asyncio.run(scenario()) == 5.0
     assert fake.set_calls == [("COM_OBL_RC_ACT", 5), ("COM_OBL_RC_ACT", 5)]  # INT32, as read
+    assert fake.reads == [("COM_OBL_RC_ACT", "float"), ("COM_OBL_RC_ACT", "int")]  # the set value is kept
 
 
 def test_a_set_that_keeps_timing_out_names_the_parameter():
-    fake = ScriptedParams(lists=["ok"], sets=[ParamResult.TIMEOUT] * 3)
+    fake = ScriptedParams(sets=[ParamResult.TIMEOUT] * 3)
     with pytest.raises(CommandRefused, match=r"set MIS_TAKEOFF_ALT refused: TIMEOUT \(3 attempt\(s\)\)"):
         asyncio.run(MavsdkParams(fake, "a").set("MIS_TAKEOFF_ALT", 20.0))
