@@ -25,6 +25,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_base, embedded_stub
+from companion.sitl.options import add_sim_options, inprocess_options, px4_options
+from companion.sitl.px4 import Px4Options, px4_sitl
+from companion.app.event_loop import leave, run_bounded
 from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
@@ -108,6 +111,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--progress-every", type=_positive, default=20.0, metavar="S",
                    help="a progress line per vehicle every S sim seconds (default 20)")
     p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
+    add_sim_options(p)
     add_no_fence_option(p)
     p.add_argument("--shared-clock", action="store_true", default=None,
                    help="with --connect: assert that every vehicle stamps telemetry with one sim clock (an external "
@@ -269,7 +273,7 @@ def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect)
     _quiet_mavsdk(None)
     try:
-        asyncio.run(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
+        run_bounded(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
     except PreflightRefused as exc:  # the geofence refused or read back different
         print(f"companion: refused: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -296,16 +300,17 @@ async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, rep
 @_planned
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect) if args.connect else None
-    inproc = _inprocess_options(args) if args.in_process else None
+    inproc = inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out)
+    px4 = px4_options(args, plan.mission, out)
     _quiet_mavsdk(out)
-    settings = RunSettings(shared_clock=True if conns is None else args.shared_clock,
+    settings = RunSettings(shared_clock=True if conns is None and px4 is None else args.shared_clock,
                            connect_timeout_s=args.connect_timeout, progress_every_s=args.progress_every,
                            land=not args.no_land, failsafe_hold=not args.keep_failsafe)
     checks = PreflightSettings(station_tolerance_m=args.station_tolerance, plan_from_current=args.plan_from_current,
                                set_failsafe_hold=not args.keep_failsafe)
     stub = None
-    if conns is None and inproc is None:
+    if conns is None and inproc is None and px4 is None:
         stub = StubOptions(speedup=args.speedup or 1.0, api_port_base=args.port_base, gcs_port=args.gcs_port,
                            loss=args.loss, latency_ms=args.latency_ms, seed=args.seed,
                            blackouts=tuple(args.blackout), tlog_dir=out,
@@ -320,40 +325,24 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
         print(f"schedule: departure hold of {plan.mission.by_priority[0].name} {plan.coordinated.hold_s:.1f} s; "
               + ", ".join(f"{n} {b.value}" for n, b in plan.coordinated.blocking.items()), flush=True)
     try:
-        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks))
+        result = run_bounded(_run(plan, conns, stub, settings, out, inproc, checks, px4))
     except PreflightRefused as exc:
         print(f"companion: refused: {exc}; nothing was armed", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return leave(EXIT_BAD_INPUT)
     except CompanionError as exc:
         print(f"companion: {exc}", file=sys.stderr)
-        return EXIT_FAILED
+        return leave(EXIT_FAILED)
     print(summary_table(plan, result), flush=True)
     if out is not None:
         tlog = ("the stub's .tlog" if stub is not None else "no .tlog (in process: no link to record)"
                 if inproc is not None else "no .tlog (MAVSDK cannot record one; use a GCS)")
         print(f"wrote {out}/summary.json, flight.csv, traffic.csv, trajectory.png and {tlog}", flush=True)
-    return EXIT_OK if result.success else EXIT_FAILED
-
-
-def _inprocess_options(args: argparse.Namespace) -> InProcessOptions:
-    """--in-process: refuse what only the UDP path has; the speed factor is checked by the sim clock."""
-    from companion.sitl.inprocess import InProcessOptions
-    from sim_bridge.clock import ClockError
-    if args.connect:
-        raise BadInput("--in-process flies the stub's vehicles inside the companion; "
-                       "it cannot be combined with --connect")
-    if args.loss or args.latency_ms or args.blackout:
-        raise BadInput("--loss/--latency-ms/--blackout act on the embedded stub's UDP link; "
-                       "there is none with --in-process")
-    try:
-        return InProcessOptions(speedup=args.speedup)
-    except ClockError as exc:
-        raise BadInput(f"--speedup: {exc}") from None
+    return leave(EXIT_OK if result.success else EXIT_FAILED)
 
 
 async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions | None,
                settings: RunSettings, out: Path | None, inproc: InProcessOptions | None = None,
-               checks: PreflightSettings = PreflightSettings()) -> RunResult:
+               checks: PreflightSettings = PreflightSettings(), px4: Px4Options | None = None) -> RunResult:
     started = time.monotonic()
     report = _printer(started)
     stop = asyncio.Event()
@@ -381,6 +370,10 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
             async with open_inprocess_fleet(plan.mission, inproc) as fleet:
                 return await run_mission(plan, fleet.connections(), settings, out, report, stop, extra,
                                          open_vehicle=fleet.open_vehicle, checks=checks)
+        if px4 is not None:
+            extra.update(connections="px4", speedup=px4.speedup)
+            async with px4_sitl(plan.mission, px4, report) as px4_conns:
+                return await run_mission(plan, px4_conns, settings, out, report, stop, extra, checks=checks)
         if stub is None:
             assert conns is not None
             return await run_mission(plan, conns, settings, out, report, stop, extra, checks=checks)

@@ -69,6 +69,7 @@ class CommandRefused(CompanionError):
         self.command = command
         self.result = result
         self.retryable = retryable
+        self.detail = detail
         extra = f" ({detail})" if detail else ""
         super().__init__(f"{command} refused: {result}{extra}", vehicle=vehicle)
 

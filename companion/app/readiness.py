@@ -19,10 +19,13 @@ import numpy as np
 
 from companion.app.context import RunSettings
 from companion.app.flight_plan import FlightPlan, prepare
+from companion.app.offload import in_child_process
 from companion.app.preflight import (LIMIT_PARAMS, OBL_ACTIONS, OBL_HOLD, PreflightReport, PreflightSettings, Severity,
                                      VehicleFacts, preflight)
 from companion.errors import PreflightRefused
+from companion.planning.routes import Route
 from companion.planning.vehicle_planner import VARIANTS
+from uav_model.mission import Mission
 from companion.vehicle.port import LandedState, Vehicle
 
 SHARED_CLOCK_TOLERANCE_S = 0.5  # sim: two clocks this close are one (an external sim-bridge) ...
@@ -48,6 +51,15 @@ async def read_facts(vehicle: Vehicle) -> VehicleFacts:
         in_air=st.landed in (LandedState.IN_AIR, LandedState.LANDING, LandedState.TAKING_OFF),
         home_ok=st.home_ok, gps_fix_type=st.gps_fix_type, battery_pct=st.battery_pct,
         params=dict(zip(LIMIT_PARAMS, values)), link_anomaly=st.link_anomaly)
+
+
+def plan_for_flight(mission: Mission, variant: str, routes: Mapping[str, Route] | None, geofence: bool) -> FlightPlan:
+    """The plan to fly ``mission``: its routes (planned again when None) and its space-time plan
+    worked out (the child process's job)."""
+    plan = prepare(mission, variant) if routes is None else FlightPlan(mission, variant, dict(routes))
+    plan = dataclasses.replace(plan, geofence=geofence)
+    _ = plan.coordinated
+    return plan
 
 
 def route_length_m(plan: FlightPlan, name: str) -> float:
@@ -96,6 +108,7 @@ async def get_ready(plan: FlightPlan, vehicles: Mapping[str, Vehicle], settings:
                     checks: PreflightSettings, report: Callable[[str], None]) -> Readiness:
     """Wait for every vehicle's health and position, check them, and decide what to fly."""
     await asyncio.gather(*(v.wait_ready(settings.ready_timeout_s) for v in vehicles.values()))
+    inline = all(getattr(v, "clock_follows_event_loop", False) for v in vehicles.values())
     facts = dict(zip(vehicles, await asyncio.gather(*(read_facts(v) for v in vehicles.values()))))
     routes = {n: route_length_m(plan, n) for n in vehicles}
     result = preflight(plan.mission, facts, routes, settings.keepalive_sim_s, checks)
@@ -106,18 +119,20 @@ async def get_ready(plan: FlightPlan, vehicles: Mapping[str, Vehicle], settings:
         first = result.refusals[0]
         more = f" (and {len(result.refusals) - 1} more refusal(s) above)" if len(result.refusals) > 1 else ""
         raise PreflightRefused(f"pre-flight: {first.message}{more}", vehicle=first.vehicle)
-    if result.replan:
-        flown = dataclasses.replace(await asyncio.to_thread(prepare, result.mission, plan.variant),
-                                    geofence=plan.geofence)
-    elif all(a is b for a, b in zip(result.mission.vehicles, plan.mission.vehicles)):
+    unchanged = all(a is b for a, b in zip(result.mission.vehicles, plan.mission.vehicles))
+    if unchanged:
         flown = plan  # nothing derated: keep the plan, and the space-time plan computed before the flight
+    elif result.replan or VARIANTS[plan.variant].timed and plan.routes:
+        # Re-stationed, or derated with a schedule: routes or schedule change with the starts and
+        # speeds. Seconds of pure work (a minute on a loaded machine) with the links live: in a child
+        # process, so telemetry keeps flowing; inline only where the sim clock follows this loop.
+        job = (result.mission, plan.variant, None if result.replan else plan.routes, plan.geofence)
+        report("planning again for the flown mission" + ("" if inline else " (in a child process)"))
+        flown = plan_for_flight(*job) if inline else await in_child_process(plan_for_flight, *job)
+        if flown.coordinated is not None:
+            report(f"schedule re-planned for the flown mission: departure hold {flown.coordinated.hold_s:.1f} s")
     else:
         flown = FlightPlan(result.mission, plan.variant, plan.routes, geofence=plan.geofence)
-    if flown is not plan and flown.routes and VARIANTS[flown.variant].timed:
-        # Derated or re-stationed: the schedule changes with the speeds. Seconds of pure work,
-        # inline (nothing is armed yet; a worker thread would stall the in-process fleet).
-        coordinated = flown.coordinated
-        report(f"schedule re-planned for the flown mission: departure hold {coordinated.hold_s:.1f} s")
     shared = settings.shared_clock if settings.shared_clock is not None else await detect_shared_clock(vehicles)
     report(f"clock: {'one sim clock for all vehicles' if shared else 'one clock per vehicle'}"
            + (" (detected)" if settings.shared_clock is None else ""))

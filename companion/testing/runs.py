@@ -18,6 +18,7 @@ from pathlib import Path
 
 from uav_model.mission import load_mission
 from companion.testing.processes import Processes, signal_group
+from companion.testing.px4 import Px4Sitl
 from companion.testing.stub import Sitl
 from companion.testing.telemetry import BackgroundRecorder, Telemetry
 from sim_bridge.testing import free_udp_port_block
@@ -112,20 +113,19 @@ class CompanionFactory:
         self._count = 0
         self._recorders: list[BackgroundRecorder] = []
 
-    def start(self, target: Sitl | str | os.PathLike, *args: str, mission: str | os.PathLike | None = None,
+    def start(self, target: Sitl | Px4Sitl | str | os.PathLike, *args: str, mission: str | os.PathLike | None = None,
               speedup: float = 20.0) -> RunningCompanion:
         """Start ``companion run`` and return at once.
 
-        ``target``: a :class:`Sitl` to connect to, or a mission path to fly on the companion's
+        ``target``: a :class:`Sitl` or :class:`Px4Sitl` to connect to, or a mission path to fly on the companion's
         embedded stub (at ``speedup``, on free ports, its GCS link recorded). ``mission``: fly
         this file instead of the stub's (e.g. a bad one). ``args`` go to ``companion run``.
         """
         n, self._count = self._count, self._count + 1
         out_dir = self._tmp / f"companion{n}"
-        if isinstance(target, Sitl):
+        if isinstance(target, (Sitl, Px4Sitl)):
             telemetry: Telemetry = target
-            # One stub, one clock for every vehicle and the obstacles: score on it.
-            link = [*target.connect_args(), "--shared-clock"]
+            link = target.companion_args()
         else:
             path = Path(target)
             recorder = BackgroundRecorder(port=0)
@@ -140,7 +140,7 @@ class CompanionFactory:
             proc, tag = self._procs.spawn(cmd, stdout=out, stderr=err)
         return RunningCompanion(proc, tag, out_dir, telemetry, stdout_path, stderr_path)
 
-    def __call__(self, target: Sitl | str | os.PathLike, *args: str, timeout_s: float = 180.0,
+    def __call__(self, target: Sitl | Px4Sitl | str | os.PathLike, *args: str, timeout_s: float = 180.0,
                  mission: str | os.PathLike | None = None, speedup: float = 20.0) -> CompanionRun:
         """Run ``companion run`` to the end (see :meth:`start` for the arguments)."""
         return self.start(target, *args, mission=mission, speedup=speedup).wait(timeout_s)

@@ -42,6 +42,11 @@ class Sitl(Telemetry):
             args += ["--connect", f"{v.name}=udpin://127.0.0.1:{self.api_port_base + v.index}"]
         return args
 
+    def companion_args(self) -> list[str]:
+        """What ``companion run`` needs to fly these vehicles: one stub, one clock for every
+        vehicle and the obstacles, so score on it."""
+        return [*self.connect_args(), "--shared-clock"]
+
     def log_text(self) -> str:
         return self.log_path.read_text(errors="replace")
 

@@ -13,6 +13,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 
 from companion.errors import TelemetryLost
+from companion.vehicle.sim_rate import SimRateEstimator
 from companion.vehicle.port import FlightMode, PoseSample, TrafficReport, VehicleStatus
 
 # STATUSTEXTs that mean the autopilot took control away because setpoints stopped: PX4's
@@ -57,15 +58,17 @@ class VehicleBoard:
         self._changed = asyncio.Condition()
         self._seq = 0
         # The vehicle's clock as last seen in any stamped message (attitude), for staleness.
-        self.clock_t_sim_s: float | None = None
-        self.clock_t_wall_s: float | None = None
         self.latest_clock_s: float | None = None
         self.latest_clock_wall_s: float | None = None  # time.monotonic() when latest_clock_s arrived
         self.texts: deque[tuple[float, str]] = deque(maxlen=64)  # (wall, STATUSTEXT) as heard
         self._clock_backsteps = 0
         self._jumps: deque[bool] = deque(maxlen=JUMP_WINDOW)
-        # Sim seconds per wall second, smoothed; None until measured.
-        self.sim_rate: float | None = None
+        self._rate = SimRateEstimator()  # sim seconds per wall second, robust to late bursts
+
+    @property
+    def sim_rate(self) -> float | None:
+        """Sim seconds per wall second (:mod:`companion.vehicle.sim_rate`); None until measured."""
+        return self._rate.rate
 
     # -- readers -------------------------------------------------------------------------
     def pose(self) -> PoseSample | None:
@@ -101,24 +104,15 @@ class VehicleBoard:
         async with self._changed:
             self._changed.notify_all()
 
-    async def note_clock(self, t_sim_s: float) -> None:
-        """Record the vehicle's clock from a stamped message and update the sim-rate estimate.
+    async def note_clock(self, t_sim_s: float, wall_s: float | None = None) -> None:
+        """Record the vehicle's clock from a stamped message (seen at ``wall_s``, default now) and
+        update the sim-rate estimate.
 
         Waiters are woken too: a clock that runs on while positions do not is how a stale
         position is noticed in sim time.
         """
-        now = time.monotonic()
-        if self.clock_t_sim_s is not None and self.clock_t_wall_s is not None:
-            d_wall = now - self.clock_t_wall_s
-            d_sim = t_sim_s - self.clock_t_sim_s
-            if d_wall > 0.2 and d_sim >= 0:
-                rate = d_sim / d_wall
-                self.sim_rate = rate if self.sim_rate is None else 0.8 * self.sim_rate + 0.2 * rate
-                self.clock_t_sim_s, self.clock_t_wall_s = t_sim_s, now
-            elif d_sim < 0:  # the vehicle rebooted: restart the estimate
-                self.clock_t_sim_s, self.clock_t_wall_s = t_sim_s, now
-        else:
-            self.clock_t_sim_s, self.clock_t_wall_s = t_sim_s, now
+        now = time.monotonic() if wall_s is None else wall_s
+        self._rate.add(now, t_sim_s)
         if self.latest_clock_s is not None and t_sim_s < self.latest_clock_s - 1.0:
             self._clock_backsteps += 1
             if self._clock_backsteps >= CLOCK_BACKSTEPS and self._status.link_anomaly is None:

@@ -27,7 +27,6 @@ from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync, MissionRawError
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError, VelocityBodyYawspeed
 from mavsdk.asyncio.plugins.param import ParamAsync
-from mavsdk.plugins.param import ParamError, ParamResult
 from mavsdk.asyncio.plugins.telemetry import FlightMode as MavFlightMode
 from mavsdk.asyncio.plugins.telemetry import LandedState as MavLandedState
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync, TelemetryError
@@ -40,6 +39,7 @@ from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import (  # shared with the in-process adapter
     MAV_FRAME_GLOBAL, FenceItem, fence_items, fence_zones, traffic_velocity_enu)
 from companion.vehicle.link_probe import probe_udpin
+from companion.vehicle.mavsdk_params import MavsdkParams
 from companion.vehicle.port import (FlightMode, GeoFenceZone, GeoWaypoint, LandedState, TrafficReport,
                                     VelocityYawRateSetpoint)
 
@@ -52,8 +52,14 @@ MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
 MAV_MISSION_TYPE_MISSION = 0
 MAV_MISSION_TYPE_FENCE = 1
 COMMAND_TIMEOUT_S = 5.0  # wall; MAVSDK itself retries a COMMAND_LONG for ~0.5 s x 3
-PARAM_LIST_TIMEOUT_S = 60.0  # wall; PX4 SITL sends its ~1000 parameters in about a second
+# The streams the pumps read, in Hz of the vehicle's clock (SET_MESSAGE_INTERVAL): PX4 sends ATTITUDE
+# at 100 Hz and GLOBAL_POSITION_INT at 50 Hz of sim time, 400 and 200 a second of wall at 4x, more
+# than MAVSDK's callback queue and a loaded event loop keep up with. 20 Hz is the stub's rate and
+# ten samples per planner step.
+STREAM_RATE_HZ = 20.0
+STREAM_RATE_ATTEMPTS = 3  # a loaded machine can lose a COMMAND_ACK
 MISSION_TRANSFER_TIMEOUT_S = 30.0  # wall; the protocol has its own per-item timeouts
+SHUTDOWN_TIMEOUT_S = 5.0  # wall; destroying an instance joins its threads (then companion.app.event_loop.leave)
 _RETRYABLE = frozenset({"BUSY", "TIMEOUT", "CONNECTION_ERROR", "UNKNOWN"})
 
 _MODES = {
@@ -103,10 +109,7 @@ class MavsdkVehicle(BoardReaders):
         self._action = ActionAsync(system)
         self._offboard = OffboardAsync(system)
         self._mission = MissionRawAsync(system)
-        self._param = ParamAsync(system)
-        self._params: dict[str, float] | None = None  # all of the autopilot's, read once; which are INT32:
-        self._int_params: set[str] = set()
-        self._params_lock = asyncio.Lock()
+        self._params = MavsdkParams(ParamAsync(system), name)
         self._transponder = TransponderAsync(system)
         # Latest halves of a pose; a sample is emitted once both have been refreshed.
         self._att: tuple[float, float] | None = None  # (t_sim_s, heading_enu_rad)
@@ -160,40 +163,10 @@ class MavsdkVehicle(BoardReaders):
                                  detail=str(exc)) from None
 
     async def get_param(self, name: str) -> float | None:
-        """From one PARAM_REQUEST_LIST at the first call (kept up to date by set_param): PX4
-        ignores a name it does not have, and MAVSDK then retries it for 3 s, queueing every later
-        request behind it; a call abandoned early would leave its thread blocked past shutdown."""
-        async with self._params_lock:
-            if self._params is None:
-                try:
-                    async with asyncio.timeout(PARAM_LIST_TIMEOUT_S):
-                        everything = await self._param.get_all_params()
-                except (TimeoutError, ParamError) as exc:
-                    raise CommandRefused("read parameters", getattr(getattr(exc, "result", None), "name", "TIMEOUT"),
-                                         vehicle=self._name) from None
-                self._params = {p.name: float(p.value) for p in (*everything.int_params, *everything.float_params)}
-                self._int_params = {p.name for p in everything.int_params}
-        return self._params.get(name)
+        return await self._params.get(name)
 
     async def set_param(self, name: str, value: float) -> None:
-        # As the type read with the list (an int sent as a float: PX4 rejects it, MAVSDK logs an error).
-        kinds = (int, float) if name in self._int_params else (float, int)
-
-        async def attempt() -> None:
-            try:
-                await self._set_typed(name, value, kinds[0])
-            except ParamError as exc:
-                if exc.result not in (ParamResult.WRONG_TYPE, ParamResult.TYPE_MISMATCH):
-                    raise CommandRefused(f"set {name}", exc.result.name, vehicle=self._name,
-                                         retryable=exc.result is ParamResult.TIMEOUT) from None
-                await self._set_typed(name, value, kinds[1])
-        await self._command(f"set {name}", attempt)
-        if self._params is not None:
-            self._params[name] = float(value)
-
-    async def _set_typed(self, name: str, value: float, kind: type) -> None:
-        p = self._param
-        await (p.set_param_int(name, int(round(value))) if kind is int else p.set_param_float(name, float(value)))
+        await self._params.set(name, value)
 
     async def set_mode(self, mode: FlightMode, what: str = "set mode") -> None:
         calls = {FlightMode.HOLD: self._action.hold, FlightMode.RETURN_TO_LAUNCH: self._action.return_to_launch,
@@ -236,7 +209,7 @@ class MavsdkVehicle(BoardReaders):
     async def takeoff(self, alt_rel_m: float) -> None:
         # PX4 takes off to MIS_TAKEOFF_ALT; MAVSDK sets it through the param protocol. Skipped when
         # it was set already (before arming): COM_DISARM_PRFLT counts from the arm to the take-off.
-        if self._params is None or self._params.get("MIS_TAKEOFF_ALT") != float(alt_rel_m):
+        if self._params.known("MIS_TAKEOFF_ALT") != float(alt_rel_m):
             await self._command("set takeoff altitude", lambda: self._action.set_takeoff_altitude(float(alt_rel_m)))
         await self._command("takeoff", self._action.takeoff)
 
@@ -263,6 +236,20 @@ class MavsdkVehicle(BoardReaders):
         await self._command("land", self._action.land)
 
     # -- pumps ----------------------------------------------------------------------------
+    async def limit_stream_rates(self, rate_hz: float = STREAM_RATE_HZ) -> None:
+        """Ask for the pumped streams at ``rate_hz``; an autopilot that refuses keeps its own rates."""
+        t = self._telemetry
+        for what, call in (("attitude", t.set_rate_attitude_euler), ("position", t.set_rate_position),
+                           ("velocity", t.set_rate_velocity_ned)):
+            for attempt in range(1, STREAM_RATE_ATTEMPTS + 1):
+                try:
+                    await self._command(f"set {what} rate", lambda: call(rate_hz))
+                    break
+                except CommandRefused as exc:
+                    if not exc.retryable or attempt == STREAM_RATE_ATTEMPTS:
+                        log.warning("%s (keeping the autopilot's own rate)", exc)
+                        break
+
     def start_pumps(self, tg: asyncio.TaskGroup) -> list[asyncio.Task]:
         pumps = (self._pump_attitude, self._pump_position, self._pump_velocity, self._pump_mode,
                  self._pump_armed, self._pump_landed, self._pump_health, self._pump_battery,
@@ -374,6 +361,7 @@ async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frame
             raise LinkError(f"the autopilot on {url} has system id {got}, the mission expects {system_id}",
                             vehicle=name)
         vehicle = MavsdkVehicle(name, system_id, system, origin)
+        await vehicle.limit_stream_rates()  # before the pumps: their callbacks are the flood
         try:
             async with asyncio.TaskGroup() as tg:
                 pumps = vehicle.start_pumps(tg)
@@ -391,7 +379,7 @@ async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frame
     finally:
         # Joins MAVSDK's threads: keep it off the event loop, and do not wait forever for it.
         try:
-            async with asyncio.timeout(10.0):
+            async with asyncio.timeout(SHUTDOWN_TIMEOUT_S):
                 await asyncio.to_thread(sdk.destroy)
         except TimeoutError:
-            log.warning("vehicle %s: MAVSDK did not shut down within 10 s", name)
+            log.warning("vehicle %s: MAVSDK did not shut down within %g s", name, SHUTDOWN_TIMEOUT_S)
