@@ -6,12 +6,12 @@ after landing) against one PX4 SIH instance at speed factor 4, then against the 
 factor, over real UDP. Each figure of the stub must be within TOLERANCES of PX4's from the same
 session (not of a table): a PX4 build that behaves differently moves the reference with it.
 
-    PX4_SITL_DIR=../shared/px4-sih/sitl pytest tests/px4/test_parity.py -m px4
+    PX4_SITL_DIR=../shared/px4-sih/sitl python -m pytest tests/px4/test_parity.py -p no:xdist -s
 """
 
 from __future__ import annotations
 
-import os
+import fcntl
 import subprocess
 import sys
 from collections.abc import Callable
@@ -20,7 +20,10 @@ from pathlib import Path
 
 import pytest
 
+from companion.sitl.px4 import API_PORT_BASE, Px4Fleet, Px4Options
+from companion.testing.px4 import LOCK_PATH, px4_dir_or_skip
 from sim_bridge.testing import free_udp_port_block
+from uav_model.mission import parse_mission
 
 from live_sequence import FIGURES, LiveVehicle, SequenceError, characterise
 
@@ -28,6 +31,7 @@ pytestmark = [pytest.mark.px4, pytest.mark.timeout(400)]
 
 SPEED_FACTOR = 4.0  # PX4_SIM_SPEED_FACTOR and the stub's speedup: the loss timeouts scale alike
 HOME = (47.397742, 8.545594)
+STARVED = 0.5  # PX4 booting below this share of its speed factor: its boot timing is not compared
 
 STUB_MISSION = f"""
 name: parity
@@ -61,7 +65,7 @@ def equal(why: str) -> Tolerance:
 TOLERANCES: dict[str, Tolerance] = {
     "boot.arm_accepted_s": within(0.75, "PX4's boot refusal ends at 3.7-4.5 s sim between runs; tries 0.25 s apart"),
     "boot.auto_disarm_s": within(1.0, "seen in the 1 Hz heartbeat"),
-    "climb.to_19m_s": rel(0.15, "PX4's own take-off spreads 17.2-19.7 s between runs"),
+    "climb.to_19m_s": rel(0.15, "PX4's own take-off spreads 15.6-19.7 s between runs at 4x"),
     "turn.speed_m_s": rel(0.10, "the plant is fitted on PX4's 1x trace; PX4 at 4x turns 2-7 % slower"),
     "turn.yawspeed_deg_s": rel(0.10, "ATTITUDE's body rate, noisy in PX4's tilted turn"),
     "yaw_in_place.deg_s": rel(0.10, "PX4 settles at 85-90 deg/s for 90 commanded"),
@@ -72,7 +76,7 @@ TOLERANCES: dict[str, Tolerance] = {
     "loss_hold.mode": equal("COM_OBL_RC_ACT 5: Hold"),
     "loss_hold.after_s": within(1.2, "as loss.after_s"),
     "loss_hold.reentry_mode": equal("as loss.reentry_mode, from Hold"),
-    "land.duration_s": rel(0.10, "PX4's landing from 20 m spreads 24-27 s between runs at 4x"),
+    "land.duration_s": rel(0.15, "PX4's own landing from 20 m spreads 21.5-26.3 s between runs at 4x"),
     "land.final_mode": equal("after the landing disarm PX4 returns to the mode before LAND"),
 }
 
@@ -129,17 +133,23 @@ def measure_stub(tmp_path: Path) -> Measured:
     return measure(port, start)
 
 
+def measure_px4(px4_dir: Path, tmp_path: Path) -> Measured:
+    mission = parse_mission(STUB_MISSION, "parity.yaml")  # PX4's home: the vehicle's start station, as the stub's
+    fleet = Px4Fleet(mission, Px4Options(px4_dir, speedup=SPEED_FACTOR, log_dir=tmp_path), tmp_path / "px4-work")
+
+    def start() -> Callable[[], None]:
+        fleet.start()  # not waiting for its startup script: the sequence arms from the first heartbeat on
+        return fleet.stop
+    return measure(API_PORT_BASE, start)
+
+
 @pytest.fixture(scope="session")
 def parity(request, tmp_path_factory) -> tuple[Measured, Measured]:
     """(PX4's, the stub's) figures, each measured once per session; the table printed (``-s`` shows it)."""
-    if not os.environ.get("PX4_SITL_DIR"):
-        pytest.skip("no PX4: set PX4_SITL_DIR to a PX4 SITL build (bin/px4 + etc/), e.g. ../shared/px4-sih/sitl")
-    px4_sitl = request.getfixturevalue("px4_sitl")
-    px4_port = 14540
-
-    def start_px4() -> Callable[[], None]:
-        return px4_sitl(0, *HOME, SPEED_FACTOR).stop
-    px4 = measure(px4_port, start_px4)
+    px4_dir = px4_dir_or_skip(request.config)
+    with open(LOCK_PATH, "a+") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # PX4's ports are fixed: one PX4 at a time (released on close)
+        px4 = measure_px4(px4_dir, tmp_path_factory.mktemp("px4"))
     stub = measure_stub(tmp_path_factory.mktemp("stub"))
     print(f"\n{'figure':26} {'PX4':>10} {'stub':>10}  tolerance")
     for name in FIGURES:
@@ -150,7 +160,7 @@ def parity(request, tmp_path_factory) -> tuple[Measured, Measured]:
 
 
 def test_every_figure_has_a_stated_tolerance():
-    assert set(TOLERANCES) | {"boot.arm_refused_until_s"} == set(FIGURES)
+    assert set(TOLERANCES) | {"boot.sim_rate", "boot.arm_refused_until_s"} == set(FIGURES)
 
 
 @pytest.mark.parametrize("name", sorted(TOLERANCES))
@@ -161,5 +171,8 @@ def test_stub_figure_within_tolerance_of_px4(parity, name):
             pytest.fail(f"{who} gave no {name}: {m.error}")
     a, b = px4.figures[name], stub.figures[name]
     tol = TOLERANCES[name]
+    if name == "boot.arm_accepted_s" and px4.figures["boot.sim_rate"] < STARVED * SPEED_FACTOR:
+        pytest.skip(f"PX4 booted at {px4.figures['boot.sim_rate']:.1f}x of sim time (asked {SPEED_FACTOR:g}x): "
+                    "a starved PX4's estimator settles late, its boot timing is the machine's")
     ok = arm_window_overlaps(px4.figures, stub.figures) if name == "boot.arm_accepted_s" else tol.same(a, b)
     assert ok, f"{name}: stub {b!r} vs PX4 {a!r}, tolerance {tol.stated} ({tol.why})"
