@@ -6,8 +6,9 @@ landing, the mode after landing), timed in the vehicle's own sim time (``time_bo
 than the client's wall clock: PX4 SITL at a speed factor and the stub at any speedup then fly the
 same sequence, and a loaded machine that slows either one stretches the wall time, not the figures.
 
+    figures = {}
     with LiveVehicle(port) as v:
-        figures = characterise(v)   # {"turn.speed_m_s": 7.6, "loss.mode": "RTL", ...}
+        characterise(v, figures)   # {"turn.speed_m_s": 7.6, "loss.mode": "RTL", ...}
 """
 
 from __future__ import annotations
@@ -57,7 +58,6 @@ class LinkStats:
     frames: int = 0
     lost: int = 0
     _seq: dict[tuple[int, int], int] = field(default_factory=dict)
-
     _parsed_at: dict[int, float] = field(default_factory=dict)
 
     def wanted(self, data: bytes, now: float) -> bytes:
@@ -103,7 +103,6 @@ class VehicleState:
     ground_speed_m_s: float = 0.0
     yawspeed_deg_s: float = 0.0
     texts: list[str] = field(default_factory=list)
-    heartbeats: list[float] = field(default_factory=list)
 
 
 def mode_name(mode: tuple[int, int] | None) -> str:
@@ -114,7 +113,8 @@ def mode_name(mode: tuple[int, int] | None) -> str:
 
 
 class LiveVehicle:
-    """A blocking pymavlink client on a vehicle's API port (the vehicle sends first)."""
+    """A blocking raw-MAVLink client (pymavlink's codec on its own socket) on a vehicle's API port; the
+    vehicle sends first."""
 
     def __init__(self, port: int, host: str = "127.0.0.1"):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -181,7 +181,6 @@ class LiveVehicle:
                 return
             self.sysid = self.sysid or msg.get_srcSystem()
             s.mode = decode_custom_mode(msg.custom_mode)
-            s.heartbeats.append(s.sim_s)
             s.armed = bool(msg.base_mode & L.MAV_MODE_FLAG_SAFETY_ARMED)
         elif kind == "ATTITUDE":
             s.sim_s = max(s.sim_s, msg.time_boot_ms / 1000.0)

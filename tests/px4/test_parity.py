@@ -64,9 +64,9 @@ def equal(why: str) -> Tolerance:
 
 TOLERANCES: dict[str, Tolerance] = {
     "boot.arm_accepted_s": within(0.75, "PX4's boot refusal ends at 3.7-4.5 s sim between runs; tries 0.25 s apart"),
-    "boot.auto_disarm_s": within(1.0, "seen in the 1 Hz heartbeat"),
+    "boot.auto_disarm_s": within(1.5, "both ends seen in the 1 Hz heartbeat, whose phase slips on a loaded stub"),
     "climb.to_19m_s": rel(0.15, "PX4's own take-off spreads 15.6-19.7 s between runs at 4x"),
-    "turn.speed_m_s": rel(0.10, "the plant is fitted on PX4's 1x trace; PX4 at 4x turns 2-7 % slower"),
+    "turn.speed_m_s": rel(0.12, "the plant is fitted on PX4's 1x trace (7.84); PX4 at 4x turns at 7.2-7.7 m/s"),
     "turn.yawspeed_deg_s": rel(0.10, "ATTITUDE's body rate, noisy in PX4's tilted turn"),
     "yaw_in_place.deg_s": rel(0.10, "PX4 settles at 85-90 deg/s for 90 commanded"),
     "overspeed.speed_m_s": rel(0.06, "tilt-limited; PX4 spreads 9.6-9.95 m/s between runs"),
@@ -76,7 +76,7 @@ TOLERANCES: dict[str, Tolerance] = {
     "loss_hold.mode": equal("COM_OBL_RC_ACT 5: Hold"),
     "loss_hold.after_s": within(1.2, "as loss.after_s"),
     "loss_hold.reentry_mode": equal("as loss.reentry_mode, from Hold"),
-    "land.duration_s": rel(0.15, "PX4's own landing from 20 m spreads 21.5-26.3 s between runs at 4x"),
+    "land.duration_s": rel(0.20, "PX4's own landing from 20 m spreads 21.5-26.6 s between runs at 4x"),
     "land.final_mode": equal("after the landing disarm PX4 returns to the mode before LAND"),
 }
 
@@ -95,6 +95,7 @@ def arm_window_overlaps(px4: dict, stub: dict) -> bool:
 class Measured:
     figures: dict
     error: str | None = None
+    link_loss: float = 0.0  # the share of the vehicle's MAVLink frames the client lost
 
 
 def measure(port: int, start: Callable[[], Callable[[], None]]) -> Measured:
@@ -105,10 +106,10 @@ def measure(port: int, start: Callable[[], Callable[[], None]]) -> Measured:
         try:
             characterise(v, figures)
         except SequenceError as e:
-            return Measured(figures, str(e))
+            return Measured(figures, str(e), v.link.loss)
         finally:
             stop()
-    return Measured(figures)
+        return Measured(figures, None, v.link.loss)
 
 
 def measure_stub(tmp_path: Path) -> Measured:
@@ -151,7 +152,8 @@ def parity(request, tmp_path_factory) -> tuple[Measured, Measured]:
         fcntl.flock(lock, fcntl.LOCK_EX)  # PX4's ports are fixed: one PX4 at a time (released on close)
         px4 = measure_px4(px4_dir, tmp_path_factory.mktemp("px4"))
     stub = measure_stub(tmp_path_factory.mktemp("stub"))
-    print(f"\n{'figure':26} {'PX4':>10} {'stub':>10}  tolerance")
+    print(f"\nframes lost: PX4 {px4.link_loss:.1%}, stub {stub.link_loss:.1%}")
+    print(f"{'figure':26} {'PX4':>10} {'stub':>10}  tolerance")
     for name in FIGURES:
         a, b = px4.figures.get(name, "-"), stub.figures.get(name, "-")
         tol = TOLERANCES[name].stated if name in TOLERANCES else ""
