@@ -232,17 +232,21 @@ class LiveVehicle:
         return self.command(L.MAV_CMD_DO_SET_MODE, L.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
 
     def param_set(self, name: str, value: float, int32: bool = False) -> None:
+        """Set and confirm: by the echo, else by reading it back (a starved PX4 may drop the echo)."""
         wire = struct.unpack("<f", struct.pack("<i", int(value)))[0] if int32 else float(value)
         ptype = L.MAV_PARAM_TYPE_INT32 if int32 else L.MAV_PARAM_TYPE_REAL32
-        self.params.pop(name, None)
-        for _ in range(COMMAND_SENDS):
-            self.mav.param_set_send(self.sysid or 1, 1, name.encode(), wire, ptype)
-            end = time.monotonic() + 2.0
+        for attempt in range(2 * COMMAND_SENDS):
+            self.params.pop(name, None)
+            if attempt % 2 == 0:
+                self.mav.param_set_send(self.sysid or 1, 1, name.encode(), wire, ptype)
+            else:
+                self.mav.param_request_read_send(self.sysid or 1, 1, name.encode(), -1)
+            end = time.monotonic() + 1.5
             while time.monotonic() < end and name not in self.params:
                 self.pump(0.02)
             if self.params.get(name) == wire:
                 return
-        raise SequenceError(f"PARAM_SET {name}={value}: not echoed")
+        raise SequenceError(f"PARAM_SET {name}={value}: neither echoed nor read back")
 
     # ------------------------------------------------------------ waiting in sim time
     def wait(self, pred: Callable[[], bool], sim_s: float, what: str, stream: Stream | None = None) -> float:
