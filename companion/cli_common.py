@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from companion.app.results import OutputNotWritable, prepare_output
 from uav_model.mission import VARIANTS, Mission, MissionError
 from uav_model.plant import Plant
 
@@ -35,13 +36,13 @@ def bad_input(exc: Exception) -> int:
     return EXIT_BAD_INPUT
 
 
-def output_dir(path: Path) -> Path:
-    """``--out``, created if need be; BadInput when it cannot be."""
+def output_dir(path: Path, *, reserve: bool = False) -> Path:
+    """``--out``, created if need be and proved writable (with ``reserve``: the space the results
+    need is set aside while logs are written; see companion.app.results); BadInput when it cannot be."""
     try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise BadInput(f"--out {path}: cannot create the directory ({exc.strerror})") from None
-    return path
+        return prepare_output(path, reserve=reserve)
+    except OutputNotWritable as exc:
+        raise BadInput(str(exc)) from None
 
 
 def add_variant_option(parser: argparse.ArgumentParser) -> None:

@@ -28,7 +28,8 @@ from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_
 from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
-from companion.app.runner import RunResult, run_mission, summary_table
+from companion.app.results import QuietFileHandler, release_reserve
+from companion.app.runner import RunResult, run_mission, save_run, summary_table
 from companion.errors import CompanionError, PreflightRefused
 from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_no_fence_option,
                                   add_variant_option, bad_input, connections, output_dir)
@@ -163,8 +164,9 @@ def _planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callab
     return with_plan
 
 
-def _quiet_mavsdk(out_dir: Path | None) -> None:
-    """MAVSDK's own log goes to the companion's logger (a file with --out), not the terminal."""
+def _quiet_mavsdk(out_dir: Path | None) -> QuietFileHandler | None:
+    """MAVSDK's own log goes to the companion's logger (a file with --out), not the terminal.
+    Returns the file's handler, which records why it stopped if the disk refused it."""
     from mavsdk.logging import LogLevel, log_subscribe
     mav_log = logging.getLogger("companion.mavsdk")
     levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
@@ -177,11 +179,12 @@ def _quiet_mavsdk(out_dir: Path | None) -> None:
     root = logging.getLogger("companion")
     root.setLevel(logging.DEBUG)
     root.propagate = False
-    if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        handler = logging.FileHandler(out_dir / "companion.log", encoding="utf-8")
-        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-        root.addHandler(handler)
+    if out_dir is None:
+        return None
+    handler = QuietFileHandler(out_dir / "companion.log")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root.addHandler(handler)
+    return handler
 
 
 def _printer(started: float):
@@ -297,8 +300,8 @@ async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, rep
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect) if args.connect else None
     inproc = _inprocess_options(args) if args.in_process else None
-    out = None if args.out is None else output_dir(args.out)
-    _quiet_mavsdk(out)
+    out = None if args.out is None else output_dir(args.out, reserve=True)
+    log_file = _quiet_mavsdk(out)
     settings = RunSettings(shared_clock=True if conns is None else args.shared_clock,
                            connect_timeout_s=args.connect_timeout, progress_every_s=args.progress_every,
                            land=not args.no_land, failsafe_hold=not args.keep_failsafe)
@@ -319,19 +322,26 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     if plan.coordinated is not None:  # the timed variant's schedule, for the same reason
         print(f"schedule: departure hold of {plan.mission.by_priority[0].name} {plan.coordinated.hold_s:.1f} s; "
               + ", ".join(f"{n} {b.value}" for n, b in plan.coordinated.blocking.items()), flush=True)
+    stub_notices: list[str] = []  # the embedded stub's own output problems (its .tlog)
     try:
-        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks))
+        result = asyncio.run(_run(plan, conns, stub, settings, out, inproc, checks, stub_notices))
     except PreflightRefused as exc:
         print(f"companion: refused: {exc}; nothing was armed", file=sys.stderr)
         return EXIT_BAD_INPUT
     except CompanionError as exc:
         print(f"companion: {exc}", file=sys.stderr)
         return EXIT_FAILED
-    print(summary_table(plan, result), flush=True)
+    finally:  # the flight's writers (logs, stub) are done: the results may use the space now
+        if out is not None:
+            release_reserve(out)
+    print(summary_table(plan, result), flush=True)  # the verdict first: it needs no disk
     if out is not None:
+        problems = tuple(stub_notices) + ((log_file.problem,) if log_file is not None and log_file.problem else ())
+        saved = save_run(out, plan, result, problems)
         tlog = ("the stub's .tlog" if stub is not None else "no .tlog (in process: no link to record)"
                 if inproc is not None else "no .tlog (MAVSDK cannot record one; use a GCS)")
-        print(f"wrote {out}/summary.json, flight.csv, traffic.csv, trajectory.png and {tlog}", flush=True)
+        logs = ", flight.csv, traffic.csv, companion.log and " + tlog if saved.complete else ""
+        print(saved.line() + logs, file=sys.stdout if saved.complete else sys.stderr, flush=True)
     return EXIT_OK if result.success else EXIT_FAILED
 
 
@@ -353,7 +363,7 @@ def _inprocess_options(args: argparse.Namespace) -> InProcessOptions:
 
 async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions | None,
                settings: RunSettings, out: Path | None, inproc: InProcessOptions | None = None,
-               checks: PreflightSettings = PreflightSettings()) -> RunResult:
+               checks: PreflightSettings = PreflightSettings(), stub_notices: list[str] | None = None) -> RunResult:
     started = time.monotonic()
     report = _printer(started)
     stop = asyncio.Event()
@@ -389,7 +399,7 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
             report(note)
         stub = dataclasses.replace(stub, api_port_base=base)
         report(f"starting the embedded sim_bridge at {stub.speedup:g}x on 127.0.0.1:{stub.api_port_base}+i")
-        async with embedded_stub(plan.mission, stub) as embedded_conns:
+        async with embedded_stub(plan.mission, stub, notices=stub_notices) as embedded_conns:
             return await run_mission(plan, embedded_conns, settings, out, report, stop, extra, checks=checks)
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):

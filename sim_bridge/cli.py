@@ -46,7 +46,7 @@ def _param(text: str) -> tuple[str, float]:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sim-bridge", description=(
         "PX4-like kinematic SITL stub: one MAVLink vehicle per mission vehicle. Vehicle i sends "
-        "to HOST:API_PORT_BASE+i (connect MAVSDK with udpin://0.0.0.0:14540+i); a GCS link on "
+        "to HOST:API_PORT_BASE+i (connect MAVSDK with udpin://HOST:14540+i); a GCS link on "
         "HOST:GCS_PORT carries every vehicle."))
     p.add_argument("mission", type=Path, help="mission YAML file")
     p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1)")
@@ -101,7 +101,7 @@ async def _serve(mission, options: SimOptions) -> None:
         for i, v in enumerate(sim.vehicles):
             port = options.api_port(i)
             print(f"vehicle {v.name}: sysid {v.system_id} -> {options.host}:{port} "
-                  f"(companion: udpin://0.0.0.0:{port})", flush=True)
+                  f"(companion: udpin://{options.host}:{port})", flush=True)
         if options.gcs_port is not None:
             print(f"GCS link -> {options.host}:{options.gcs_port}", flush=True)
         for path in sim.tlog_paths:
