@@ -117,7 +117,7 @@ class SaveReport:
         if self.complete:
             return f"wrote {self.out_dir}/: {kept}"
         lost = [f"{name} ({why})" for name, why in self.failed] + self.problems
-        return f"companion: output in {self.out_dir}: kept {kept}; not written: {'; '.join(lost)}"
+        return f"companion: output in {self.out_dir}: kept {kept}; incomplete: {'; '.join(lost)}"
 
 
 def save_results(out_dir: Path, summary: dict[str, Any],
@@ -138,7 +138,7 @@ def save_results(out_dir: Path, summary: dict[str, Any],
     release_reserve(out_dir)
 
     def write_summary(first: bool = True) -> bool:
-        doc = dict(summary, outputs={"complete": report.complete, "not_written": [
+        doc = dict(summary, outputs={"complete": report.complete, "incomplete": [
             f"{name}: {why}" for name, why in report.failed if name != SUMMARY_NAME] + report.problems})
         try:
             write_json_atomic(out_dir / SUMMARY_NAME, doc)
