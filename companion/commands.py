@@ -122,6 +122,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--station-tolerance", type=_positive, default=None, metavar="M",
                    help="how far a vehicle may be from its mission station (default: twice the arrival radius)")
     p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S", help="wall seconds (default 15)")
+    p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                   help="MAVLink 2 signing: refused, because MAVSDK (the companion's MAVLink library) has no signing "
+                        "API; see docs/companion.md, 'Links and signing'")
     p.add_argument("--in-process", action="store_true",
                    help="no stub process and no sockets: fly the stub's vehicles inside the companion on one sim "
                         "clock, deterministically and faster than real time (same outputs, no .tlog)")
@@ -296,8 +299,17 @@ async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, rep
             await upload_and_verify_fence(vehicle, plan, report)
 
 
+MAVSDK_CANNOT_SIGN = ("--signing-key: the companion cannot sign: MAVSDK {version} has no MAVLink 2 signing API, so an "
+                      "autopilot that enforces signing would refuse every command it sends; fly unsigned on a trusted link "
+                      "(loopback, a private network) and limit who may command with the autopilot's own means, e.g. "
+                      "sim-bridge --allow-sysid (docs/companion.md)")
+
+
 @_planned
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
+    if args.signing_key is not None:
+        from importlib.metadata import version
+        raise BadInput(MAVSDK_CANNOT_SIGN.format(version=version("mavsdk")))
     conns = connections(plan, args.connect) if args.connect else None
     inproc = _inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out, reserve=True)

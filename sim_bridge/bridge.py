@@ -28,6 +28,7 @@ from typing import Any, Callable, Hashable
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import Mission
+from sim_bridge.admission import INVALID_SIGNATURE, Admission
 from sim_bridge.clock import SimClock
 from sim_bridge.endpoint import Endpoint, Link
 from sim_bridge.faults import Blackout, FaultConfig, LinkFaults
@@ -62,6 +63,7 @@ class SimBridge:
         except ValueError as exc:
             raise SimBridgeError(str(exc)) from None
         self._by_sysid = {v.system_id: i for i, v in enumerate(self.vehicles)}
+        self.admission = Admission(o.allow_sysids, o.signing_key)
         self._texts = [StatustextSplitter(v.mav) for v in self.vehicles]  # PX4's STATUSTEXT wire form
         self._links: list[dict[str, Link]] = []
         for v in self.vehicles:
@@ -86,7 +88,9 @@ class SimBridge:
         o = self.options
         fo = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/out") if with_faults else None
         fi = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/in") if with_faults else None
-        return Link(name, mavlink.MAVLink(None, v.system_id, v.component_id), fo, fi)
+        encoder = mavlink.MAVLink(None, v.system_id, v.component_id)
+        self.admission.sign(encoder, link_id=0 if name == API_LINK else 1)
+        return Link(name, encoder, fo, fi)
 
     # ================================================================== lifecycle =========
     async def __aenter__(self) -> "SimBridge":
@@ -211,12 +215,24 @@ class SimBridge:
             return
         for msg in msgs:
             if msg.get_type() == "BAD_DATA":
+                reason = getattr(msg, "reason", "")
+                if INVALID_SIGNATURE in reason:
+                    self.stats["refused"] += 1
+                    sysid = data[5] if len(data) >= 10 and data[0] == 0xFD else 0
+                    self.admission.note_refused(ep.socket_name, addr, sysid, "a frame", "unsigned or not signed "
+                                                "with --signing-key")
+                    continue
                 self.stats["garbage"] += 1
-                log.debug("sim_bridge: garbage from %s on %s: %s", addr, ep.socket_name, getattr(msg, "reason", ""))
+                log.debug("sim_bridge: garbage from %s on %s: %s", addr, ep.socket_name, reason)
                 continue
             self.stats["rx_messages"] += 1
             if self._tlog is not None and ep.socket_name == GCS_LINK:
                 self._tlog.write(msg.get_msgbuf(), getattr(msg, "target_system", 0) or None)
+            why = self.admission.refusal(msg)
+            if why is not None:
+                self.stats["refused"] += 1
+                self.admission.note_refused(ep.socket_name, addr, msg.get_srcSystem(), msg.get_type(), why)
+                continue
             if ep.vehicle_index is not None:
                 self._deliver(ep.vehicle_index, msg, API_LINK, addr)
                 continue
