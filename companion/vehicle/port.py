@@ -75,6 +75,7 @@ class VehicleStatus:
     failsafe_notices: int = 0  # "Failsafe activated" / "Offboard control lost" texts heard so far
     last_failsafe_t_sim_s: float | None = None  # the vehicle's clock when the latest of them was heard
     link_anomaly: str | None = None  # telemetry no single vehicle can produce (two systems on one link)
+    link_conflict: str | None = None  # this vehicle's system id heard from a second source address (LinkGuard)
     mode_changes: int = 0  # how many mode changes were heard: a brief failsafe shows even if it is over
     last_other_mode: FlightMode | None = None  # the latest mode heard that was not OFFBOARD
 
