@@ -55,6 +55,7 @@ class PoseSample:
     vy_north_m_s: float
     heading_enu_rad: float
     seq: int  # strictly increasing per vehicle; lets waiters ask for "something newer"
+    plausible: bool = True  # False: it jumped from the last plausible sample (another system's?); kept out of metrics
 
     @property
     def ground_speed_m_s(self) -> float:
