@@ -26,6 +26,20 @@ from companion.errors import LinkConflict
 from companion.vehicle.link_probe import frame_system_ids, probe_udpin, udpin_port
 
 LOOPBACK = "127.0.0.1"
+RELAY_BUFFER_BYTES = 4 << 20  # a burst (a parameter list at 20x) waits here while the event loop is busy
+
+
+def _roomy(sock: socket.socket) -> socket.socket:
+    """A receive buffer that rides out a busy event loop (SO_RCVBUFFORCE if allowed, else up to rmem_max)."""
+    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if option is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, option, RELAY_BUFFER_BYTES)
+            break
+        except OSError:
+            continue
+    return sock
 
 
 class _Side(asyncio.DatagramProtocol):
@@ -113,7 +127,7 @@ async def guarded_port(host: str, port: int, system_id: int, vehicle: str | None
     """Hold ``host:port`` for the vehicle while the context is open (LinkConflict if it is taken)."""
     loop = asyncio.get_running_loop()
     guard = LinkGuard(system_id, _free_loopback_port())
-    outer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    outer = _roomy(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
     try:
         outer.bind((host, port))
     except OSError as exc:
@@ -121,8 +135,9 @@ async def guarded_port(host: str, port: int, system_id: int, vehicle: str | None
         raise LinkConflict(f"cannot listen on udp {host}:{port}: {exc.strerror}", vehicle=vehicle) from None
     try:
         _, guard._outer = await loop.create_datagram_endpoint(lambda: _Side(guard.from_outside), sock=outer)
-        _, guard._inner = await loop.create_datagram_endpoint(lambda: _Side(guard.from_mavsdk),
-                                                              local_addr=(LOOPBACK, 0))
+        inner = _roomy(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
+        inner.bind((LOOPBACK, 0))
+        _, guard._inner = await loop.create_datagram_endpoint(lambda: _Side(guard.from_mavsdk), sock=inner)
         yield guard
     finally:
         guard.close()
