@@ -28,11 +28,11 @@ from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_
 from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
-from companion.app.results import QuietFileHandler, release_reserve
+from companion.app.results import release_reserve
 from companion.app.runner import RunResult, run_mission, save_run, summary_table
 from companion.errors import CompanionError, PreflightRefused
 from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_no_fence_option,
-                                  add_variant_option, bad_input, connections, output_dir)
+                                  add_variant_option, bad_input, connections, output_dir, quiet_mavsdk)
 from uav_model.mission import MissionError, load_mission, mission_schema, shared_goals
 
 if TYPE_CHECKING:
@@ -167,29 +167,6 @@ def _planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callab
     return with_plan
 
 
-def _quiet_mavsdk(out_dir: Path | None) -> QuietFileHandler | None:
-    """MAVSDK's own log goes to the companion's logger (a file with --out), not the terminal.
-    Returns the file's handler, which records why it stopped if the disk refused it."""
-    from mavsdk.logging import LogLevel, log_subscribe
-    mav_log = logging.getLogger("companion.mavsdk")
-    levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
-              LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
-
-    def forward(level, message, file, line) -> bool:
-        mav_log.log(levels.get(level, logging.INFO), "%s", message)
-        return True  # suppress MAVSDK's own printing
-    log_subscribe(forward)
-    root = logging.getLogger("companion")
-    root.setLevel(logging.DEBUG)
-    root.propagate = False
-    if out_dir is None:
-        return None
-    handler = QuietFileHandler(out_dir / "companion.log")
-    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-    root.addHandler(handler)
-    return handler
-
-
 def _printer(started: float):
     def report(line: str) -> None:
         print(f"[{time.monotonic() - started:6.1f}s] {line}", flush=True)
@@ -273,7 +250,7 @@ def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
 @_planned
 def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect)
-    _quiet_mavsdk(None)
+    quiet_mavsdk(None)
     try:
         asyncio.run(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
     except PreflightRefused as exc:  # the geofence refused or read back different
@@ -313,7 +290,7 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect) if args.connect else None
     inproc = _inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out, reserve=True)
-    log_file = _quiet_mavsdk(out)
+    log_file = quiet_mavsdk(out)
     settings = RunSettings(shared_clock=True if conns is None else args.shared_clock,
                            connect_timeout_s=args.connect_timeout, progress_every_s=args.progress_every,
                            land=not args.no_land, failsafe_hold=not args.keep_failsafe)

@@ -91,14 +91,15 @@ class Admission:
         self.refused = 0
         self._logged: set[tuple[str, Any, int, str]] = set()
 
-    def sign(self, encoder: Any, link_id: int) -> None:
-        """Make ``encoder`` (a pymavlink MAVLink) sign what it packs, when there is a key."""
+    def sign(self, encoder: Any, link_id: int) -> Any:
+        """``encoder`` (a pymavlink MAVLink), made to sign what it packs when there is a key."""
         if self.signing_key is None:
-            return
+            return encoder
         encoder.signing.secret_key = self.signing_key
         encoder.signing.link_id = link_id
         encoder.signing.timestamp = signing_timestamp()
         encoder.signing.sign_outgoing = True
+        return encoder
 
     def check_signatures(self, parser: Any) -> None:
         """Make a per-peer parser refuse unsigned or badly signed frames, when there is a key."""
@@ -114,6 +115,21 @@ class Admission:
             allowed = ",".join(str(s) for s in sorted(self.allow_sysids))
             return f"system id {msg.get_srcSystem()} is not in --allow-sysid {allowed}"
         return None
+
+    def admits(self, msg: Any, datagram: bytes, socket_name: str, peer: Any) -> bool:
+        """False (counted, logged once) when ``msg`` must not reach a vehicle: a frame pymavlink
+        refused for its signature, or a sender outside the allowlist. Other garbage is admitted
+        here: it is the caller's to count."""
+        if msg.get_type() == "BAD_DATA":
+            if INVALID_SIGNATURE not in getattr(msg, "reason", ""):
+                return True
+            sysid = datagram[5] if len(datagram) >= 10 and datagram[0] == 0xFD else 0
+            self.note_refused(socket_name, peer, sysid, "a frame", "unsigned or not signed with --signing-key")
+            return False
+        why = self.refusal(msg)
+        if why is not None:
+            self.note_refused(socket_name, peer, msg.get_srcSystem(), msg.get_type(), why)
+        return why is None
 
     def note_refused(self, socket_name: str, peer: Any, sysid: int, what: str, why: str) -> None:
         self.refused += 1

@@ -28,7 +28,7 @@ from typing import Any, Callable, Hashable
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import Mission
-from sim_bridge.admission import INVALID_SIGNATURE, Admission
+from sim_bridge.admission import Admission
 from sim_bridge.clock import SimClock
 from sim_bridge.endpoint import Endpoint, Link
 from sim_bridge.faults import Blackout, FaultConfig, LinkFaults
@@ -89,8 +89,7 @@ class SimBridge:
         fo = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/out") if with_faults else None
         fi = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/in") if with_faults else None
         encoder = mavlink.MAVLink(None, v.system_id, v.component_id)
-        self.admission.sign(encoder, link_id=0 if name == API_LINK else 1)
-        return Link(name, encoder, fo, fi)
+        return Link(name, self.admission.sign(encoder, link_id=0 if name == API_LINK else 1), fo, fi)
 
     # ================================================================== lifecycle =========
     async def __aenter__(self) -> "SimBridge":
@@ -214,25 +213,15 @@ class SimBridge:
             parser.buf_index = 0
             return
         for msg in msgs:
+            if not self.admission.admits(msg, data, ep.socket_name, addr):  # counted and logged there
+                continue
             if msg.get_type() == "BAD_DATA":
-                reason = getattr(msg, "reason", "")
-                if INVALID_SIGNATURE in reason:
-                    self.stats["refused"] += 1
-                    sysid = data[5] if len(data) >= 10 and data[0] == 0xFD else 0
-                    self.admission.note_refused(ep.socket_name, addr, sysid, "a frame", "unsigned or not signed "
-                                                "with --signing-key")
-                    continue
                 self.stats["garbage"] += 1
-                log.debug("sim_bridge: garbage from %s on %s: %s", addr, ep.socket_name, reason)
+                log.debug("sim_bridge: garbage from %s on %s: %s", addr, ep.socket_name, getattr(msg, "reason", ""))
                 continue
             self.stats["rx_messages"] += 1
             if self._tlog is not None and ep.socket_name == GCS_LINK:
                 self._tlog.write(msg.get_msgbuf(), getattr(msg, "target_system", 0) or None)
-            why = self.admission.refusal(msg)
-            if why is not None:
-                self.stats["refused"] += 1
-                self.admission.note_refused(ep.socket_name, addr, msg.get_srcSystem(), msg.get_type(), why)
-                continue
             if ep.vehicle_index is not None:
                 self._deliver(ep.vehicle_index, msg, API_LINK, addr)
                 continue

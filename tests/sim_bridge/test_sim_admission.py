@@ -99,7 +99,7 @@ def test_a_foreign_system_id_is_refused_with_a_log_line_and_no_effect(caplog):
                 accepted = await _arm_attempt(owner)
             finally:
                 owner.close()
-            return refused, armed_by_intruder, accepted, sim.vehicle(0).armed, sim.stats["refused"]
+            return refused, armed_by_intruder, accepted, sim.vehicle(0).armed, sim.admission.refused
 
     with caplog.at_level(logging.WARNING, logger="sim_bridge.admission"):
         refused, armed_by_intruder, accepted, armed, count = asyncio.run(scenario())
