@@ -67,7 +67,7 @@ async def port_busy(port: int) -> str | None:
     """Why the embedded stub cannot use UDP ``port`` for a vehicle link, or None if it is free
     and quiet (nobody listening on it, nobody sending to it)."""
     try:
-        senders = await listen("0.0.0.0", port, PORT_PROBE_S)
+        senders = await listen(LOOPBACK, port, PORT_PROBE_S)
     except OSError as exc:
         return f"taken by another program ({exc.strerror})"
     if senders:
