@@ -89,28 +89,32 @@ def _add_simulate(sub) -> None:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from companion.app.results import save_results
     from companion.planning.runner import simulate
     from companion.plots import save_trajectory
 
     try:
         mission = with_plant(load_mission(args.mission), args.plant)
+    except MissionError as exc:
+        return bad_input(exc)
+    variant = args.variant or mission.planner.variant
+    out = output_dir(args.out or Path(f"simulate-{mission.name}-{variant}"))  # before flying: minutes lost otherwise
+    try:
         run = simulate(mission, args.variant)
     except (MissionError, NoPath) as exc:
         return bad_input(exc)
-    out = output_dir(args.out or Path(f"simulate-{mission.name}-{run.variant}"))
     summary = run.summary.summary_dict()
     summary.update(mission=mission.name, variant=run.variant, wall_s=round(run.wall_s, 3),
                    speed_factor=round(run.speed_factor, 1))
     from companion.planning.certificate import mission_certificate
     certificate = mission_certificate(mission.with_variant(run.variant), run.routes)
     summary["occlusion_certificate"] = None if certificate is None else certificate.summary_dict()
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    save_trajectory(out / "trajectory.png", mission, run.tracks, run.routes,
-                    title=f"{mission.name} ({run.variant})")
-    print(format_summary(run))
+    print(format_summary(run), flush=True)  # the verdict first: it needs no disk
     if certificate is not None:
-        print(certificate.describe())
-    print(f"wrote {out / 'summary.json'} and {out / 'trajectory.png'}")
+        print(certificate.describe(), flush=True)
+    saved = save_results(out, summary, [("trajectory.png", lambda path: save_trajectory(
+        path, mission, run.tracks, run.routes, title=f"{mission.name} ({run.variant})"))])
+    print(saved.line(), file=sys.stdout if saved.complete else sys.stderr, flush=True)
     return EXIT_OK if run.success else EXIT_FAILED
 
 

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from companion.app.results import OutputNotWritable, QuietFileHandler, prepare_output
 from uav_model.mission import VARIANTS, Mission, MissionError
 from uav_model.plant import Plant
 
@@ -35,13 +37,13 @@ def bad_input(exc: Exception) -> int:
     return EXIT_BAD_INPUT
 
 
-def output_dir(path: Path) -> Path:
-    """``--out``, created if need be; BadInput when it cannot be."""
+def output_dir(path: Path, *, reserve: bool = False) -> Path:
+    """``--out``, created if need be and proved writable (with ``reserve``: the space the results
+    need is set aside while logs are written; see companion.app.results); BadInput when it cannot be."""
     try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise BadInput(f"--out {path}: cannot create the directory ({exc.strerror})") from None
-    return path
+        return prepare_output(path, reserve=reserve)
+    except OutputNotWritable as exc:
+        raise BadInput(str(exc)) from None
 
 
 def add_variant_option(parser: argparse.ArgumentParser) -> None:
@@ -79,3 +81,26 @@ def connections(plan: FlightPlan, pairs: list[tuple[str, str]]) -> dict[str, str
     if missing:
         raise BadInput(f"--connect missing for vehicle(s) {', '.join(missing)}: give one NAME=URL per vehicle")
     return out
+
+
+def quiet_mavsdk(out_dir: Path | None) -> QuietFileHandler | None:
+    """MAVSDK's own log goes to the companion's logger (a file with --out), not the terminal.
+    Returns the file's handler, which records why it stopped if the disk refused it."""
+    from mavsdk.logging import LogLevel, log_subscribe
+    mav_log = logging.getLogger("companion.mavsdk")
+    levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
+              LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
+
+    def forward(level, message, file, line) -> bool:
+        mav_log.log(levels.get(level, logging.INFO), "%s", message)
+        return True  # suppress MAVSDK's own printing
+    log_subscribe(forward)
+    root = logging.getLogger("companion")
+    root.setLevel(logging.DEBUG)
+    root.propagate = False
+    if out_dir is None:
+        return None
+    handler = QuietFileHandler(out_dir / "companion.log")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root.addHandler(handler)
+    return handler

@@ -31,10 +31,11 @@ from companion.app.event_loop import leave, run_bounded
 from companion.app.flight_plan import FlightPlan, prepare, verify_readback
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
-from companion.app.runner import RunResult, run_mission, summary_table
+from companion.app.results import release_reserve
+from companion.app.runner import RunResult, run_mission, save_run, summary_table
 from companion.errors import CompanionError, PreflightRefused
 from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_no_fence_option,
-                                  add_variant_option, bad_input, connections, output_dir)
+                                  add_variant_option, bad_input, connections, output_dir, quiet_mavsdk)
 from uav_model.mission import MissionError, load_mission, mission_schema, shared_goals
 
 if TYPE_CHECKING:
@@ -125,6 +126,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--station-tolerance", type=_positive, default=None, metavar="M",
                    help="how far a vehicle may be from its mission station (default: twice the arrival radius)")
     p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S", help="wall seconds (default 15)")
+    p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                   help="MAVLink 2 signing: refused, because MAVSDK (the companion's MAVLink library) has no signing "
+                        "API; see docs/companion.md, 'Links and signing'")
     p.add_argument("--in-process", action="store_true",
                    help="no stub process and no sockets: fly the stub's vehicles inside the companion on one sim "
                         "clock, deterministically and faster than real time (same outputs, no .tlog)")
@@ -165,27 +169,6 @@ def _planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callab
             return bad_input(exc)
         return handler(args, plan)
     return with_plan
-
-
-def _quiet_mavsdk(out_dir: Path | None) -> None:
-    """MAVSDK's own log goes to the companion's logger (a file with --out), not the terminal."""
-    from mavsdk.logging import LogLevel, log_subscribe
-    mav_log = logging.getLogger("companion.mavsdk")
-    levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
-              LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
-
-    def forward(level, message, file, line) -> bool:
-        mav_log.log(levels.get(level, logging.INFO), "%s", message)
-        return True  # suppress MAVSDK's own printing
-    log_subscribe(forward)
-    root = logging.getLogger("companion")
-    root.setLevel(logging.DEBUG)
-    root.propagate = False
-    if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        handler = logging.FileHandler(out_dir / "companion.log", encoding="utf-8")
-        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-        root.addHandler(handler)
 
 
 def _printer(started: float):
@@ -271,7 +254,7 @@ def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
 @_planned
 def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect)
-    _quiet_mavsdk(None)
+    quiet_mavsdk(None)
     try:
         run_bounded(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
     except PreflightRefused as exc:  # the geofence refused or read back different
@@ -297,13 +280,22 @@ async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, rep
             await upload_and_verify_fence(vehicle, plan, report)
 
 
+MAVSDK_CANNOT_SIGN = ("--signing-key: the companion cannot sign: MAVSDK {version} has no MAVLink 2 signing API, so an "
+                      "autopilot that enforces signing would refuse every command it sends; fly unsigned on a trusted link "
+                      "(loopback, a private network) and limit who may command with the autopilot's own means, e.g. "
+                      "sim-bridge --allow-sysid (docs/companion.md)")
+
+
 @_planned
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
+    if args.signing_key is not None:
+        from importlib.metadata import version
+        raise BadInput(MAVSDK_CANNOT_SIGN.format(version=version("mavsdk")))
     conns = connections(plan, args.connect) if args.connect else None
     inproc = inprocess_options(args) if args.in_process else None
-    out = None if args.out is None else output_dir(args.out)
+    out = None if args.out is None else output_dir(args.out, reserve=True)
     px4 = px4_options(args, plan.mission, out)
-    _quiet_mavsdk(out)
+    log_file = quiet_mavsdk(out)
     settings = RunSettings(shared_clock=True if conns is None and px4 is None else args.shared_clock,
                            connect_timeout_s=args.connect_timeout, progress_every_s=args.progress_every,
                            land=not args.no_land, failsafe_hold=not args.keep_failsafe)
@@ -324,25 +316,33 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     if plan.coordinated is not None:  # the timed variant's schedule, for the same reason
         print(f"schedule: departure hold of {plan.mission.by_priority[0].name} {plan.coordinated.hold_s:.1f} s; "
               + ", ".join(f"{n} {b.value}" for n, b in plan.coordinated.blocking.items()), flush=True)
+    stub_notices: list[str] = []  # the embedded stub's own output problems (its .tlog)
     try:
-        result = run_bounded(_run(plan, conns, stub, settings, out, inproc, checks, px4))
+        result = run_bounded(_run(plan, conns, stub, settings, out, inproc, checks, px4, stub_notices))
     except PreflightRefused as exc:
         print(f"companion: refused: {exc}; nothing was armed", file=sys.stderr)
         return leave(EXIT_BAD_INPUT)
     except CompanionError as exc:
         print(f"companion: {exc}", file=sys.stderr)
         return leave(EXIT_FAILED)
-    print(summary_table(plan, result), flush=True)
+    finally:  # the flight's writers (logs, stub) are done: the results may use the space now
+        if out is not None:
+            release_reserve(out)
+    print(summary_table(plan, result), flush=True)  # the verdict first: it needs no disk
     if out is not None:
+        problems = tuple(stub_notices) + ((log_file.problem,) if log_file is not None and log_file.problem else ())
+        saved = save_run(out, plan, result, problems)
         tlog = ("the stub's .tlog" if stub is not None else "no .tlog (in process: no link to record)"
                 if inproc is not None else "no .tlog (MAVSDK cannot record one; use a GCS)")
-        print(f"wrote {out}/summary.json, flight.csv, traffic.csv, trajectory.png and {tlog}", flush=True)
+        logs = ", flight.csv, traffic.csv, companion.log and " + tlog if saved.complete else ""
+        print(saved.line() + logs, file=sys.stdout if saved.complete else sys.stderr, flush=True)
     return leave(EXIT_OK if result.success else EXIT_FAILED)
 
 
 async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions | None,
                settings: RunSettings, out: Path | None, inproc: InProcessOptions | None = None,
-               checks: PreflightSettings = PreflightSettings(), px4: Px4Options | None = None) -> RunResult:
+               checks: PreflightSettings = PreflightSettings(), px4: Px4Options | None = None,
+               stub_notices: list[str] | None = None) -> RunResult:
     started = time.monotonic()
     report = _printer(started)
     stop = asyncio.Event()
@@ -382,7 +382,7 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
             report(note)
         stub = dataclasses.replace(stub, api_port_base=base)
         report(f"starting the embedded sim_bridge at {stub.speedup:g}x on 127.0.0.1:{stub.api_port_base}+i")
-        async with embedded_stub(plan.mission, stub) as embedded_conns:
+        async with embedded_stub(plan.mission, stub, notices=stub_notices) as embedded_conns:
             return await run_mission(plan, embedded_conns, settings, out, report, stop, extra, checks=checks)
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):

@@ -28,6 +28,7 @@ from typing import Any, Callable, Hashable
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import Mission
+from sim_bridge.admission import Admission
 from sim_bridge.clock import SimClock
 from sim_bridge.endpoint import Endpoint, Link
 from sim_bridge.faults import Blackout, FaultConfig, LinkFaults
@@ -62,6 +63,7 @@ class SimBridge:
         except ValueError as exc:
             raise SimBridgeError(str(exc)) from None
         self._by_sysid = {v.system_id: i for i, v in enumerate(self.vehicles)}
+        self.admission = Admission(o.allow_sysids, o.signing_key)
         self._texts = [StatustextSplitter(v.mav) for v in self.vehicles]  # PX4's STATUSTEXT wire form
         self._links: list[dict[str, Link]] = []
         for v in self.vehicles:
@@ -86,7 +88,8 @@ class SimBridge:
         o = self.options
         fo = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/out") if with_faults else None
         fi = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/in") if with_faults else None
-        return Link(name, mavlink.MAVLink(None, v.system_id, v.component_id), fo, fi)
+        encoder = mavlink.MAVLink(None, v.system_id, v.component_id)
+        return Link(name, self.admission.sign(encoder, link_id=0 if name == API_LINK else 1), fo, fi)
 
     # ================================================================== lifecycle =========
     async def __aenter__(self) -> "SimBridge":
@@ -210,6 +213,8 @@ class SimBridge:
             parser.buf_index = 0
             return
         for msg in msgs:
+            if not self.admission.admits(msg, data, ep.socket_name, addr):  # counted and logged there
+                continue
             if msg.get_type() == "BAD_DATA":
                 self.stats["garbage"] += 1
                 log.debug("sim_bridge: garbage from %s on %s: %s", addr, ep.socket_name, getattr(msg, "reason", ""))

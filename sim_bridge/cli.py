@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from uav_model.mission import MissionError, load_mission
+from sim_bridge.admission import SigningKeyError, load_signing_key, parse_sysids
 from sim_bridge.bridge import SimBridge, SimBridgeError, SimOptions, run_stub
 from sim_bridge.clock import ClockError, SimClock
 from sim_bridge.faults import Blackout, FaultConfig, FaultSpecError
@@ -46,7 +47,7 @@ def _param(text: str) -> tuple[str, float]:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sim-bridge", description=(
         "PX4-like kinematic SITL stub: one MAVLink vehicle per mission vehicle. Vehicle i sends "
-        "to HOST:API_PORT_BASE+i (connect MAVSDK with udpin://0.0.0.0:14540+i); a GCS link on "
+        "to HOST:API_PORT_BASE+i (connect MAVSDK with udpin://HOST:14540+i); a GCS link on "
         "HOST:GCS_PORT carries every vehicle."))
     p.add_argument("mission", type=Path, help="mission YAML file")
     p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1)")
@@ -69,6 +70,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="vehicle speed limit as a multiple of the mission speed (default 1.0)")
     p.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                    help="a parameter value at boot (repeatable), e.g. COM_OBL_RC_ACT=5")
+    p.add_argument("--allow-sysid", default=None, metavar="IDS",
+                   help="obey only messages from these system ids, e.g. 255,245 (QGroundControl/MAVProxy, MAVSDK); "
+                        "others are dropped and logged (default: anyone, as PX4 without signing)")
+    p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                   help="MAVLink 2 signing: sign every frame and drop unsigned ones (HEARTBEAT, RADIO_STATUS "
+                        "excepted); FILE holds 32 raw bytes, 64 hex digits or a passphrase (SHA-256, as MAVProxy)")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return p
 
@@ -85,10 +92,13 @@ def options_from_args(args: argparse.Namespace) -> SimOptions:
             raise ValueError(f"--param {name}: unknown parameter")
         if name not in _MISSION_DEPENDENT and not defs[name].accepts(value):
             raise ValueError(f"--param {name}={value:g}: outside [{defs[name].min_value:g}, {defs[name].max_value:g}]")
+    allow = None if args.allow_sysid is None else parse_sysids(args.allow_sysid)
+    key = None if args.signing_key is None else load_signing_key(args.signing_key)
     return SimOptions(speedup=args.speedup, host=args.host, bind_host=args.bind, api_port_base=args.api_port_base,
                       gcs_port=None if args.no_gcs else args.gcs_port, physics_dt_s=args.physics_dt, seed=args.seed,
                       faults=faults, tlog_dir=args.tlog, tlog_per_vehicle=args.tlog_per_vehicle,
-                      speed_headroom=args.speed_headroom, params=tuple(args.param))
+                      speed_headroom=args.speed_headroom, params=tuple(args.param), allow_sysids=allow,
+                      signing_key=key)
 
 
 async def _serve(mission, options: SimOptions) -> None:
@@ -101,11 +111,15 @@ async def _serve(mission, options: SimOptions) -> None:
         for i, v in enumerate(sim.vehicles):
             port = options.api_port(i)
             print(f"vehicle {v.name}: sysid {v.system_id} -> {options.host}:{port} "
-                  f"(companion: udpin://0.0.0.0:{port})", flush=True)
+                  f"(companion: udpin://{options.host}:{port})", flush=True)
         if options.gcs_port is not None:
             print(f"GCS link -> {options.host}:{options.gcs_port}", flush=True)
         for path in sim.tlog_paths:
             print(f"tlog: {path}", flush=True)
+        if options.allow_sysids is not None:
+            print(f"obeys system ids {','.join(map(str, sorted(options.allow_sysids)))} only", flush=True)
+        if options.signing_key is not None:
+            print("MAVLink 2 signing on: frames signed; unsigned ones dropped", flush=True)
         print(f"running at {options.speedup:g}x; Ctrl-C to stop", flush=True)
 
     await run_stub(mission, options, stop=stop, on_ready=ready)
@@ -118,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         mission = load_mission(args.mission)
         options = options_from_args(args)
-    except (MissionError, FaultSpecError, ClockError, ValueError) as exc:
+    except (MissionError, FaultSpecError, ClockError, ValueError, SigningKeyError) as exc:
         print(f"sim-bridge: {exc}", file=sys.stderr)
         return 2
     try:

@@ -51,6 +51,7 @@ class Endpoint(asyncio.DatagramProtocol):
         if parser is None:
             parser = mavlink.MAVLink(None, 0, 0)
             parser.robust_parsing = True
+            self.bridge.admission.check_signatures(parser)
             self.peers[addr] = parser
             while len(self.peers) > MAX_PEERS_PER_SOCKET:
                 self.peers.popitem(last=False)

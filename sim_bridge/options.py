@@ -38,6 +38,8 @@ class SimOptions:
     # jumping: a jump would run the offboard-loss clock over setpoints still queued in the socket.
     max_catchup_sim_s: float = 0.4
     params: tuple[tuple[str, float], ...] = ()  # parameter values at boot (NAME, VALUE), as a SITL startup script
+    allow_sysids: frozenset[int] | None = None  # obey only these sender system ids (None: anyone, as PX4)
+    signing_key: bytes | None = field(default=None, repr=False)  # MAVLink 2 signing: sign out, refuse unsigned in
 
     def api_port(self, index: int) -> int:
         """The port vehicle ``index`` sends its API link to."""

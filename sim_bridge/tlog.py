@@ -4,7 +4,9 @@ Each record is an 8-byte big-endian timestamp (microseconds since the Unix epoch
 raw MAVLink frame. The timestamp is **sim time** (the wall clock at the sim's start plus the sim
 seconds elapsed), so at 20x mavlogdump and mavflightmodes report the flight as flown: a 478 s
 flight, not the 24 s of wall time it took. Records are buffered and flushed at least once a
-second of wall time, so a crash loses at most the last second (SPEC section 6).
+second of wall time, so a crash loses at most the last second (SPEC section 6). A write the disk
+refuses stops that file with one ``tlog error:`` log line naming it, the reason and how many
+records it kept (``TlogWriter.error``); the sim flies on.
 
 :class:`TlogSet` writes the combined log and, on request, one log per vehicle (the frames a
 vehicle sent, and those addressed to it or to everyone).
@@ -12,6 +14,7 @@ vehicle sent, and those addressed to it or to everyone).
 
 from __future__ import annotations
 
+import logging
 import re
 import struct
 import time
@@ -20,6 +23,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 FLUSH_INTERVAL_S = 1.0
+log = logging.getLogger(__name__)
 
 
 class TlogWriter:
@@ -29,6 +33,8 @@ class TlogWriter:
         self._clock_s = clock_s
         self._last_flush = 0.0
         self.records = 0
+        self.flushed_records = 0  # on disk for sure: the file ends here if a later write fails
+        self.error: str | None = None
 
     @classmethod
     def create(cls, directory: Path, name: str, clock_s: Callable[[], float] = time.time) -> "TlogWriter":
@@ -45,17 +51,43 @@ class TlogWriter:
     def write(self, frame: bytes) -> None:
         if self._f.closed:
             return
-        self._f.write(struct.pack(">Q", int(self._clock_s() * 1e6)) + bytes(frame))
+        try:
+            self._f.write(struct.pack(">Q", int(self._clock_s() * 1e6)) + bytes(frame))
+        except OSError as exc:
+            self._fail(exc)
+            return
         self.records += 1
 
     def maybe_flush(self, wall_t: float) -> None:
         if wall_t - self._last_flush >= FLUSH_INTERVAL_S and not self._f.closed:
-            self._f.flush()
+            self._flush()
             self._last_flush = wall_t
+
+    def _flush(self) -> None:
+        try:
+            self._f.flush()
+        except OSError as exc:
+            self._fail(exc)
+            return
+        self.flushed_records = self.records
+
+    def _fail(self, exc: OSError) -> None:
+        self.error = exc.strerror or str(exc)
+        log.error("tlog error: %s truncated: %s; recording stopped after %d of %d records",
+                  self.path.name, self.error, self.flushed_records, self.records + 1)
+        try:
+            self._f.close()
+        except OSError:
+            pass  # the buffered records cannot be written either
 
     def close(self) -> None:
         if not self._f.closed:
-            self._f.close()
+            self._flush()
+            if not self._f.closed:
+                try:
+                    self._f.close()
+                except OSError as exc:
+                    self._fail(exc)
 
 
 class TlogSet:

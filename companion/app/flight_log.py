@@ -3,13 +3,15 @@ traffic.csv (every ADS-B report of a moving obstacle that reached the companion)
 
 Rows are flushed to the OS at least every ``flush_every_s`` of wall time, so that a crash of the
 companion loses at most that much. The per-vehicle tracks that the shared metrics module needs
-are kept in memory alongside.
+are kept in memory alongside. A write error (a full disk) never reaches the flight: that file
+stops there and :meth:`FlightLog.problems` names it, as it names a file whose folder was removed.
 """
 
 from __future__ import annotations
 
 import csv
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,6 +61,8 @@ class FlightLog:
         self.tracks: dict[str, Track] = {}
         self.traffic_rows = 0
         self._files: list[IO[str]] = []
+        self._failed: dict[str, str] = {}  # file name -> why it stopped
+        self._rows: dict[str, int] = {"flight.csv": 0, "traffic.csv": 0}
         self._flight: csv.writer | None = None
         self._traffic: csv.writer | None = None
         self._last_flush = time.monotonic()
@@ -80,8 +84,40 @@ class FlightLog:
     def __exit__(self, *exc) -> None:
         self.flush()
         for f in self._files:
-            f.close()
+            self._close(f)
         self._files = []
+
+    def problems(self) -> list[str]:
+        """One line per log file that is not complete on disk: stopped by a write error, or
+        written into a folder that was removed in flight (the file has no name left)."""
+        out = [f"{name} ({why}; stopped after {self._rows[name]} rows)" for name, why in self._failed.items()]
+        for f in self._files:
+            name = Path(f.name).name
+            try:
+                if name not in self._failed and os.fstat(f.fileno()).st_nlink == 0:
+                    out.append(f"{name} (deleted with its folder during the run)")
+            except (OSError, ValueError):
+                pass
+        return out
+
+    def _close(self, f: IO[str]) -> None:
+        try:
+            f.close()
+        except OSError as exc:
+            self._stop(f, exc)
+
+    def _stop(self, f: IO[str], exc: OSError) -> None:
+        """A write to ``f`` failed: record why, drop its buffer and write no more to it."""
+        name = Path(f.name).name
+        self._failed.setdefault(name, exc.strerror or str(exc))
+        if name == "flight.csv":
+            self._flight = None
+        else:
+            self._traffic = None
+        try:
+            f.close()
+        except OSError:
+            pass  # the buffered rows cannot go anywhere: the file ends at the last good flush
 
     def track(self, vehicle: str) -> Track:
         return self.tracks.setdefault(vehicle, Track())
@@ -91,7 +127,7 @@ class FlightLog:
         if unknown:
             raise ValueError(f"unknown flight.csv columns: {sorted(unknown)}")
         if self._flight is not None:
-            self._flight.writerow([_fmt(values.get(c)) for c in FLIGHT_COLUMNS])
+            self._write(self._files[0], self._flight, [_fmt(values.get(c)) for c in FLIGHT_COLUMNS])
         self._maybe_flush()
 
     def traffic(self, t_sim_s: float, callsign: str, via: str, x_m: float, y_m: float,
@@ -102,8 +138,16 @@ class FlightLog:
         self._last_traffic[key] = t_sim_s
         self.traffic_rows += 1
         if self._traffic is not None:
-            self._traffic.writerow([_fmt(t_sim_s), callsign, via, _fmt(x_m), _fmt(y_m), _fmt(vx_m_s), _fmt(vy_m_s)])
+            self._write(self._files[1], self._traffic,
+                        [_fmt(t_sim_s), callsign, via, _fmt(x_m), _fmt(y_m), _fmt(vx_m_s), _fmt(vy_m_s)])
         self._maybe_flush()
+
+    def _write(self, f: IO[str], writer, row: list[str]) -> None:
+        try:
+            writer.writerow(row)
+            self._rows[Path(f.name).name] += 1
+        except OSError as exc:
+            self._stop(f, exc)
 
     def _maybe_flush(self) -> None:
         if time.monotonic() - self._last_flush >= self.flush_every_s:
@@ -111,5 +155,10 @@ class FlightLog:
 
     def flush(self) -> None:
         for f in self._files:
-            f.flush()
+            if f.closed:
+                continue
+            try:
+                f.flush()
+            except OSError as exc:
+                self._stop(f, exc)
         self._last_flush = time.monotonic()

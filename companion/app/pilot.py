@@ -257,7 +257,11 @@ class Pilot(Departure, Steering):
             raise MissionAborted("link_lost", f"no fresh telemetry for {stale_wall_s:.1f} s wall", vehicle=self.name)
 
     def _check_link_identity(self) -> None:
-        why = self.vehicle.status().link_anomaly
+        st = self.vehicle.status()
+        if st.link_conflict is not None:
+            raise MissionAborted("link_conflict", f"{st.link_conflict}; the second is not obeyed; holding",
+                                 vehicle=self.name)
+        why = st.link_anomaly
         if why is not None:
             raise MissionAborted("link_identity", f"{why}: another system answers with this vehicle's id; "
                                  "holding", vehicle=self.name)

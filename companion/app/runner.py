@@ -1,19 +1,21 @@
 """The mission runner: connect every vehicle, fly them all with one task group, score the flight.
 
     run_mission(plan, connections, settings, out_dir, report, stop) -> RunResult
+    save_run(out_dir, plan, result, problems)  -> SaveReport   (summary.json, then trajectory.png)
 
 One Mavsdk connection per vehicle (opened in mission order, closed in reverse), one
 :class:`~companion.app.pilot.Pilot` task per vehicle inside the mission's task group, and one
 watcher task that turns an operator's stop request (Ctrl-C, SIGTERM) into ``interrupted``. Any
 pilot's failure cancels the others; every pilot leaves its vehicle safe on the way out. The flown
 tracks are scored by the shared metrics module, exactly as ``companion simulate`` scores its own.
+The flight logs (flight.csv, traffic.csv) are written into ``out_dir`` as the flight goes; the
+summary and the picture are written by :func:`save_run` once the caller has shown the verdict.
 """
 
 from __future__ import annotations
 
 import asyncio
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -29,6 +31,7 @@ from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings
 from companion.app.preflight import PreflightSettings
 from companion.app.readiness import get_ready
+from companion.app.results import SaveReport, save_results
 from companion.app.warmup import warm_up_planners
 from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
                               PreflightRefused, VehicleNotReady, primary_error)
@@ -49,6 +52,8 @@ class RunResult:
     reason: str | None  # None on success
     message: str | None
     wall_s: float
+    tracks: dict[str, Track] = dataclasses.field(default_factory=dict)  # as flown, for the picture
+    log_problems: tuple[str, ...] = ()  # flight logs that are not complete on disk
 
     @property
     def success(self) -> bool:
@@ -133,12 +138,11 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
         # Seconds of pure numpy, once the vehicles are done with. Not in a worker thread: beside the
         # in-process fleet's busy loop, the GIL hand-offs of numpy calls stalled it for minutes.
         doc["occlusion_certificate"] = _certificate_doc(plan)
-        if out_dir is not None:
-            (out_dir / "summary.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-            _plot(out_dir / "trajectory.png", plan, log)
+        log_problems = tuple(log.problems())
     final_reason = reason if reason is not None else (None if summary is not None and summary.success
                                                       else (summary.reason if summary else "incomplete"))
-    return RunResult(summary, doc, outcomes, final_reason, message, time.monotonic() - started)
+    return RunResult(summary, doc, outcomes, final_reason, message, time.monotonic() - started,
+                     tracks=_tracks(log), log_problems=log_problems)
 
 
 def _certificate_doc(plan: FlightPlan) -> dict[str, Any] | None:
@@ -210,10 +214,13 @@ def _summary_doc(plan: FlightPlan, summary: RunSummary | None, outcomes: Mapping
     return doc
 
 
-def _plot(path: Path, plan: FlightPlan, log: FlightLog) -> None:
+def save_run(out_dir: Path, plan: FlightPlan, result: RunResult, problems: tuple[str, ...] = ()) -> SaveReport:
+    """summary.json, then trajectory.png, into ``out_dir``; ``problems`` are other outputs that
+    are incomplete (e.g. the stub's .tlog), named in the summary with the flight logs'."""
     from companion.plots import save_trajectory
-    tracks = _tracks(log)
-    save_trajectory(path, plan.mission, tracks, plan.routes)
+    return save_results(out_dir, result.summary_dict, [
+        ("trajectory.png", lambda path: save_trajectory(path, plan.mission, result.tracks, plan.routes))],
+        problems=(*result.log_problems, *problems))
 
 
 def summary_table(plan: FlightPlan, result: RunResult) -> str:

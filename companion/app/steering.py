@@ -169,7 +169,8 @@ class Steering:
 
     # -- logging ----------------------------------------------------------------------------
     def _record(self, pose: PoseSample) -> None:
-        self.ctx.log.track(self.name).add(self.ctx.track_time(self, pose.t_sim_s), pose.x_east_m, pose.y_north_m)
+        if pose.plausible:  # a sample that jumped (another system's, on a shared id) is no path flown
+            self.ctx.log.track(self.name).add(self.ctx.track_time(self, pose.t_sim_s), pose.x_east_m, pose.y_north_m)
 
     def _remaining_m(self, pose: PoseSample) -> float:
         nodes = self.planner.tracker.nodes

@@ -25,6 +25,8 @@ from companion.vehicle.link_probe import listen
 from uav_model.mission import Mission
 
 READY_MARK = b"running at"
+TLOG_ERROR_MARK = b"tlog error:"  # sim_bridge.tlog's line when the disk refuses the recording
+LOOPBACK = "127.0.0.1"  # the embedded stub's vehicles are on this host: nobody else may talk to MAVSDK
 DEFAULT_PORT_BASE = 14540
 PORT_PROBE_S = 0.3  # wall: an autopilot streams telemetry many times a second
 PORT_BASE_STEP = 20  # the next candidate block (14540, 14560, ...), clear of PX4's GCS port 14550
@@ -65,7 +67,7 @@ async def port_busy(port: int) -> str | None:
     """Why the embedded stub cannot use UDP ``port`` for a vehicle link, or None if it is free
     and quiet (nobody listening on it, nobody sending to it)."""
     try:
-        senders = await listen("0.0.0.0", port, PORT_PROBE_S)
+        senders = await listen(LOOPBACK, port, PORT_PROBE_S)
     except OSError as exc:
         return f"taken by another program ({exc.strerror})"
     if senders:
@@ -101,25 +103,41 @@ async def choose_port_base(count: int, requested: int | None, gcs_port: int | No
 
 
 def connections(mission: Mission, api_port_base: int) -> dict[str, str]:
-    """The MAVSDK URL of each vehicle of the embedded stub (PX4 SITL: 14540 + i)."""
-    return {v.name: f"udpin://0.0.0.0:{api_port_base + v.index}" for v in mission.vehicles}
+    """The MAVSDK URL of each vehicle of the embedded stub (PX4 SITL: 14540 + i), on loopback
+    only (SPEC section 4): ``--connect`` is how to listen on another address."""
+    return {v.name: f"udpin://{LOOPBACK}:{api_port_base + v.index}" for v in mission.vehicles}
 
 
 async def _drain(stream: asyncio.StreamReader, sink: IO[bytes] | None, ready: asyncio.Event,
-                 tail: deque[bytes]) -> None:
+                 tail: deque[bytes], notices: list[str] | None) -> None:
     while line := await stream.readline():
         tail.append(line.rstrip())
-        if sink is not None:
-            sink.write(line)
-            sink.flush()
+        if sink is not None and not sink.closed:
+            try:
+                sink.write(line)
+                sink.flush()
+            except OSError as exc:  # a full disk: the stub keeps flying, its log ends here
+                if notices is not None:
+                    notices.append(f"{Path(sink.name).name} (stopped: {exc.strerror})")
+                _close_quietly(sink)
         if READY_MARK in line:
             ready.set()
+        if TLOG_ERROR_MARK in line and notices is not None:
+            notices.append(line[line.index(TLOG_ERROR_MARK) + len(TLOG_ERROR_MARK):].decode(errors="replace").strip())
+
+
+def _close_quietly(f: IO[bytes]) -> None:
+    try:
+        f.close()
+    except OSError:
+        pass
 
 
 @asynccontextmanager
-async def embedded_stub(mission: Mission, options: StubOptions, *,
-                        ready_timeout_s: float = 20.0) -> AsyncIterator[dict[str, str]]:
-    """Run the stub for ``mission`` while the context is open; yields the vehicles' URLs."""
+async def embedded_stub(mission: Mission, options: StubOptions, *, ready_timeout_s: float = 20.0,
+                        notices: list[str] | None = None) -> AsyncIterator[dict[str, str]]:
+    """Run the stub for ``mission`` while the context is open; yields the vehicles' URLs. The
+    stub's output problems (a .tlog the disk refused, its log) are appended to ``notices``."""
     sink = open(options.log_path, "wb") if options.log_path is not None else None
     proc = await asyncio.create_subprocess_exec(
         *options.argv(Path(mission.source)), stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE,
@@ -129,7 +147,7 @@ async def embedded_stub(mission: Mission, options: StubOptions, *,
     try:
         async with asyncio.TaskGroup() as tg:
             assert proc.stdout is not None
-            drain = tg.create_task(_drain(proc.stdout, sink, ready, tail), name="stub-output")
+            drain = tg.create_task(_drain(proc.stdout, sink, ready, tail, notices), name="stub-output")
             waiter = tg.create_task(ready.wait(), name="stub-ready")
             try:
                 await asyncio.wait({drain, waiter}, timeout=ready_timeout_s, return_when=asyncio.FIRST_COMPLETED)
@@ -152,7 +170,7 @@ async def embedded_stub(mission: Mission, options: StubOptions, *,
         if proc.returncode is None:
             await _terminate(proc)
         if sink is not None:
-            sink.close()
+            _close_quietly(sink)
 
 
 async def _terminate(proc: asyncio.subprocess.Process, grace_s: float = 5.0) -> None:

@@ -63,6 +63,7 @@ class VehicleBoard:
         self.texts: deque[tuple[float, str]] = deque(maxlen=64)  # (wall, STATUSTEXT) as heard
         self._clock_backsteps = 0
         self._jumps: deque[bool] = deque(maxlen=JUMP_WINDOW)
+        self._last_plausible: PoseSample | None = None
         self._rate = SimRateEstimator()  # sim seconds per wall second, robust to late bursts
 
     @property
@@ -133,14 +134,20 @@ class VehicleBoard:
             await self.put_status(failsafe_notices=self._status.failsafe_notices + 1, last_failsafe_t_sim_s=clock)
 
     async def put_pose(self, **fields: float) -> PoseSample:
-        if self._pose is not None and self._status.link_anomaly is None:
-            why = implausible_jump(self._pose, fields["x_east_m"], fields["y_north_m"], fields["t_sim_s"])
-            self._jumps.append(why is not None)
-            if why is not None and sum(self._jumps) >= JUMPS_TO_FLAG:
-                self._status = dataclasses.replace(self._status, link_anomaly=(
-                    f"{sum(self._jumps)} of the last {len(self._jumps)} positions jumped (last: {why})"))
+        """A new sample. One that jumped from the last plausible one is marked implausible (the
+        flown path leaves it out); enough of them flag a link anomaly."""
+        why = None
+        if self._last_plausible is not None:
+            why = implausible_jump(self._last_plausible, fields["x_east_m"], fields["y_north_m"], fields["t_sim_s"])
+            if self._status.link_anomaly is None:
+                self._jumps.append(why is not None)
+                if why is not None and sum(self._jumps) >= JUMPS_TO_FLAG:
+                    self._status = dataclasses.replace(self._status, link_anomaly=(
+                        f"{sum(self._jumps)} of the last {len(self._jumps)} positions jumped (last: {why})"))
         self._seq += 1
-        self._pose = PoseSample(seq=self._seq, t_wall_s=time.monotonic(), **fields)
+        self._pose = PoseSample(seq=self._seq, t_wall_s=time.monotonic(), plausible=why is None, **fields)
+        if why is None:
+            self._last_plausible = self._pose
         await self._notify()
         return self._pose
 

@@ -20,13 +20,32 @@ PROBE_S = 0.6  # wall; PX4 streams ATTITUDE at 100 Hz and the stub at 20 Hz: ple
 MAVLINK_V1, MAVLINK_V2 = 0xFE, 0xFD
 
 
+MAVLINK_IFLAG_SIGNED = 0x01
+SIGNATURE_BYTES = 13
+
+
+def frame_system_ids(datagram: bytes) -> list[int]:
+    """The system id of every MAVLink frame (v1 or v2) packed one after another in a datagram, as
+    far as the headers can be followed (an autopilot may send several messages in one datagram)."""
+    ids: list[int] = []
+    i, n = 0, len(datagram)
+    while i < n:
+        if datagram[i] == MAVLINK_V2 and i + 10 <= n:
+            ids.append(datagram[i + 5])
+            signed = datagram[i + 2] & MAVLINK_IFLAG_SIGNED
+            i += 12 + datagram[i + 1] + (SIGNATURE_BYTES if signed else 0)
+        elif datagram[i] == MAVLINK_V1 and i + 6 <= n:
+            ids.append(datagram[i + 3])
+            i += 8 + datagram[i + 1]
+        else:
+            break  # not a frame start: the rest cannot be followed
+    return ids
+
+
 def sender_system_id(datagram: bytes) -> int | None:
     """The system id in the first MAVLink header of a datagram (v1 or v2), or None."""
-    if len(datagram) >= 6 and datagram[0] == MAVLINK_V2:
-        return datagram[5] if len(datagram) >= 10 else None
-    if len(datagram) >= 4 and datagram[0] == MAVLINK_V1:
-        return datagram[3]
-    return None
+    ids = frame_system_ids(datagram)
+    return ids[0] if ids else None
 
 
 def udpin_port(url: str) -> tuple[str, int] | None:

@@ -25,7 +25,7 @@ from typing import TypeVar
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, MavsdkConnectionError
 from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync, MissionRawError
-from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError, VelocityBodyYawspeed
+from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import FlightMode as MavFlightMode
 from mavsdk.asyncio.plugins.telemetry import LandedState as MavLandedState
@@ -38,7 +38,9 @@ from companion.errors import CommandRefused, ConnectTimeout, LinkError, MissionU
 from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import (  # shared with the in-process adapter
     MAV_FRAME_GLOBAL, FenceItem, fence_items, fence_zones, traffic_velocity_enu)
-from companion.vehicle.link_probe import probe_udpin
+from companion.vehicle.link_guard import LinkGuard, guarded_link
+from companion.vehicle.mavsdk_items import (MAV_MISSION_TYPE_FENCE, body_setpoint, items_to_waypoints,
+                                            waypoints_to_items)
 from companion.vehicle.mavsdk_params import MavsdkParams
 from companion.vehicle.port import (FlightMode, GeoFenceZone, GeoWaypoint, LandedState, TrafficReport,
                                     VelocityYawRateSetpoint)
@@ -47,10 +49,6 @@ log = logging.getLogger(__name__)
 
 T = TypeVar("T")
 
-MAV_CMD_NAV_WAYPOINT = 16
-MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
-MAV_MISSION_TYPE_MISSION = 0
-MAV_MISSION_TYPE_FENCE = 1
 COMMAND_TIMEOUT_S = 5.0  # wall; MAVSDK itself retries a COMMAND_LONG for ~0.5 s x 3
 # The pumped streams, in Hz of the vehicle's clock (SET_MESSAGE_INTERVAL): PX4 sends ATTITUDE at 100 Hz
 # of sim time (400/s of wall at 4x), more than MAVSDK's callback queue and a loaded loop keep up with.
@@ -74,33 +72,12 @@ _LANDED = {
 }
 
 
-def waypoints_to_items(waypoints: Sequence[GeoWaypoint], acceptance_radius_m: float) -> list[MissionItem]:
-    """MISSION_ITEM_INT NAV_WAYPOINTs (lat/lon in 1e-7 degrees, altitude above home)."""
-    return [MissionItem(seq=i, frame=MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=MAV_CMD_NAV_WAYPOINT,
-                        current=1 if i == 0 else 0, autocontinue=1,
-                        param1=0.0, param2=float(acceptance_radius_m), param3=0.0, param4=float("nan"),
-                        x=int(round(w.lat_deg * 1e7)), y=int(round(w.lon_deg * 1e7)), z=float(w.alt_rel_m),
-                        mission_type=MAV_MISSION_TYPE_MISSION)
-            for i, w in enumerate(waypoints)]
-
-
-def items_to_waypoints(items: Sequence[MissionItem]) -> tuple[GeoWaypoint, ...]:
-    return tuple(GeoWaypoint(lat_deg=it.x / 1e7, lon_deg=it.y / 1e7, alt_rel_m=float(it.z))
-                 for it in items if it.command == MAV_CMD_NAV_WAYPOINT)
-
-
-def body_setpoint(sp: VelocityYawRateSetpoint) -> VelocityBodyYawspeed:
-    """The port's setpoint as MAVSDK's BODY_NED velocity + PX4 (clockwise) yawspeed."""
-    yawspeed = frames.enu_yaw_rate_to_ned(sp.yaw_rate_enu_rad_s)
-    return VelocityBodyYawspeed(forward_m_s=float(sp.forward_m_s), right_m_s=0.0,
-                                down_m_s=float(-sp.climb_m_s), yawspeed_deg_s=math.degrees(yawspeed))
-
-
 class MavsdkVehicle(BoardReaders):
     """One autopilot over its own Mavsdk instance. Build with :func:`open_mavsdk_vehicle`."""
 
-    def __init__(self, name: str, system_id: int, system, origin: frames.GeoOrigin):
+    def __init__(self, name: str, system_id: int, system, origin: frames.GeoOrigin, guard: LinkGuard | None = None):
         self._name = name
+        self._guard = guard
         self._system_id = system_id
         self._origin = origin
         self._board = VehicleBoard(name)
@@ -267,7 +244,7 @@ class MavsdkVehicle(BoardReaders):
     def start_pumps(self, tg: asyncio.TaskGroup) -> list[asyncio.Task]:
         pumps = (self._limit_stream_rates, self._pump_attitude, self._pump_position, self._pump_velocity,
                  self._pump_mode, self._pump_armed, self._pump_landed, self._pump_health, self._pump_battery,
-                 self._pump_traffic, self._pump_text, self._pump_gps, self._pump_home)
+                 self._pump_traffic, self._pump_text, self._pump_gps, self._pump_home, self._pump_link_guard)
         return [tg.create_task(p(), name=f"{self._name}:{p.__name__}") for p in pumps]
 
     async def _maybe_emit(self) -> None:
@@ -330,6 +307,11 @@ class MavsdkVehicle(BoardReaders):
         async for h in self._stream(self._telemetry.subscribe_health()):
             await self._board.put_status(home_ok=bool(h.is_home_position_ok))
 
+    async def _pump_link_guard(self) -> None:
+        if self._guard is not None:
+            await self._guard.conflicted.wait()
+            await self._board.put_status(link_conflict=self._guard.conflict)
+
     async def _pump_battery(self) -> None:
         async for b in self._stream(self._telemetry.subscribe_battery()):
             pct = float(b.remaining_percent)
@@ -352,13 +334,21 @@ class MavsdkVehicle(BoardReaders):
 @asynccontextmanager
 async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frames.GeoOrigin, *,
                               connect_timeout_s: float = 15.0) -> AsyncIterator[MavsdkVehicle]:
-    """Connect to the autopilot on ``url`` and run its telemetry pumps while the context is open."""
-    await probe_udpin(url, system_id, name)  # two autopilots answering as one: refuse before MAVSDK mixes them
+    """Connect to the autopilot on ``url`` and run its telemetry pumps while the context is open.
+    A ``udpin://`` port is held by a :class:`LinkGuard` that sees each datagram's source."""
+    async with guarded_link(url, system_id, name) as (mavsdk_url, guard):
+        async with _open(name, system_id, url, mavsdk_url, guard, origin, connect_timeout_s) as vehicle:
+            yield vehicle
+
+
+@asynccontextmanager
+async def _open(name: str, system_id: int, url: str, mavsdk_url: str, guard: LinkGuard | None,
+                origin: frames.GeoOrigin, connect_timeout_s: float) -> AsyncIterator[MavsdkVehicle]:
     sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
     try:
         try:
             async with asyncio.timeout(connect_timeout_s):
-                await sdk.add_any_connection(url)
+                await sdk.add_any_connection(mavsdk_url)
         except MavsdkConnectionError as exc:
             raise LinkError(f"cannot open connection {url!r}: {exc}", vehicle=name) from None
         except TimeoutError:
@@ -374,7 +364,7 @@ async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frame
         if got != system_id:
             raise LinkError(f"the autopilot on {url} has system id {got}, the mission expects {system_id}",
                             vehicle=name)
-        vehicle = MavsdkVehicle(name, system_id, system, origin)
+        vehicle = MavsdkVehicle(name, system_id, system, origin, guard)
         try:
             async with asyncio.TaskGroup() as tg:
                 pumps = vehicle.start_pumps(tg)

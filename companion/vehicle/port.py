@@ -55,6 +55,7 @@ class PoseSample:
     vy_north_m_s: float
     heading_enu_rad: float
     seq: int  # strictly increasing per vehicle; lets waiters ask for "something newer"
+    plausible: bool = True  # False: it jumped from the last plausible sample (another system's?); kept out of metrics
 
     @property
     def ground_speed_m_s(self) -> float:
@@ -75,6 +76,7 @@ class VehicleStatus:
     failsafe_notices: int = 0  # "Failsafe activated" / "Offboard control lost" texts heard so far
     last_failsafe_t_sim_s: float | None = None  # the vehicle's clock when the latest of them was heard
     link_anomaly: str | None = None  # telemetry no single vehicle can produce (two systems on one link)
+    link_conflict: str | None = None  # this vehicle's system id heard from a second source address (LinkGuard)
     mode_changes: int = 0  # how many mode changes were heard: a brief failsafe shows even if it is over
     last_other_mode: FlightMode | None = None  # the latest mode heard that was not OFFBOARD
 

@@ -11,9 +11,9 @@ from uav_model import frames
 from companion.app.flight_plan import prepare, verify_readback
 from companion.errors import MissionUploadError
 from uav_model.mission import MissionError, load_mission
-from companion.vehicle.mavsdk_vehicle import (MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                                              body_setpoint, items_to_waypoints, traffic_velocity_enu,
-                                              waypoints_to_items)
+from companion.vehicle.convert import traffic_velocity_enu
+from companion.vehicle.mavsdk_items import (MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, body_setpoint,
+                                            items_to_waypoints, waypoints_to_items)
 from companion.vehicle.port import GeoWaypoint, VelocityYawRateSetpoint
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -9,11 +9,12 @@ import socket
 from pathlib import Path
 
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 from companion.app.preflight import (Check, PreflightSettings, Severity, VehicleFacts, battery_need_pct, preflight)
 from companion.errors import LinkConflict
 from companion.vehicle.board import VehicleBoard, implausible_jump
-from companion.vehicle.link_probe import probe_udpin, sender_system_id
+from companion.vehicle.link_probe import frame_system_ids, probe_udpin, sender_system_id
 from companion.vehicle.port import FlightMode, PoseSample
 from uav_model.mission import load_mission
 
@@ -133,16 +134,22 @@ def test_board_flags_two_interleaved_vehicles_but_not_one_jump():
     async def main():
         board = VehicleBoard("a")
         t = 0.0
+        glitch = []
         for i in range(10):  # one vehicle, one glitch
             t += 0.05
-            await board.put_pose(t_sim_s=t, x_east_m=0.5 * i + (40.0 if i == 5 else 0.0), y_north_m=0.0,
-                                 alt_rel_m=20.0, vx_east_m_s=0.0, vy_north_m_s=0.0, heading_enu_rad=0.0)
+            p = await board.put_pose(t_sim_s=t, x_east_m=0.5 * i + (40.0 if i == 5 else 0.0), y_north_m=0.0,
+                                     alt_rel_m=20.0, vx_east_m_s=0.0, vy_north_m_s=0.0, heading_enu_rad=0.0)
+            glitch.append(p.plausible)
         assert board.status().link_anomaly is None
+        assert glitch == [i != 5 for i in range(10)]  # only the glitch is kept out of the flown path
+        mixed = []
         for i in range(6):  # two vehicles 900 m apart answering as one
             t += 0.05
-            await board.put_pose(t_sim_s=t, x_east_m=900.0 * (i % 2), y_north_m=0.0, alt_rel_m=20.0,
-                                 vx_east_m_s=0.0, vy_north_m_s=0.0, heading_enu_rad=0.0)
+            p = await board.put_pose(t_sim_s=t, x_east_m=900.0 * (i % 2), y_north_m=0.0, alt_rel_m=20.0,
+                                     vx_east_m_s=0.0, vy_north_m_s=0.0, heading_enu_rad=0.0)
+            mixed.append(p.plausible)
         assert "positions jumped" in board.status().link_anomaly
+        assert mixed == [True, False, True, False, True, False]  # the other vehicle's samples, every one
         await board.put_status(mode=FlightMode.OFFBOARD)
         await board.put_status(mode=FlightMode.RETURN_TO_LAUNCH)
         await board.put_status(mode=FlightMode.OFFBOARD)
@@ -157,6 +164,19 @@ def test_sender_system_id_reads_v1_and_v2_headers():
     assert sender_system_id(bytes([0xFD, 9, 0, 0, 7, 42, 1, 0, 0, 0]) + bytes(11)) == 42
     assert sender_system_id(bytes([0xFE, 9, 7, 3, 1, 0]) + bytes(11)) == 3
     assert sender_system_id(b"hello") is None
+
+
+def test_frame_system_ids_follows_every_frame_of_a_datagram():
+    """A spoofer cannot hide a frame behind another system's: every header is read."""
+    other, ours = mavlink.MAVLink(None, 7, 1), mavlink.MAVLink(None, 1, 1)
+    signed = mavlink.MAVLink(None, 3, 1)
+    signed.signing.secret_key, signed.signing.sign_outgoing = bytes(32), True
+    hb = (mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    data = (mavlink.MAVLink_heartbeat_message(*hb, 3).pack(other) + mavlink.MAVLink_heartbeat_message(*hb, 3).pack(signed)
+            + mavlink.MAVLink_heartbeat_message(*hb, 3).pack(ours))
+    assert frame_system_ids(data) == [7, 3, 1]
+    assert frame_system_ids(data[:-3]) == [7, 3, 1]  # a truncated last frame still names its sender
+    assert frame_system_ids(b"\x00" + data) == []
 
 
 def test_probe_refuses_two_senders_with_one_system_id():

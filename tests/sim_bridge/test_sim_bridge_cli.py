@@ -48,7 +48,7 @@ def test_cli_serves_each_vehicle_on_its_port_and_stops_on_sigint(tmp_path: Path)
         assert proc.stdout is not None
         banner = [proc.stdout.readline() for _ in range(5)]
         assert f"vehicle a: sysid 7 -> 127.0.0.1:{api0}" in banner[0]
-        assert f"udpin://0.0.0.0:{api0 + 1}" in banner[1]
+        assert f"udpin://127.0.0.1:{api0 + 1}" in banner[1]
         assert "running at 4x" in banner[-1]
         parser = mavlink.MAVLink(None, 0, 0)
         for sock, sysid in zip(listeners, (7, 9)):
