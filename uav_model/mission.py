@@ -8,15 +8,14 @@ The typed objects are in :mod:`uav_model.mission_types`, what a MissionError rep
 lines are found in :mod:`uav_model.mission_errors`, how a file is read within its limits
 (:mod:`uav_model.mission_limits`) in :mod:`uav_model.mission_read`; import them all from here.
 
-Numbers are finite everywhere: NaN and infinity fail the schema's ``number`` type (JSON has
-neither, and the published schema cannot say so, so the validator here does).
+Numbers are finite everywhere: NaN and infinity fail the schema's ``number`` type
+(:mod:`uav_model.mission_validator`).
 """
 
 from __future__ import annotations
 
 import copy
 import json
-import math
 import re
 from dataclasses import dataclass, fields
 from functools import lru_cache
@@ -33,6 +32,7 @@ from uav_model.mission_errors import MissionError, dotted, fail, innermost, line
 from uav_model.mission_limits import MAX_GRID_CELLS, grid_shape
 from uav_model.mission_points import latlon_slips, localise
 from uav_model.mission_read import load_yaml, mission_error, read_text
+from uav_model.mission_validator import mission_validator
 from uav_model.mission_types import (VARIANTS, CoordinationSettings, Forecast, Mission, Normalisation, PlannerSettings,
                                      SafetySettings, SightlineCritic, SpawnHeading, Variant, VehicleSpec, shared_goals)
 from uav_model.plant import Plant
@@ -54,16 +54,10 @@ def mission_schema() -> dict[str, Any]:
     return json.loads(text)
 
 
-def _finite_number(checker: jsonschema.TypeChecker, instance: Any) -> bool:
-    return jsonschema._types.is_number(checker, instance) and (not isinstance(instance, float) or math.isfinite(instance))
-
-
 @lru_cache(maxsize=1)
 def _validator() -> jsonschema.protocols.Validator:
-    """The published schema's validator, with ``number`` meaning a finite number."""
-    base = jsonschema.Draft202012Validator
-    cls = jsonschema.validators.extend(base, type_checker=base.TYPE_CHECKER.redefine("number", _finite_number))
-    return cls(mission_schema())
+    """The published schema's validator (:mod:`uav_model.mission_validator`: finite numbers)."""
+    return mission_validator(mission_schema())
 
 
 def load_mission(path: str | Path) -> Mission:
