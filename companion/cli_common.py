@@ -13,11 +13,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from companion.app.results import OutputNotWritable, QuietFileHandler, prepare_output
+from companion.planning.budget import BudgetSpent
 from uav_model.mission import VARIANTS, Mission, MissionError
 from uav_model.plant import Plant
 
@@ -104,3 +108,56 @@ def quiet_mavsdk(out_dir: Path | None) -> QuietFileHandler | None:
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root.addHandler(handler)
     return handler
+
+
+CERTIFICATE_BUDGET_S = 20.0  # with imports and loading, a mission at the schema's limits validates in < 30 s
+
+
+def add_certificate_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--no-certificate", action="store_true",
+                        help="skip the occlusion certificate (whether the sight line can be kept blocked)")
+    parser.add_argument("--certificate-budget", type=_seconds, default=CERTIFICATE_BUDGET_S, metavar="S",
+                        help=f"wall seconds the certificate may take before it says 'undecided within budget' "
+                             f"(default {CERTIFICATE_BUDGET_S:g})")
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text}: must be a positive number of seconds")
+    return value
+
+
+def with_certificate_options(plan: FlightPlan, args: argparse.Namespace) -> FlightPlan:
+    """The plan with ``--no-certificate`` / ``--certificate-budget`` applied (when the command has them)."""
+    if not hasattr(args, "no_certificate"):
+        return plan
+    return dataclasses.replace(plan, with_certificate=not args.no_certificate,
+                               certificate_budget=WallBudget(args.certificate_budget, "occlusion certificate"))
+
+
+class WallBudget:
+    """A work budget (:mod:`companion.planning.budget`) of wall seconds, counted from the first
+    unit spent, that shows progress on stderr every ``every_s`` seconds."""
+
+    def __init__(self, seconds: float, what: str, every_s: float = 5.0,
+                 clock: Callable[[], float] = time.monotonic):
+        self.seconds, self.what, self.every_s, self.clock = seconds, what, every_s, clock
+        self.units = 0
+        self.started: float | None = None
+        self._next_report = math.inf
+
+    def spend(self, units: int = 1) -> None:
+        now = self.clock()
+        if self.started is None:
+            self.started, self._next_report = now, now + self.every_s
+        self.units += units
+        if now - self.started > self.seconds:
+            raise BudgetSpent(f"{self.seconds:g} s budget spent")
+        if now >= self._next_report:
+            self._next_report += self.every_s
+            print(f"{self.what}: {now - self.started:.0f} s of at most {self.seconds:g} s, {self.units} work units "
+                  f"(--certificate-budget S to change, --no-certificate to skip)", file=sys.stderr, flush=True)

@@ -34,15 +34,15 @@ from companion.app.preflight import PreflightSettings
 from companion.app.results import release_reserve
 from companion.app.runner import RunResult, run_mission, save_run, summary_table
 from companion.errors import CompanionError, PreflightRefused
-from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_no_fence_option,
-                                  add_variant_option, bad_input, connections, output_dir, quiet_mavsdk)
+from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_certificate_options,
+                                  add_no_fence_option, add_variant_option, bad_input, connections, output_dir,
+                                  quiet_mavsdk, with_certificate_options)
 from uav_model.mission import MissionError, load_mission, mission_schema, shared_goals
 
 if TYPE_CHECKING:
     from companion.sitl.inprocess import InProcessOptions
 
 log = logging.getLogger("companion")
-
 
 
 # -- argument helpers ---------------------------------------------------------------------
@@ -114,6 +114,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
     add_sim_options(p)
     add_no_fence_option(p)
+    add_certificate_options(p)
     p.add_argument("--shared-clock", action="store_true", default=None,
                    help="with --connect: assert that every vehicle stamps telemetry with one sim clock (an external "
                         "sim-bridge). Not needed: the companion detects it when the vehicles' clocks agree")
@@ -137,6 +138,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="check a mission file (schema, geometry, reachability)")
     p.add_argument("mission", type=Path)
     add_variant_option(p)
+    add_certificate_options(p)
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("plan", help="global routes and a plot, no vehicles")
@@ -164,7 +166,7 @@ def _planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callab
     def with_plan(args: argparse.Namespace) -> int:
         try:
             plan = prepare(load_mission(args.mission), args.variant)
-            plan = dataclasses.replace(plan, geofence=not getattr(args, "no_fence", False))
+            plan = with_certificate_options(dataclasses.replace(plan, geofence=not getattr(args, "no_fence", False)), args)
         except MissionError as exc:
             return bad_input(exc)
         return handler(args, plan)
@@ -195,6 +197,8 @@ def cmd_validate(args: argparse.Namespace, plan: FlightPlan) -> int:
           f"({len(m.world.moving_obstacles)} moving), variant {plan.variant}" + (f"; routes {routes}" if routes else ""))
     if plan.certificate is not None:
         print(plan.certificate.describe())
+        if (advice := plan.certificate_advice()) is not None:
+            print(f"  {advice}")
     return EXIT_OK
 
 

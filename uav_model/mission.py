@@ -5,7 +5,11 @@ message names the file, the line and the field path; everything downstream recei
 already-valid objects.
 
 The typed objects are in :mod:`uav_model.mission_types`, what a MissionError reports and how its
-lines are found in :mod:`uav_model.mission_errors`; import them all from here.
+lines are found in :mod:`uav_model.mission_errors`, how a file is read within its limits
+(:mod:`uav_model.mission_limits`) in :mod:`uav_model.mission_read`; import them all from here.
+
+Numbers are finite everywhere: NaN and infinity fail the schema's ``number`` type
+(:mod:`uav_model.mission_validator`).
 """
 
 from __future__ import annotations
@@ -24,9 +28,11 @@ import yaml
 from shapely.geometry import Point
 
 from uav_model.frames import GeoOrigin
-from uav_model.mission_errors import (MissionError, StrictLoader, dotted, fail, line_of, mission_error,
-                                      schema_reason)
+from uav_model.mission_errors import MissionError, dotted, fail, innermost, line_of, schema_reason
+from uav_model.mission_limits import MAX_GRID_CELLS, grid_shape
 from uav_model.mission_points import latlon_slips, localise
+from uav_model.mission_read import load_yaml, mission_error, read_text
+from uav_model.mission_validator import mission_validator
 from uav_model.mission_types import (VARIANTS, CoordinationSettings, Forecast, Mission, Normalisation, PlannerSettings,
                                      SafetySettings, SightlineCritic, SpawnHeading, Variant, VehicleSpec, shared_goals)
 from uav_model.plant import Plant
@@ -48,28 +54,20 @@ def mission_schema() -> dict[str, Any]:
     return json.loads(text)
 
 
+@lru_cache(maxsize=1)
+def _validator() -> jsonschema.protocols.Validator:
+    """The published schema's validator (:mod:`uav_model.mission_validator`: finite numbers)."""
+    return mission_validator(mission_schema())
+
+
 def load_mission(path: str | Path) -> Mission:
     """Read, validate and type a mission file. Raises MissionError, never anything else."""
-    source = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise MissionError(source, "", "file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MissionError(source, "", f"cannot read file: {exc}") from None
-    return parse_mission(text, source)
+    return parse_mission(read_text(path), str(path))
 
 
 def parse_mission(text: str, source: str = "<mission>") -> Mission:
     """Validate and type mission YAML text; ``source`` names it in errors."""
-    try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.load(text, Loader=StrictLoader)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = mark.line + 1 if mark is not None else None
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise MissionError(source, "", f"YAML syntax: {problem}", line) from None
+    data, root = load_yaml(text, source)
     if not isinstance(data, dict):
         raise MissionError(source, "", "a mission file must be a YAML mapping", line_of(root, []))
     return _validated(data, source, root)
@@ -86,14 +84,9 @@ def mission_from_data(data: dict[str, Any], source: str = "<mission>") -> Missio
 
 def _schema_problems(data: dict[str, Any], source: str, root: yaml.Node | None) -> list[MissionError]:
     """Every schema violation, one per field (not only the first)."""
-    validator = jsonschema.Draft202012Validator(mission_schema())
     problems: dict[str, MissionError] = {}
-    for err in validator.iter_errors(data):
-        best = err
-        # Descend into if/then and oneOf branches so the message names the real field.
-        while best.context:
-            best = jsonschema.exceptions.best_match(best.context)
-        path, reason = schema_reason(best)
+    for err in _validator().iter_errors(data):
+        path, reason = schema_reason(innermost(err))
         problems.setdefault(dotted(path), MissionError(source, dotted(path), reason, line_of(root, path)))
     return list(problems.values())
 
@@ -170,6 +163,11 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
     coordination = CoordinationSettings(**{k: kind[k](_opt(coord_raw, cdef, k)) for k in cdef})
     report = _Problems(source, root, problems)
     world = _world(data, planner.inflation_ratio, report, broken)
+    nx, ny = grid_shape(world.geofence.bounds, planner.grid_resolution_m)
+    if nx * ny > MAX_GRID_CELLS:
+        report.add(["planner", "grid_resolution_m"],
+                   f"a {planner.grid_resolution_m:g} m grid over the geofence is {nx} x {ny} cells, more than the "
+                   f"limit of {MAX_GRID_CELLS}; use a coarser grid_resolution_m")
     stations = _stations(data, world, report)
     vehicles = _vehicles(data, stations, schema["vehicle"]["properties"], report, broken)
     for v in vehicles:

@@ -6,11 +6,15 @@ the field path of each, and everything here finds those lines.
         out of range), dangling station names, duplicate names or ids, a station outside the
         area or inside an inflated obstacle. An unreachable goal is found by the planner and
         reported through :func:`mission_error` with the vehicle's field path.
+
+A reason echoes at most :data:`ECHO_CHARS` characters of the value it is about (:func:`echo`),
+and a combined error shows at most :data:`SHOWN_PROBLEMS` problems.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+import math
+import reprlib
 from typing import TYPE_CHECKING, Any
 
 import jsonschema
@@ -18,6 +22,24 @@ import yaml
 
 if TYPE_CHECKING:
     from uav_model.mission_types import Mission
+
+ECHO_CHARS = 200
+SHOWN_PROBLEMS = 40
+
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict, _REPR.maxset = 3, 6, 6, 6, 6
+_REPR.maxstring, _REPR.maxother, _REPR.maxlong = ECHO_CHARS, ECHO_CHARS, 40
+
+
+def echo(value: Any) -> str:
+    """``repr(value)`` cut to at most :data:`ECHO_CHARS` characters, without building the whole
+    repr of a huge value first."""
+    return clip(_REPR.repr(value))
+
+
+def clip(text: str) -> str:
+    """``text`` cut to at most :data:`ECHO_CHARS` characters."""
+    return text if len(text) <= ECHO_CHARS else text[:ECHO_CHARS - 3] + "..."
 
 
 class MissionError(ValueError):
@@ -34,12 +56,17 @@ class MissionError(ValueError):
 
     @classmethod
     def of(cls, problems: list["MissionError"]) -> "MissionError":
-        """One error for several problems, in file order: ``str()`` is one line per problem."""
+        """One error for several problems, in file order: ``str()`` is one line per problem (the
+        first :data:`SHOWN_PROBLEMS`, then one line counting the rest)."""
         ordered = sorted(problems, key=lambda e: (e.line is None, e.line or 0, e.field_path))
         first = ordered[0]
         combined = cls(first.source, first.field_path, first.reason, first.line)
         combined.problems = tuple(ordered)
-        combined.args = ("\n".join(str(e) for e in ordered),)
+        lines = [str(e) for e in ordered[:SHOWN_PROBLEMS]]
+        if len(ordered) > SHOWN_PROBLEMS:
+            lines.append(f"{first.source}: {len(ordered) - SHOWN_PROBLEMS} more problems not shown "
+                         f"(the first {SHOWN_PROBLEMS} are)")
+        combined.args = ("\n".join(lines),)
         return combined
 
     def __reduce__(self):
@@ -52,24 +79,6 @@ def _rebuild_error(source: str, field_path: str, reason: str, line: int | None,
     if len(problems) <= 1:
         return MissionError(source, field_path, reason, line)
     return MissionError.of([MissionError(source, f, r, ln) for f, r, ln in problems])
-
-
-class StrictLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys (silently dropping one is lost data)."""
-
-
-def _construct_mapping(loader: StrictLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
-    seen: dict[Any, yaml.Node] = {}
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r}", key_node.start_mark)
-        seen[key] = key_node
-    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
-
-
-StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
 
 
 def line_of(root: yaml.Node | None, path: list[Any]) -> int | None:
@@ -102,42 +111,70 @@ def dotted(path: list[Any] | tuple[Any, ...]) -> str:
     return out
 
 
+_BOUND_WORDS = {"minimum": "less than the minimum of", "maximum": "greater than the maximum of",
+                "exclusiveMinimum": "less than or equal to the minimum of",
+                "exclusiveMaximum": "greater than or equal to the maximum of"}
+_DEGREES = {"lat_deg": "latitude", "lon_deg": "longitude"}
+
+
+def innermost(err: jsonschema.ValidationError) -> jsonschema.ValidationError:
+    """The error inside if/then and oneOf branches that names the real field: of a oneOf's
+    branches, those whose type the value has (a ``{lat_deg, lon_deg}`` point with a NaN is a
+    bad geodetic point, not a bad ``[x, y]``)."""
+    while err.context:
+        branches: dict[Any, list[jsonschema.ValidationError]] = {}
+        for e in err.context:
+            branches.setdefault(e.relative_schema_path[0] if e.relative_schema_path else None, []).append(e)
+        typed = [e for errs in branches.values()
+                 if not any(e.validator == "type" and not e.relative_path for e in errs) for e in errs]
+        err = jsonschema.exceptions.best_match(typed or err.context)
+    return err
+
+
 def schema_reason(err: jsonschema.ValidationError) -> tuple[list[Any], str]:
-    """Turn a jsonschema error into (field path, short reason) that a user can act on."""
+    """Turn a jsonschema error into (field path, short reason) that a user can act on. Reasons
+    are built here rather than taken from jsonschema, whose messages repeat the whole value."""
     path = list(err.absolute_path)
-    if err.validator == "additionalProperties":
+    kind, limit, value = err.validator, err.validator_value, err.instance
+    if kind == "additionalProperties":
         allowed = sorted(err.schema.get("properties", {}))
-        extra = [k for k in err.instance if k not in err.schema.get("properties", {})] if isinstance(err.instance, dict) else []
+        extra = [k for k in value if k not in err.schema.get("properties", {})] if isinstance(value, dict) else []
         if extra:
             hint = f"; allowed: {', '.join(allowed)}" if allowed else ""
-            return path + [extra[0]], f"unknown key {extra[0]!r}{hint}"
-    if err.validator == "required":
-        return path, err.message.replace("is a required property", "is required")
-    if err.validator == "type":
-        return path, f"expected {err.validator_value}, got {type(err.instance).__name__} {err.instance!r}"
-    if err.validator == "enum":
-        return path, f"{err.instance!r} is not one of {', '.join(map(str, err.validator_value))}"
-    return path, err.message
+            return path + [extra[0]], f"unknown key {echo(extra[0])}{hint}"
+    if kind == "required":
+        missing = [k for k in limit if isinstance(value, dict) and k not in value]
+        return path, f"{echo(missing[0] if missing else limit[0])} is required"
+    if kind == "type":
+        if isinstance(value, float) and not math.isfinite(value):
+            return path, f"{value!r} is not a finite number (NaN and infinity are refused everywhere)"
+        return path, f"expected {limit}, got {type(value).__name__} {echo(value)}"
+    if kind == "enum":
+        return path, f"{echo(value)} is not one of {', '.join(map(str, limit))}"
+    if kind in _BOUND_WORDS:
+        name = _DEGREES.get(str(path[-1])) if path else None
+        if name is not None:
+            low, high = err.schema.get("minimum"), err.schema.get("maximum")
+            return path, f"{name} {value:g} is out of range [{low:g}, {high:g}] degrees"
+        return path, f"{echo(value)} is {_BOUND_WORDS[kind]} {limit:g}"
+    if kind in ("maxItems", "maxProperties", "maxLength"):
+        unit = "characters" if kind == "maxLength" else "items" if kind == "maxItems" else "entries"
+        return path, f"{len(value)} {unit}, more than the limit of {limit}"
+    if kind in ("minItems", "minProperties", "minLength"):
+        unit = "characters" if kind == "minLength" else "items" if kind == "minItems" else "entries"
+        return path, f"{len(value)} {unit}; at least {limit} needed"
+    if kind == "pattern":
+        return path, f"{echo(value)} does not match {limit}"
+    return path, clip(err.message)
 
 
-def mission_error(mission_or_source: Mission | str, field_path: str, reason: str,
-                  root: yaml.Node | None = None) -> MissionError:
-    """A MissionError for a semantic problem found after loading (e.g. an unreachable goal)."""
-    source = mission_or_source if isinstance(mission_or_source, str) else mission_or_source.source
-    line = None
-    if root is None:
-        try:
-            root = yaml.compose(Path(source).read_text(encoding="utf-8"), Loader=yaml.SafeLoader)
-        except (OSError, yaml.YAMLError, UnicodeDecodeError):
-            root = None
-    if root is not None:
-        parts: list[Any] = []
-        for token in field_path.replace("[", ".[").split("."):
-            if not token:
-                continue
+def mission_path(field_path: str) -> list[Any]:
+    """``vehicles[1].goal`` as ``["vehicles", 1, "goal"]``."""
+    parts: list[Any] = []
+    for token in field_path.replace("[", ".[").split("."):
+        if token:
             parts.append(int(token[1:-1]) if token.startswith("[") else token)
-        line = line_of(root, parts)
-    return MissionError(source, field_path, reason, line)
+    return parts
 
 
 def fail(source: str, root: yaml.Node | None, path: list[Any], reason: str) -> MissionError:

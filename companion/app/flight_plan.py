@@ -8,7 +8,7 @@ can refuse it in one line before any vehicle is armed.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -16,6 +16,7 @@ import numpy as np
 from uav_model import frames
 from companion.errors import MissionUploadError
 from uav_model.mission import Mission, VehicleSpec, mission_error
+from companion.planning.budget import Budget
 from companion.planning.certificate import OcclusionCertificate, mission_certificate
 from companion.planning.coordination import CoordinatedPlan, plan_coordinated
 from companion.planning.errors import NoPath
@@ -38,11 +39,22 @@ class FlightPlan:
     variant: str
     routes: dict[str, Route]  # empty for the station-goal variants (bdwa, dwa)
     geofence: bool = True  # upload the autopilot geofence before arming (companion.app.fence); --no-fence
+    with_certificate: bool = True  # False (--no-certificate): no occlusion certificate is worked out
+    certificate_budget: Budget | None = field(default=None, compare=False)  # None: as long as it takes
 
     @cached_property
     def certificate(self) -> OcclusionCertificate | None:
-        """The occlusion certificate (seconds of pure work; computed on first use)."""
-        return mission_certificate(self.mission, self.routes)
+        """The occlusion certificate (seconds of pure work; computed on first use), within
+        ``certificate_budget``; None without one (a single vehicle, or ``with_certificate`` off)."""
+        if not self.with_certificate:
+            return None
+        return mission_certificate(self.mission, self.routes, self.certificate_budget)
+
+    def certificate_advice(self) -> str | None:
+        """What keeps the sight line blocked when this plan's variant will not (a timed variant,
+        the hold it needs), from the certificate; None when there is nothing to say."""
+        c = self.certificate
+        return None if c is None else c.advice(self.variant, tuple(n for n, v in VARIANTS.items() if v.timed))
 
     @cached_property
     def coordinated(self) -> CoordinatedPlan | None:

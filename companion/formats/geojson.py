@@ -17,18 +17,28 @@ from __future__ import annotations
 
 from typing import Any
 
+from uav_model.mission_errors import echo
+from uav_model.mission_read import finite
+
 
 class GeoJsonError(ValueError):
     """A GeoJSON document we cannot read; ``str()`` names the file, the feature and the problem."""
 
 
 def _geo(pos: Any, where: str) -> dict[str, float]:
-    if not (isinstance(pos, list) and len(pos) >= 2 and all(isinstance(v, (int, float)) for v in pos[:2])):
-        raise GeoJsonError(f"{where}: expected a position [lon, lat], got {pos!r}")
-    lon, lat = float(pos[0]), float(pos[1])
+    lon, lat = (finite(v) for v in pos[:2]) if isinstance(pos, list) and len(pos) >= 2 else (None, None)
+    if lon is None or lat is None:
+        raise GeoJsonError(f"{where}: expected a position [lon, lat] of finite numbers, got {echo(pos)}")
     if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-        raise GeoJsonError(f"{where}: [{lon}, {lat}] is not a [lon, lat] position in degrees")
+        raise GeoJsonError(f"{where}: [{lon}, {lat}] is not a [lon, lat] position in degrees (out of range)")
     return {"lat_deg": lat, "lon_deg": lon}
+
+
+def _metres(value: Any, where: str) -> float:
+    out = finite(value)
+    if out is None or out < 0:
+        raise GeoJsonError(f"{where}: expected a number of metres, got {echo(value)}")
+    return out
 
 
 def _ring(coords: Any, where: str) -> list[dict[str, float]]:
@@ -50,7 +60,8 @@ def _motion(raw: Any, where: str) -> dict[str, Any]:
         if key in out:
             out[key] = _geo(out[key], f"{where}: properties.motion.{key}")
     if "waypoints" in out:
-        out["waypoints"] = [_geo(p, f"{where}: properties.motion.waypoints") for p in out["waypoints"]]
+        points = out["waypoints"] if isinstance(out["waypoints"], list) else [out["waypoints"]]
+        out["waypoints"] = [_geo(p, f"{where}: properties.motion.waypoints") for p in points]
     return out
 
 
@@ -59,6 +70,8 @@ def _feature(f: Any, i: int, source: str, out: dict[str, Any]) -> None:
     if not isinstance(f, dict) or f.get("type") != "Feature" or not isinstance(f.get("geometry"), dict):
         raise GeoJsonError(f"{where}: not a GeoJSON Feature with a geometry")
     props = f.get("properties") or {}
+    if not isinstance(props, dict):
+        raise GeoJsonError(f"{where}: properties must be an object, got {echo(props)}")
     geom = f["geometry"]
     kind, coords = geom.get("type"), geom.get("coordinates")
     oid = str(props.get("id", props.get("name", f"feature{i}")))
@@ -68,7 +81,7 @@ def _feature(f: Any, i: int, source: str, out: dict[str, Any]) -> None:
         out["area"] = {"south_west": {"lat_deg": min(lats), "lon_deg": min(lons)},
                        "north_east": {"lat_deg": max(lats), "lon_deg": max(lons)}}
         if "geofence_margin_m" in props:
-            out["area"]["geofence_margin_m"] = float(props["geofence_margin_m"])
+            out["area"]["geofence_margin_m"] = _metres(props["geofence_margin_m"], f"{where}: properties.geofence_margin_m")
         return
     if kind == "Point" and "station" in props:
         out.setdefault("stations", {})[str(props["station"])] = _geo(coords, where)
@@ -76,9 +89,10 @@ def _feature(f: Any, i: int, source: str, out: dict[str, Any]) -> None:
     if kind == "Polygon":
         obstacle: dict[str, Any] = {"id": oid, "shape": "polygon", "vertices": _ring(coords, where)}
     elif kind == "Point" and "radius_m" in props:
-        obstacle = {"id": oid, "shape": "circle", "center": _geo(coords, where), "radius_m": float(props["radius_m"])}
+        obstacle = {"id": oid, "shape": "circle", "center": _geo(coords, where),
+                    "radius_m": _metres(props["radius_m"], f"{where}: properties.radius_m")}
     else:
-        raise GeoJsonError(f"{where}: a {kind} is not understood here: use a Polygon (obstacle, or role "
+        raise GeoJsonError(f"{where}: a {kind if isinstance(kind, str) and len(kind) < 40 else echo(kind)} is not understood here: use a Polygon (obstacle, or role "
                            f"'area'), or a Point with properties.radius_m (circle) or properties.station")
     if "motion" in props:
         obstacle["motion"] = _motion(props["motion"], where)
@@ -90,6 +104,9 @@ def geojson_to_document(doc: Any, source: str) -> dict[str, Any]:
     if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection":
         raise GeoJsonError(f"{source}: not a GeoJSON FeatureCollection")
     out: dict[str, Any] = {}
-    for i, f in enumerate(doc.get("features") or []):
+    features = doc.get("features") or []
+    if not isinstance(features, list):
+        raise GeoJsonError(f"{source}: features must be a list, got {echo(features)}")
+    for i, f in enumerate(features):
         _feature(f, i, source, out)
     return out

@@ -7,15 +7,13 @@ result is validated by the one mission loader before anything is written.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
-
-import yaml
 
 from companion.formats.geojson import GeoJsonError, geojson_to_document
 from companion.formats.qgc_plan import PlanFormatError, fences_to_document
 from uav_model.mission import Mission, MissionError, mission_from_data
+from uav_model.mission_read import load_json, load_yaml, read_text
 
 
 class ImportError_(ValueError):
@@ -23,23 +21,17 @@ class ImportError_(ValueError):
 
 
 def _read_json(path: Path) -> Any:
+    """The file's JSON, read as a mission file is (size cap, regular files only, finite numbers)."""
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ImportError_(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ImportError_(f"{path}: cannot read file: {exc}") from None
-    except json.JSONDecodeError as exc:
-        raise ImportError_(f"{path}:{exc.lineno}: not JSON: {exc.msg}") from None
+        return load_json(read_text(path), str(path))
+    except MissionError as exc:
+        raise ImportError_(str(exc)) from None
 
 
 def _read_base(path: Path | None) -> dict[str, Any]:
     if path is None:
         return {}
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ImportError_(f"{path}: cannot read the base mission: {exc}") from None
+    data, _ = load_yaml(read_text(path), str(path))
     if not isinstance(data, dict):
         raise ImportError_(f"{path}: the base mission must be a YAML mapping")
     return data
@@ -83,7 +75,4 @@ def merged_document(path: Path, base: Path | None = None) -> dict[str, Any]:
 def import_mission(path: Path, base: Path | None = None) -> tuple[dict[str, Any], Mission]:
     """The merged document and the mission it validates to (raises ImportError_ or MissionError)."""
     doc = merged_document(path, base)
-    try:
-        return doc, mission_from_data(doc, str(path))
-    except MissionError:
-        raise
+    return doc, mission_from_data(doc, str(path))

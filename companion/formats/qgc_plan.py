@@ -25,6 +25,8 @@ from companion.app.flight_plan import FlightPlan
 from companion.vehicle.port import GeoFenceZone
 from uav_model import frames
 from uav_model.mission import VehicleSpec
+from uav_model.mission_errors import echo
+from uav_model.mission_read import finite
 from uav_model.world import Obstacle
 
 MAV_CMD_NAV_WAYPOINT = 16
@@ -102,45 +104,82 @@ def plan_document(plan: FlightPlan, vehicle: VehicleSpec) -> dict[str, Any]:
 
 
 def _geo(pair: Any, where: str) -> dict[str, float]:
-    if not (isinstance(pair, list) and len(pair) >= 2 and all(isinstance(v, (int, float)) for v in pair[:2])):
-        raise PlanFormatError(f"{where}: expected [lat, lon], got {pair!r}")
-    return {"lat_deg": float(pair[0]), "lon_deg": float(pair[1])}
+    lat, lon = (finite(v) for v in pair[:2]) if isinstance(pair, list) and len(pair) >= 2 else (None, None)
+    if lat is None or lon is None:
+        raise PlanFormatError(f"{where}: expected [lat, lon] in degrees, got {echo(pair)}")
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        raise PlanFormatError(f"{where}: [{lat:g}, {lon:g}] is out of range for [lat, lon] in degrees")
+    return {"lat_deg": lat, "lon_deg": lon}
 
 
-def _obstacle_from_extra(extra: dict[str, Any], where: str) -> dict[str, Any]:
+def _length(value: Any, where: str) -> float:
+    out = finite(value)
+    if out is None or out <= 0:
+        raise PlanFormatError(f"{where}: expected a positive number of metres, got {echo(value)}")
+    return out
+
+
+def _obstacle_from_extra(extra: Any, where: str) -> dict[str, Any]:
+    where = f"{where}.{EXTRA_KEY}"
+    if not isinstance(extra, dict) or extra.get("shape") not in ("circle", "polygon") or "id" not in extra:
+        raise PlanFormatError(f"{where}: expected {{id, shape: circle|polygon, ...}}, got {echo(extra)}")
     out = {"id": str(extra["id"]), "shape": extra["shape"]}
     if extra["shape"] == "circle":
-        out.update(center=_geo(extra["center"], where), radius_m=float(extra["radius_m"]))
+        out.update(center=_geo(extra.get("center"), f"{where}.center"),
+                   radius_m=_length(extra.get("radius_m"), f"{where}.radius_m"))
     else:
-        out["vertices"] = [_geo(v, where) for v in extra["vertices"]]
+        out["vertices"] = [_geo(v, f"{where}.vertices[{j}]") for j, v in enumerate(_items(extra.get("vertices"), where))]
     return out
+
+
+def _items(value: Any, where: str) -> list[Any]:
+    """A list the file must hold (null and absent: none)."""
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise PlanFormatError(f"{where}: expected a list, got {echo(value)}")
+    return value
+
+
+def _block(value: Any, where: str) -> dict[str, Any]:
+    """An object the file must hold (null and absent: empty)."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise PlanFormatError(f"{where}: expected an object, got {echo(value)}")
+    return value
 
 
 def fences_to_document(doc: Any, source: str) -> dict[str, Any]:
     """Mission document parts (origin, area, obstacles) from a ``.plan``'s geofence, in lat/lon."""
     if not isinstance(doc, dict) or doc.get("fileType") != "Plan":
         raise PlanFormatError(f"{source}: not a QGroundControl plan (fileType is not 'Plan')")
-    fence = doc.get("geoFence") or {}
+    fence = _block(doc.get("geoFence"), f"{source}: geoFence")
     out: dict[str, Any] = {"obstacles": []}
-    home = (doc.get("mission") or {}).get("plannedHomePosition")
-    if isinstance(home, list) and len(home) >= 2:
-        out["origin"] = {"lat_deg": float(home[0]), "lon_deg": float(home[1])}
-        if len(home) >= 3 and isinstance(home[2], (int, float)):
-            out["origin"]["alt_m"] = float(home[2])
-    for i, c in enumerate(fence.get("circles") or []):
+    home = _block(doc.get("mission"), f"{source}: mission").get("plannedHomePosition")
+    if home is not None:
+        where = f"{source}: mission.plannedHomePosition"
+        out["origin"] = _geo(home, where)
+        if len(home) >= 3 and home[2] is not None:  # QGC writes null for an unknown altitude
+            if finite(home[2]) is None:
+                raise PlanFormatError(f"{where}: expected an altitude in metres, got {echo(home[2])}")
+            out["origin"]["alt_m"] = finite(home[2])
+    for i, c in enumerate(_items(fence.get("circles"), f"{source}: geoFence.circles")):
         where = f"{source}: geoFence.circles[{i}]"
+        c = _block(c, where)
         if c.get("inclusion"):
             continue
         if EXTRA_KEY in c:
             out["obstacles"].append(_obstacle_from_extra(c[EXTRA_KEY], where))
             continue
-        circle = c.get("circle") or {}
+        circle = _block(c.get("circle"), f"{where}.circle")
         out["obstacles"].append({"id": f"fence_circle{i}", "shape": "circle",
-                                 "center": _geo(circle.get("center"), where),
-                                 "radius_m": float(circle.get("radius", 0.0)) or 0.1})
-    for i, p in enumerate(fence.get("polygons") or []):
+                                 "center": _geo(circle.get("center"), f"{where}.circle.center"),
+                                 "radius_m": _length(circle.get("radius"), f"{where}.circle.radius")})
+    for i, p in enumerate(_items(fence.get("polygons"), f"{source}: geoFence.polygons")):
         where = f"{source}: geoFence.polygons[{i}]"
-        ring = [_geo(v, where) for v in p.get("polygon") or []]
+        p = _block(p, where)
+        ring = [_geo(v, f"{where}.polygon[{j}]") for j, v in enumerate(_items(p.get("polygon"), f"{where}.polygon"))]
         if p.get("inclusion"):
             if "area" not in out and isinstance(p.get(EXTRA_KEY), dict) and "area" in p[EXTRA_KEY]:
                 out["area"] = p[EXTRA_KEY]["area"]

@@ -9,6 +9,9 @@ that the certificate and the plan judge the same flight. A longer hold never hur
 can spend it waiting where it is (its start is as blocked as at time 0), so the least hold is
 found by bisection over multiples of the step, up to the longest hold that still lets the first
 vehicle arrive within the time limit.
+
+Given a ``budget`` (:mod:`budget`), a question the search could not settle before it ran out is
+*undecided within budget*, said as such; within the budget the answers are the same as without.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
+from companion.planning.budget import Budget, BudgetSpent
 from companion.planning.coordination import Blocking, feasible, first_forecast, problem_for
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.shadow import SightShadows
@@ -42,10 +46,14 @@ class OcclusionCertificate:
     whole_flight_min_hold_s: float | None    # None: no hold up to ``searched_hold_s`` suffices
     closest_approach_min_hold_s: float | None
     searched_hold_s: float
+    whole_flight_decided: bool = True  # False: the budget ran out first (whole_flight is then False)
+    closest_approach_decided: bool = True
 
     @property
     def verdict(self) -> str:
-        """One word for tables: feasible / needs-hold / infeasible (closest approach)."""
+        """One word for tables: feasible / needs-hold / infeasible / undecided (closest approach)."""
+        if not self.closest_approach_decided:
+            return "undecided"
         if self.closest_approach_min_hold_s is None:
             return "infeasible"
         return "feasible" if self.closest_approach_min_hold_s == 0 else "needs-hold"
@@ -57,7 +65,9 @@ class OcclusionCertificate:
 
     def describe(self) -> str:
         """Two lines for ``companion plan`` / ``validate``."""
-        def part(ok: bool, hold: float | None) -> str:
+        def part(ok: bool, hold: float | None, decided: bool = True) -> str:
+            if not decided:
+                return "undecided within budget"
             if ok and not hold:
                 return "feasible"
             if ok:
@@ -68,24 +78,43 @@ class OcclusionCertificate:
         rule = "never waits" if self.hold_s_max == 0 else f"may hold up to {self.hold_s_max:g} s"
         return (f"occlusion certificate ({self.higher} {rule}; {self.resolution_m:g} m cells, "
                 f"{self.step_s:.2f} s steps): sight line {self.higher}-{self.lower} blocked\n"
-                f"  whole flight: {part(self.whole_flight, self.whole_flight_min_hold_s)}\n"
-                f"  at closest approach: {part(self.closest_approach, self.closest_approach_min_hold_s)}")
+                f"  whole flight: {part(self.whole_flight, self.whole_flight_min_hold_s, self.whole_flight_decided)}\n"
+                f"  at closest approach: "
+                f"{part(self.closest_approach, self.closest_approach_min_hold_s, self.closest_approach_decided)}")
+
+    def advice(self, variant: str, timed_variants: tuple[str, ...]) -> str | None:
+        """What keeps the sight line blocked when ``variant`` will not: a timed variant (which
+        plans it) and the departure hold it needs. None when nothing would, or nothing needs to change."""
+        hold = self.closest_approach_min_hold_s if self.closest_approach_decided else None
+        if hold is None or not timed_variants:
+            return None
+        question = "the whole flight" if self.whole_flight_min_hold_s == hold else "at closest approach"
+        setting = "" if hold <= self.hold_s_max + 1e-9 else f" and coordination.hold_s_max: {math.ceil(hold)}"
+        if variant in timed_variants:
+            return None if not setting else (
+                f"the sight line {self.higher}-{self.lower} can be kept blocked {question} with a "
+                f"{hold:.0f} s departure hold of {self.higher}: set{setting[4:]}")
+        how = f"with a {hold:.0f} s departure hold of {self.higher}" if hold else "without a hold"
+        return (f"variant {variant} does not plan the sight line; {timed_variants[0]} keeps "
+                f"{self.higher}-{self.lower} blocked {question} {how}: --variant {timed_variants[0]}{setting}")
 
 
 def least_hold(mission: "Mission", top: TimedRoute, blocking: Blocking, max_hold_s: float,
                grid: OccupancyGrid, shadows: SightShadows, memo: dict | None = None,
-               margin_m: float = 0.0, known_at_max: bool = False) -> float | None:
+               margin_m: float = 0.0, known_at_max: bool = False, budget: Budget | None = None) -> float | None:
     """The least hold (a multiple of the lower vehicle's step, <= ``max_hold_s``) of the first
     vehicle that makes ``blocking`` feasible for the second, or None. ``margin_m``: see
     :func:`coordination.solve`; ``known_at_max``: the caller knows ``max_hold_s`` suffices.
     ``top``: the first vehicle's forecast without a hold (:func:`coordination.first_forecast`),
-    held back by each hold tried (:func:`timed.held`)."""
+    held back by each hold tried (:func:`timed.held`). ``budget``: charged by every search;
+    raises :class:`budget.BudgetSpent` when it runs out."""
     higher, lower = mission.by_priority[0], mission.by_priority[1]
     memo = {} if memo is None else memo
 
     def ok(i: int) -> bool:
         others = (held(top, i * step),)
-        return feasible(problem_for(mission, grid, shadows, lower.name, others, higher.speed_m_s, memo), blocking, margin_m)
+        problem = problem_for(mission, grid, shadows, lower.name, others, higher.speed_m_s, memo, budget=budget)
+        return feasible(problem, blocking, margin_m)
 
     step = problem_for(mission, grid, shadows, lower.name, (), higher.speed_m_s).model.step_s
     hi = math.floor(max_hold_s / step + 1e-9)
@@ -104,35 +133,47 @@ def least_hold(mission: "Mission", top: TimedRoute, blocking: Blocking, max_hold
 
 
 def certify(mission: "Mission", routes: dict[str, "Route"], *, grid: OccupancyGrid | None = None,
-            shadows: SightShadows | None = None, max_hold_s: float | None = None) -> OcclusionCertificate | None:
+            shadows: SightShadows | None = None, max_hold_s: float | None = None,
+            budget: Budget | None = None) -> OcclusionCertificate | None:
     """The certificate of the two vehicles first in priority (None with a single vehicle).
     Holds are searched up to ``max_hold_s`` (default: the longest that lets the first vehicle
     still arrive within the time limit). The first vehicle is forecast as the coordinated plan
-    forecasts it (:func:`coordination.first_forecast`)."""
+    forecasts it (:func:`coordination.first_forecast`). ``budget``: the work allowed
+    (:mod:`budget`); what is not settled within it is undecided."""
     if len(mission.vehicles) < 2:
         return None
     grid = grid or rasterise(mission.world, mission.planner.grid_resolution_m)
     shadows = shadows or SightShadows(mission.world, grid)
     higher, lower = mission.by_priority[0], mission.by_priority[1]
-    top = first_forecast(mission, routes)
-    flight_s = float(top.t_s[-1] - top.t_s[0])
-    searched = max(0.0, mission.safety.time_limit_s - flight_s) if max_hold_s is None else max_hold_s
     step = problem_for(mission, grid, shadows, lower.name, (), higher.speed_m_s).model.step_s
-    memo: dict = {}
-    whole = least_hold(mission, top, Blocking.WHOLE_FLIGHT, searched, grid, shadows, memo)
-    near = whole if whole == 0.0 else least_hold(  # whole-flight blocking is blocked at closest approach
-        mission, top, Blocking.CLOSEST_APPROACH, searched if whole is None else whole, grid, shadows, memo,
-        known_at_max=whole is not None)
     limit = mission.coordination.hold_s_max
+    whole = near = None
+    searched = float("nan")
+    decided = 0  # questions settled: 0, 1 (whole flight) or 2
+    try:
+        top = first_forecast(mission, routes, budget)
+        flight_s = float(top.t_s[-1] - top.t_s[0])
+        searched = max(0.0, mission.safety.time_limit_s - flight_s) if max_hold_s is None else max_hold_s
+        memo: dict = {}
+        whole = least_hold(mission, top, Blocking.WHOLE_FLIGHT, searched, grid, shadows, memo, budget=budget)
+        decided = 1
+        near = whole if whole == 0.0 else least_hold(  # whole-flight blocking is blocked at closest approach
+            mission, top, Blocking.CLOSEST_APPROACH, searched if whole is None else whole, grid, shadows, memo,
+            known_at_max=whole is not None, budget=budget)
+        decided = 2
+    except BudgetSpent:
+        pass
     return OcclusionCertificate(
         higher=higher.name, lower=lower.name, hold_s_max=limit, step_s=step,
         resolution_m=grid.resolution_m,
         whole_flight=whole is not None and whole <= limit + 1e-9,
         closest_approach=near is not None and near <= limit + 1e-9,
-        whole_flight_min_hold_s=whole, closest_approach_min_hold_s=near, searched_hold_s=searched)
+        whole_flight_min_hold_s=whole, closest_approach_min_hold_s=near, searched_hold_s=searched,
+        whole_flight_decided=decided >= 1, closest_approach_decided=decided >= 2)
 
 
-def mission_certificate(mission: "Mission", routes: dict[str, "Route"] | None = None) -> OcclusionCertificate | None:
+def mission_certificate(mission: "Mission", routes: dict[str, "Route"] | None = None,
+                        budget: Budget | None = None) -> OcclusionCertificate | None:
     """:func:`certify` for a mission whose routes may not be planned yet (station-goal
     variants plan none); None with a single vehicle or when the first vehicle has no route."""
     from companion.planning.errors import NoPath
@@ -144,4 +185,4 @@ def mission_certificate(mission: "Mission", routes: dict[str, "Route"] | None = 
             routes = plan_routes(mission)
         except NoPath:
             return None
-    return certify(mission, routes)
+    return certify(mission, routes, budget=budget)

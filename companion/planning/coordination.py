@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from uav_model.mission import Forecast
+from companion.planning.budget import Budget
 from companion.planning.flown_forecast import flown_forecast
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.nearpath import best_near
@@ -190,15 +191,17 @@ def to_timed(name: str, grid: OccupancyGrid, solution: Solution, start_xy, goal_
 
 def problem_for(mission: "Mission", grid: OccupancyGrid, shadows: SightShadows, name: str,
                 others: tuple[TimedRoute, ...], fastest_other_m_s: float, memo: dict | None = None, *,
-                from_xy: tuple[float, float] | None = None, t0_s: float = 0.0) -> SpaceTimeProblem:
+                from_xy: tuple[float, float] | None = None, t0_s: float = 0.0,
+                budget: Budget | None = None) -> SpaceTimeProblem:
     """Vehicle ``name`` against ``others``; ``memo`` shares masks between problems on ``grid``.
-    A re-plan starts at ``from_xy`` at mission time ``t0_s`` (default: its station at 0)."""
+    A re-plan starts at ``from_xy`` at mission time ``t0_s`` (default: its station at 0).
+    ``budget``: charged by the searches on the problem (:mod:`budget`)."""
     v = mission.vehicle(name)
     c = mission.coordination
     model = step_model(grid.resolution_m, v.speed_m_s, c.step_s, mission.safety.min_separation_m, fastest_other_m_s)
     start = v.start_enu_m if from_xy is None else (float(from_xy[0]), float(from_xy[1]))
     return SpaceTimeProblem(grid, shadows, model, start, v.goal_enu_m, others,
-                            mission.safety.time_limit_s, memo, t0_s)
+                            mission.safety.time_limit_s, memo, t0_s, budget)
 
 
 def plan_vehicle(mission: "Mission", name: str, others: tuple[TimedRoute, ...], grid: OccupancyGrid,
@@ -232,15 +235,15 @@ def near_margin_m(mission: "Mission", name: str, fastest_other_m_s: float) -> fl
     return (v.speed_m_s + fastest_other_m_s) * model.step_s
 
 
-def first_forecast(mission: "Mission", routes: dict[str, "Route"]) -> TimedRoute:
+def first_forecast(mission: "Mission", routes: dict[str, "Route"], budget: Budget | None = None) -> TimedRoute:
     """Where the first vehicle in priority will be, and when, departing at t = 0: what the
     lower vehicles are planned against, and what the occlusion certificate judges
     (``coordination.forecast``: flown alone headless, or its sparse route at cruise). A vehicle
     alone is planned against nobody: its route at cruise (and the flown forecast, which flies
-    the vehicle alone, does not fly it again)."""
+    the vehicle alone, does not fly it again). ``budget``: charged a unit per tick flown."""
     top = mission.by_priority[0]
     if len(mission.vehicles) > 1 and mission.coordination.forecast is Forecast.FLOWN:
-        return flown_forecast(mission, routes[top.name], top.name)
+        return flown_forecast(mission, routes[top.name], top.name, budget)
     return forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s)
 
 

@@ -23,23 +23,25 @@ import numpy as np
 from companion.planning.timed import TimedRoute
 
 if TYPE_CHECKING:
+    from companion.planning.budget import Budget
     from uav_model.mission import Mission
     from companion.planning.routes import Route
 
 _EVERY = 2  # keep every second sample of the track (1 s at the runner's 0.5 s step)
 
 
-def flown_forecast(mission: "Mission", route: "Route", name: str) -> TimedRoute:
+def flown_forecast(mission: "Mission", route: "Route", name: str, budget: "Budget | None" = None) -> TimedRoute:
     """Where ``name`` flies, and when, flying ``route`` alone from t = 0: its headless track,
     then straight on to its goal at cruise if it stopped short (it arrives within the arrival
     radius, or the time limit ended the flight). A departure hold delays it as a whole
     (:func:`timed.held`): the moving obstacles it meets then are elsewhere, which the flight
-    itself absorbs as it absorbs any other difference from its forecast."""
+    itself absorbs as it absorbs any other difference from its forecast. ``budget``: charged a
+    unit per tick (:mod:`budget`)."""
     from companion.planning.runner import simulate  # the runner builds fleets, which plan with this module
 
     vehicle = mission.vehicle(name)
     alone = dataclasses.replace(mission, vehicles=(vehicle,))
-    track = simulate(alone, routes={name: route}).tracks[name]
+    track = simulate(alone, routes={name: route}, budget=budget).tracks[name]
     t, xy = np.asarray(track.t_s, dtype=float), np.column_stack([track.x_m, track.y_m])
     keep = np.zeros(len(t), dtype=bool)
     keep[::_EVERY] = True

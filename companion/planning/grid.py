@@ -18,9 +18,8 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from companion.planning.errors import PlanningError
+from uav_model.mission_limits import MAX_GRID_CELLS as MAX_CELLS, grid_shape
 from uav_model.world import World
-
-MAX_CELLS = 4_000_000  # A* keeps ~50 bytes per cell (g, parent, h, stop tables): ~200 MB at the cap
 
 # Dilating a polygon with a buffer puts the arc vertices ON the true offset curve, so the chords
 # cut inside it. Scaling the distance by 1/cos(pi/(4*q)) makes the arcs circumscribe the curve:
@@ -108,8 +107,7 @@ def rasterise(world: World, resolution_m: float, *, t_s: float = 0.0,
     if not (isinstance(resolution_m, (int, float)) and math.isfinite(resolution_m) and resolution_m > 0):
         raise PlanningError(f"grid resolution must be a positive number of metres, got {resolution_m!r}")
     fx0, fy0, fx1, fy1 = world.geofence.bounds
-    nx = max(1, math.ceil((fx1 - fx0) / resolution_m - 1e-9))
-    ny = max(1, math.ceil((fy1 - fy0) / resolution_m - 1e-9))
+    nx, ny = grid_shape((fx0, fy0, fx1, fy1), resolution_m)
     if nx * ny > MAX_CELLS:
         raise PlanningError(f"a {resolution_m:g} m grid over {fx1 - fx0:g} x {fy1 - fy0:g} m is {nx} x {ny} "
                             f"cells (limit {MAX_CELLS}); use a coarser grid_resolution_m")

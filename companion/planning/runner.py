@@ -27,6 +27,7 @@ import numpy as np
 
 from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to_ned, ned_to_enu, ned_yaw_to_enu_heading
 from uav_model.mission import Mission
+from companion.planning.budget import Budget, spend
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.fleet import Neighbour, react_to
 from companion.planning.obstacle_field import ObstacleField
@@ -105,7 +106,8 @@ def start_states(mission: Mission) -> tuple[dict[str, PlantLimits], dict[str, Ki
 def simulate(mission: Mission, variant: str | None = None, *,
              routes: dict[str, Route] | None = None,
              lower_bounds_s: dict[str, float | None] | None = None,
-             timed_routes: "dict[str, TimedRoute] | None" = None) -> RunResult:
+             timed_routes: "dict[str, TimedRoute] | None" = None,
+             budget: Budget | None = None) -> RunResult:
     """Fly ``mission`` headless with ``variant`` (default: the mission's) and score it.
     ``timed_routes``: routes with arrival times per vehicle, tracked by the timed variant; by
     default it flies the coordinated space-time plan (:func:`coordination.plan_coordinated`).
@@ -113,7 +115,8 @@ def simulate(mission: Mission, variant: str | None = None, *,
     ``routes`` and ``lower_bounds_s`` (see :func:`metrics.vehicle_lower_bound_s`) do not depend
     on the variant: a caller flying several variants of one mission may pass them in once.
 
-    Raises :class:`companion.planning.errors.NoPath` when an A* variant finds no route.
+    Raises :class:`companion.planning.errors.NoPath` when an A* variant finds no route, and
+    :class:`companion.planning.budget.BudgetSpent` when ``budget`` (a unit per tick) runs out.
     """
     started = time.perf_counter()
     if variant is not None:
@@ -143,6 +146,7 @@ def simulate(mission: Mission, variant: str | None = None, *,
 
     snapshots = field.at_times(dt * np.arange(n_ticks))
     for k in range(n_ticks):
+        spend(budget)
         t = k * dt
         snapshot = next(snapshots)
         commands = {}

@@ -26,6 +26,7 @@ from enum import Enum
 import numpy as np
 
 from companion.planning import bitgrid
+from companion.planning.budget import Budget, spend
 from companion.planning.grid import OccupancyGrid
 from companion.planning.shadow import SightShadows
 from companion.planning.timed import TimedRoute
@@ -72,8 +73,10 @@ class SpaceTimeProblem:
 
     def __init__(self, grid: OccupancyGrid, shadows: SightShadows, model: StepModel,
                  start_xy: tuple[float, float], goal_xy: tuple[float, float],
-                 others: tuple[TimedRoute, ...], horizon_s: float, memo: dict | None = None, t0_s: float = 0.0):
+                 others: tuple[TimedRoute, ...], horizon_s: float, memo: dict | None = None, t0_s: float = 0.0,
+                 budget: Budget | None = None):
         self.grid = grid
+        self.budget = budget  # charged a unit per allowed mask and per grown set
         self.shadows = shadows
         self.model = model
         self.start = _cell(grid, start_xy)
@@ -123,6 +126,7 @@ class SpaceTimeProblem:
     def allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf) -> np.ndarray:
         """Packed cells allowed at step k; ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR
         (squared, so that a tie with the distance it came from stays a tie)."""
+        spend(self.budget)
         ok = self.free_bits.copy()
         for xy in self.positions(k):
             ok &= self.far_bits(xy)
@@ -144,6 +148,7 @@ class SpaceTimeProblem:
 
     def grow(self, bits: np.ndarray) -> np.ndarray:
         """Cells reachable from packed ``bits`` in one step (sub-steps ``model.moves``)."""
+        spend(self.budget)
         return bitgrid.grow(bits, self.free_bits, self.model.moves)
 
     def cell_mask(self, cell: tuple[int, int]) -> np.ndarray:
