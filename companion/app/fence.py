@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 from shapely.geometry import Polygon
 
 from uav_model import frames
-from uav_model.fence_margin import exclusion_margin_m, fence_standoff_m
+from uav_model.fence_margin import exclusion_margin_m, fence_standoff_m, fence_warnings
 from uav_model.mission import Mission
 from uav_model.world import Obstacle
 from companion.errors import CommandRefused, GeofenceRefused, MissionUploadError
@@ -127,4 +127,6 @@ async def upload_and_verify_fence(vehicle: Vehicle, plan: "FlightPlan", report: 
     n = len(zones) - 1
     report(f"{vehicle.name}: geofence uploaded and read back (the area and {n} obstacle{'s' * (n != 1)}, "
            f"{items} items)")
+    for line in fence_warnings(plan.mission):
+        report(f"{vehicle.name}: fence: {line}")
 
