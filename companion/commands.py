@@ -37,6 +37,7 @@ from companion.errors import CompanionError, PreflightRefused
 from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_certificate_options,
                                   add_no_fence_option, add_variant_option, bad_input, connections, output_dir,
                                   quiet_mavsdk, with_certificate_options)
+from uav_model.fence_margin import fence_warnings
 from uav_model.mission import MissionError, load_mission, mission_schema, shared_goals
 
 if TYPE_CHECKING:
@@ -192,6 +193,8 @@ def cmd_validate(args: argparse.Namespace, plan: FlightPlan) -> int:
     for station, names in shared_goals(m).items():
         print(f"{m.source}: warning: vehicles {', '.join(names)} share goal station {station!r}: "
               f"only one can hold it; the others will wait near it until the time limit")
+    for line in fence_warnings(m):
+        print(f"{m.source}: warning: fence: {line}")
     routes = ", ".join(f"{n}: {r.nodes_raw} -> {r.nodes_sparse} nodes" for n, r in plan.routes.items())
     print(f"{m.source}: ok: {len(m.vehicles)} vehicle(s), {len(m.world.obstacles)} obstacle(s) "
           f"({len(m.world.moving_obstacles)} moving), variant {plan.variant}" + (f"; routes {routes}" if routes else ""))

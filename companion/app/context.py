@@ -13,6 +13,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from companion.app.failsafe import FailsafeEvent
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan
 from companion.planning.obstacle_field import ObstacleField
@@ -60,6 +61,7 @@ class PilotOutcome:
     planner_ms: list[float] = field(default_factory=list)
     interventions: Counter = field(default_factory=Counter)  # why a tick hovered instead
     offboard_reentries: int = 0
+    failsafes: list[FailsafeEvent] = field(default_factory=list)  # every failsafe the autopilot took in flight
     arm_attempts: int = 0
     ticks: int = 0
     error: str | None = None

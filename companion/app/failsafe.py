@@ -13,11 +13,19 @@ that notice, and PX4 does not leave it by itself. The evidence for a failsafe, a
 
 MAVSDK delivers texts and modes on separate streams, so the text may also come a little after
 the mode: a Hold or RTL without evidence is given a short grace before it counts as an operator's.
+
+A geofence breach is told apart first: PX4 says "Geofence violation: ..." as it takes GF_ACTION
+(Hold by default, then "Failsafe activated" too). Any such notice heard in flight is a breach, in
+whatever mode (with GF_ACTION 1 the vehicle stays in OFFBOARD): the flight ends with the failure
+reason ``geofence``, and the companion does not fight the autopilot's action.
+
+Every failsafe judged is kept as a :class:`FailsafeEvent` (the run's summary lists them).
 """
 
 from __future__ import annotations
 
 import enum
+from dataclasses import dataclass
 
 from companion.vehicle.port import FlightMode, VehicleStatus
 
@@ -27,8 +35,33 @@ OVERRIDE_GRACE_SIM_S = 2.0  # Hold/RTL without evidence: wait this long for a la
 OVERRIDE_GRACE_MIN_WALL_S = 1.0  # ... and at least this long in wall time (streams reordered under load)
 
 
+class FailsafeCause(enum.Enum):
+    GEOFENCE = "geofence"  # a "Geofence violation" notice: the fence was breached
+    OFFBOARD_LOSS = "offboard_loss"  # setpoints were late (a failsafe notice or our own telemetry gap)
+
+
+@dataclass(frozen=True, slots=True)
+class FailsafeEvent:
+    """One failsafe the autopilot took: when (its clock, and mission time once departed), the mode
+    it entered, why, and whether OFFBOARD came back."""
+
+    vehicle: str
+    t_sim_s: float | None
+    t_mission_s: float | None
+    mode: str
+    cause: FailsafeCause
+    recovered: bool
+    notice: str | None = None  # the autopilot's words, when it said any
+
+    def summary_dict(self) -> dict[str, object]:
+        r = (lambda v: None if v is None else round(v, 3))
+        return {"vehicle": self.vehicle, "t_sim_s": r(self.t_sim_s), "t_mission_s": r(self.t_mission_s),
+                "mode": self.mode, "cause": self.cause.value, "recovered": self.recovered, "notice": self.notice}
+
+
 class ModeVerdict(enum.Enum):
     FLYING = "flying"  # OFFBOARD, nothing happened
+    FENCE = "fence"  # the autopilot reported a geofence breach: the flight has failed
     RESUMED = "resumed"  # back in OFFBOARD by itself after a failsafe we may not even have seen
     RECOVER = "recover"  # a failsafe: keep streaming and resume OFFBOARD
     WAIT = "wait"  # Hold/RTL without evidence yet: the failsafe text may still come
@@ -41,6 +74,7 @@ class FailsafeWatch:
     def __init__(self, status: VehicleStatus):
         self.mode_changes = status.mode_changes
         self.used_notice_t: float | None = status.last_failsafe_t_sim_s  # notices before OFFBOARD do not count
+        self.fence_notices = status.fence_notices  # likewise for breach notices
         self.recovering = False  # a failsafe is being recovered: until OFFBOARD is back, Hold/RTL stay one
         self.grace_since_wall: float | None = None
 
@@ -56,6 +90,10 @@ class FailsafeWatch:
 
     def judge(self, st: VehicleStatus, clock_s: float | None, now_wall_s: float, grace_wall_s: float,
               recent_gap: bool) -> ModeVerdict:
+        if st.fence_notices != self.fence_notices:
+            self.fence_notices = st.fence_notices
+            self._use_notice(st)  # its "Failsafe activated" is the fence's, not an offboard loss
+            return ModeVerdict.FENCE
         if st.mode is FlightMode.OFFBOARD:
             changed = st.mode_changes != self.mode_changes
             self.mode_changes = st.mode_changes

@@ -1,14 +1,17 @@
 """The autopilot's own geofence: what the companion uploads before arming, and its read-back check.
 
     mission_fence(mission) -> (GeoFenceZone, ...)   the area + margin as the inclusion polygon, then
-                                                    every static obstacle, inflated, as an exclusion
+                                                    every static obstacle as an exclusion, the
+                                                    fence standoff inside the planner's keep-out
     upload_and_verify_fence(vehicle, plan, report)  upload (mission_type FENCE), download, compare
 
 One source of truth: the QGroundControl ``.plan`` export (:mod:`companion.formats.qgc_plan`) writes
-exactly these zones. A circle stays a circle of the inflated radius; a polygon is its true shape
-buffered by the inflation margin with round joins of about ``FENCE_VERTEX_SPACING_M`` per vertex:
-the chords lie inside the planner's inflated shape, so the planner's keep-out never crosses them.
-Moving obstacles are not fenced (a fence cannot move).
+exactly these zones. The standoff is :func:`uav_model.fence_margin.fence_standoff_m`, the braking
+distance the planner's margins keep from the fence: an exclusion is the footprint grown by the
+inflation less the standoff (never less than the footprint). A circle stays a circle; a polygon is
+buffered with round joins of about ``FENCE_VERTEX_SPACING_M`` per vertex, whose chords lie inside
+the offset curve, so they never come closer to the planner's keep-out. Moving obstacles are not
+fenced (a fence cannot move).
 
 If the autopilot refuses the fence, or reads back something else, the flight is refused
 (:class:`~companion.errors.GeofenceRefused`) before anything is armed; ``companion run --no-fence``
@@ -24,6 +27,7 @@ from typing import TYPE_CHECKING
 from shapely.geometry import Polygon
 
 from uav_model import frames
+from uav_model.fence_margin import exclusion_margin_m, fence_standoff_m, fence_warnings
 from uav_model.mission import Mission
 from uav_model.world import Obstacle
 from companion.errors import CommandRefused, GeofenceRefused, MissionUploadError
@@ -45,21 +49,25 @@ def _ring(origin: frames.GeoOrigin, poly: Polygon) -> tuple[tuple[float, float],
     return tuple(frames.local_to_geodetic(origin, x, y)[:2] for x, y in list(simple.exterior.coords)[:-1])
 
 
-def exclusion_zone(origin: frames.GeoOrigin, o: Obstacle) -> GeoFenceZone:
-    """One static obstacle, inflated, as an exclusion circle or polygon."""
+def exclusion_zone(origin: frames.GeoOrigin, o: Obstacle, standoff_m: float) -> GeoFenceZone:
+    """One static obstacle as an exclusion circle or polygon, ``standoff_m`` inside its keep-out."""
+    grow = exclusion_margin_m(o, standoff_m)
     if o.is_circle:
         lat, lon, _ = frames.local_to_geodetic(origin, *o.center)
-        return GeoFenceZone(inclusion=False, center_deg=(lat, lon), radius_m=o.inflated_radius_m)
-    inflated = o.footprint.buffer(o.margin_m, quad_segs=max(2, int(o.margin_m / FENCE_VERTEX_SPACING_M)))
-    return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, inflated))
+        return GeoFenceZone(inclusion=False, center_deg=(lat, lon), radius_m=o.size_m + grow)
+    if grow <= 0.0:
+        return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, o.footprint))
+    grown = o.footprint.buffer(grow, quad_segs=max(2, int(grow / FENCE_VERTEX_SPACING_M)))
+    return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, grown))
 
 
 def mission_fence(mission: Mission) -> tuple[GeoFenceZone, ...]:
     """The inclusion zone (area + geofence margin) first, then one exclusion per static obstacle,
     in ``mission.world.static_obstacles`` order."""
     origin, world = mission.origin, mission.world
+    standoff = fence_standoff_m(mission)
     area = GeoFenceZone(inclusion=True, vertices_deg=_ring(origin, world.geofence))
-    return (area,) + tuple(exclusion_zone(origin, o) for o in world.static_obstacles)
+    return (area,) + tuple(exclusion_zone(origin, o, standoff) for o in world.static_obstacles)
 
 
 def _kind(z: GeoFenceZone) -> str:
@@ -119,4 +127,6 @@ async def upload_and_verify_fence(vehicle: Vehicle, plan: "FlightPlan", report: 
     n = len(zones) - 1
     report(f"{vehicle.name}: geofence uploaded and read back (the area and {n} obstacle{'s' * (n != 1)}, "
            f"{items} items)")
+    for line in fence_warnings(plan.mission):
+        report(f"{vehicle.name}: fence: {line}")
 

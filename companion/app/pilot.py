@@ -22,6 +22,7 @@ station leaves the vehicle safe: holding in the air (offboard stopped), or disar
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import time
 from collections import deque
 from collections.abc import Callable
@@ -29,8 +30,8 @@ from collections.abc import Callable
 from companion.app import monitors
 from companion.app.context import FlightContext, PilotOutcome, RunSettings, wall_for_sim
 from companion.app.departure import Departure
-from companion.app.failsafe import (OVERRIDE_GRACE_MIN_WALL_S, OVERRIDE_GRACE_SIM_S, RECOVERABLE_MODES, FailsafeWatch,
-                                    ModeVerdict)
+from companion.app.failsafe import (OVERRIDE_GRACE_MIN_WALL_S, OVERRIDE_GRACE_SIM_S, RECOVERABLE_MODES, FailsafeCause,
+                                    FailsafeEvent, FailsafeWatch, ModeVerdict)
 from companion.app.fence import upload_and_verify_fence
 from companion.app.flight_plan import verify_readback
 from companion.app.steering import Steering
@@ -273,9 +274,19 @@ class Pilot(Departure, Steering):
         recent_gap = self._stale_ended_wall is not None and time.monotonic() - self._stale_ended_wall < STALE_EXCUSES_S
         grace_wall = max(wall_for_sim(self.vehicle, OVERRIDE_GRACE_SIM_S, 0.0), OVERRIDE_GRACE_MIN_WALL_S)
         verdict = self._failsafes.judge(st, self.vehicle.clock_s(), time.monotonic(), grace_wall, recent_gap)
+        if verdict is ModeVerdict.FENCE:
+            self._note_failsafe(st.mode, FailsafeCause.GEOFENCE, st.last_fence_text)
+            if st.mode is not FlightMode.OFFBOARD:
+                self.outcome.phase = "geofence"  # the autopilot's fence action stands: nothing to send
+            raise MissionAborted("geofence", f"the autopilot reported a geofence breach ({st.last_fence_text!r}) "
+                                 f"and is in {st.mode.value}; companion stands down", vehicle=self.name)
+        if verdict is ModeVerdict.FLYING and st.mode is FlightMode.OFFBOARD:
+            self._recovered()  # OFFBOARD came back after a resume attempt that had given up waiting
         if verdict is ModeVerdict.RESUMED:
             # A failsafe that is already over: PX4 re-entered OFFBOARD by itself once setpoints flowed.
             self.outcome.offboard_reentries += 1
+            self._note_failsafe(st.last_other_mode, FailsafeCause.OFFBOARD_LOSS, None)
+            self._recovered()
             self.ctx.report(f"{self.name}: autopilot fell back to {st.last_other_mode.value} (offboard loss) "
                             "and re-entered OFFBOARD by itself")
         if verdict is ModeVerdict.OVERRIDE:
@@ -294,7 +305,21 @@ class Pilot(Departure, Steering):
             raise MissionAborted("link_lost", f"offboard lost {len(self._reentries)} times in "
                                  f"{s.offboard_reentry_window_s:g} s; left in {st.mode.value}", vehicle=self.name)
         self._reentries.append(now)
+        if not self.outcome.failsafes or self.outcome.failsafes[-1].recovered:
+            self._note_failsafe(st.mode, FailsafeCause.OFFBOARD_LOSS, None)
         await self._resume_offboard(st.mode)
+
+    def _note_failsafe(self, mode: FlightMode | None, cause: FailsafeCause, notice: str | None) -> None:
+        t = self.vehicle.clock_s()
+        depart = self.outcome.t_depart_sim_s
+        self.outcome.failsafes.append(FailsafeEvent(
+            self.name, t, None if t is None or depart is None else t - depart,
+            mode.value if mode is not None else "unknown", cause, recovered=False, notice=notice))
+
+    def _recovered(self) -> None:
+        """OFFBOARD is back: the latest failsafe is over."""
+        if self.outcome.failsafes and not self.outcome.failsafes[-1].recovered:
+            self.outcome.failsafes[-1] = dataclasses.replace(self.outcome.failsafes[-1], recovered=True)
 
     async def _resume_offboard(self, mode: FlightMode) -> None:
         """The autopilot's offboard-loss failsafe: setpoints were late. Keep streaming (a hover:
@@ -318,6 +343,7 @@ class Pilot(Departure, Steering):
                 self.ctx.report(f"{self.name}: OFFBOARD not resumed yet ({exc.message})")
                 return
         self._failsafes.offboard_confirmed(self.vehicle.status())
+        self._recovered()
 
     async def _finish(self) -> None:
         """Hold at the station, then land. The flight has succeeded by now (SPEC §2 asks for the

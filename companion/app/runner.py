@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from companion.app.failsafe import FailsafeCause
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings
@@ -123,9 +124,17 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
         except CompanionError as exc:
             reason, message = _reason_of(exc), str(exc)
         log.flush()
+        failsafes = sorted((e for o in outcomes.values() for e in o.failsafes),
+                           key=lambda e: (e.t_sim_s is None, e.t_sim_s or 0.0))
+        if reason is None and any(not e.recovered for e in failsafes):
+            # Never a success over a failsafe the flight did not come back from.
+            open_ = next(e for e in failsafes if not e.recovered)
+            reason = "geofence" if open_.cause is FailsafeCause.GEOFENCE else "failsafe"
+            message = f"vehicle {open_.vehicle!r}: the autopilot's {open_.cause.value} failsafe ({open_.mode}) was not recovered"
 
         summary = _score(plan, log, outcomes, reason, shared_clock)
         doc = _summary_doc(plan, summary, outcomes, reason, message, time.monotonic() - started, extra)
+        doc["failsafes"] = [e.summary_dict() for e in failsafes]  # recovered ones too: the run says what happened
         if plan.coordinated is not None:  # the timed variant's schedule, and how far the flight fell behind it
             doc["live"]["schedule"] = {"departure_hold_s": round(plan.coordinated.hold_s, 3),
                                        "blocking": {n: b.value for n, b in plan.coordinated.blocking.items()},
@@ -245,6 +254,10 @@ def summary_table(plan: FlightPlan, result: RunResult) -> str:
     lines.append(f"run: {verdict}; min separation {f(doc.get('min_separation_m'), '.1f')} m; "
                  f"sight blocked {f(doc.get('los_blocked_fraction'), '.2f')}; "
                  f"crossing occluded {doc.get('crossing_occluded')}; wall {result.wall_s:.1f} s")
+    for e in doc.get("failsafes", ()):
+        when = "-" if e["t_mission_s"] is None else f"{e['t_mission_s']:.1f} s"
+        lines.append(f"failsafe: {e['vehicle']} entered {e['mode']} at {when} ({e['cause']}"
+                     f"{', recovered' if e['recovered'] else ', not recovered'})")
     if result.message:
         lines.append(f"why: {result.message}")
     return "\n".join(lines)

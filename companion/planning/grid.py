@@ -1,4 +1,5 @@
-"""Occupancy grid for A*: the inflated static obstacles rasterised over the geofence box.
+"""Occupancy grid for A*: the inflated static obstacles rasterised over the geofence box, with
+everything outside the declared area (the keep-in, :func:`uav_model.fence_margin.keep_in_box`) occupied.
 
 Cell (ix, iy) covers ``[x0 + ix*res, x0 + (ix+1)*res) x [y0 + iy*res, y0 + (iy+1)*res)``; the
 array is indexed ``occupied[iy, ix]`` (rows are y, north). A cell is occupied when its centre
@@ -18,6 +19,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from companion.planning.errors import PlanningError
+from uav_model.fence_margin import keep_in_box
 from uav_model.mission_limits import MAX_GRID_CELLS as MAX_CELLS, grid_shape
 from uav_model.world import World
 
@@ -102,7 +104,9 @@ def rasterise(world: World, resolution_m: float, *, t_s: float = 0.0,
 
     Moving obstacles are left to the local planner. ``t_s`` places the static obstacles (their
     offset is zero; it is here so the call reads the same as the time-aware queries). Cells whose
-    centre is outside the geofence are occupied too, so every free move stays inside it.
+    centre lies outside the declared area by more than half a cell are occupied too: a route stays
+    in the area (within half a cell of it, where a station sits on its edge) and keeps the
+    geofence margin, which is the autopilot's, clear.
     """
     if not (isinstance(resolution_m, (int, float)) and math.isfinite(resolution_m) and resolution_m > 0):
         raise PlanningError(f"grid resolution must be a positive number of metres, got {resolution_m!r}")
@@ -114,8 +118,10 @@ def rasterise(world: World, resolution_m: float, *, t_s: float = 0.0,
     xs, ys = _centres((fx0, fy0), resolution_m, nx, ny)
     h = _half_diagonal(resolution_m)
     occ = np.zeros((ny, nx), dtype=bool)
-    occ[:, xs > fx1] = True
-    occ[ys > fy1, :] = True
+    kx0, ky0, kx1, ky1 = keep_in_box(world)
+    tol = resolution_m / 2.0 + 1e-9
+    occ[:, (xs < kx0 - tol) | (xs > kx1 + tol) | (xs > fx1)] = True
+    occ[(ys < ky0 - tol) | (ys > ky1 + tol) | (ys > fy1), :] = True
     for o in world.static_obstacles:
         if o.is_circle:
             _fill_disk(occ, xs, ys, o.center_at(t_s), o.inflated_radius_m + h)

@@ -5,7 +5,7 @@ order. The first is planned freely. Each later vehicle must keep to the other si
 joining the start and goal of every earlier route. Blocked for it (as extra grid obstacles):
   * each earlier (sparse) route, buffered by the minimum separation;
   * that route's side: the half-plane of its start-goal line that it lies in (clipped to the
-    geofence box), or, when the route crosses its own line, every lobe it encloses with the
+    declared area, the keep-in), or, when the route crosses its own line, every lobe it encloses with the
     line (there is no single side then, so the later vehicle goes around all of them).
 Discs of radius ``min_separation + 2 cells`` around the later vehicle's own start and goal are
 exempt: stations are shared, and meeting there is separated in time, which is the local
@@ -40,6 +40,7 @@ from companion.planning.astar import astar, path_length_m
 from companion.planning.errors import BudgetExceeded, NoPath
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.sparse import sparsify
+from uav_model.fence_margin import keep_in_box
 from uav_model.world import World
 
 Constraint = Literal["opposite-side", "avoid-route", "none"]
@@ -89,7 +90,7 @@ def plan_routes(mission: Mission, *, max_expansions: int | None = None) -> dict[
         earlier = list(routes.values()) if priority_rule_applies(mission) else []
         failure: NoPath | None = None
         ladder = _constraint_ladder(earlier, (vehicle.start_enu_m, vehicle.goal_enu_m),
-                                    mission.safety.min_separation_m, resolution_m, world.geofence)
+                                    mission.safety.min_separation_m, resolution_m, shapely.box(*keep_in_box(world)))
         for constraint, blocked in ladder:
             grid = base.with_geometry_blocked(blocked) if blocked else base
             try:
@@ -128,7 +129,8 @@ def detour_route(grid: OccupancyGrid, world: World, from_xy: tuple[float, float]
     """
     x, y = float(from_xy[0]), float(from_xy[1])
     start = _nearest_free_centre(grid, x, y, 10)
-    ladder = _constraint_ladder(list(earlier), (start, tuple(goal_xy)), separation_m, grid.resolution_m, world.geofence)
+    ladder = _constraint_ladder(list(earlier), (start, tuple(goal_xy)), separation_m, grid.resolution_m,
+                                 shapely.box(*keep_in_box(world)))
     for constraint, blocked in ladder:
         try:
             raw = astar(grid.with_geometry_blocked(blocked) if blocked else grid, start, goal_xy,
@@ -147,8 +149,8 @@ def detour_route(grid: OccupancyGrid, world: World, from_xy: tuple[float, float]
 
 def priority_rule_applies(mission: Mission) -> bool:
     """The paper's rule is for a pair. With more vehicles whose routes must cross (a fleet flying
-    across the square), it pushes each later route around the ends of the earlier ones, through
-    the geofence margin; their routes are planned freely and the local planner keeps the
+    across the square), it pushes each later route around the ends of the earlier ones, along
+    the area's edge; their routes are planned freely and the local planner keeps the
     separation (:mod:`companion.planning.fleet`)."""
     return len(mission.vehicles) <= 2
 

@@ -25,7 +25,8 @@ from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.routes import detour_route
 from uav_model.mission import Normalisation, SightlineCritic
 from uav_model.world import World
-from uav_model.plant import TRACKING_LAG_S, Plant, tracking_margin_m
+from uav_model.fence_margin import rollout_box
+from uav_model.plant import TRACKING_LAG_S, Plant
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission, VehicleSpec
@@ -218,10 +219,9 @@ class VehiclePlanner:
         goals_from = spec.goals
         sightline = spec.sightline and mission.by_priority[0].name != vehicle.name
         nodes = variant_nodes(variant, vehicle, route)
-        # Keep-in box: the geofence, less what the plant may stray from the unicycle rollouts.
-        inset = tracking_margin_m(mission.plant, vehicle.speed_m_s)
-        x0, y0, x1, y1 = (float(v) for v in mission.world.geofence.bounds)
-        fence = (x0 + inset, y0 + inset, x1 - inset, y1 - inset)
+        # Keep-in box: the area, and of the geofence margin what keeps the braking distance and
+        # the tracking lag from the uploaded fence (uav_model.fence_margin).
+        fence = rollout_box(mission, vehicle)
         window = window_settings(mission, variant)
         if not sightline:
             del window["w_s"]  # the first in priority flies without the term

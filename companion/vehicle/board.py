@@ -19,6 +19,10 @@ from companion.vehicle.port import FlightMode, PoseSample, TrafficReport, Vehicl
 # STATUSTEXTs that mean the autopilot took control away because setpoints stopped: PX4's
 # "Failsafe activated" (then RTL or Hold, per COM_OBL_RC_ACT) and the stub's own wording.
 FAILSAFE_TEXTS = ("failsafe activated", "offboard control lost")
+# A geofence breach: PX4's navigator says "Geofence violation: approaching or outside geofence"
+# (or "... exceeding maximum distance to Home", "... altitude ...") as it takes GF_ACTION. The same
+# words inside "Arming denied: ..." are a refusal on the ground, not a breach.
+FENCE_TEXTS = ("geofence violation",)
 
 
 # Faster than any multicopter this companion flies: a sample this far from the last one is another
@@ -45,6 +49,11 @@ def implausible_jump(prev: PoseSample, x_east_m: float, y_north_m: float, t_sim_
 def is_failsafe_text(text: str) -> bool:
     low = text.lower()
     return any(t in low for t in FAILSAFE_TEXTS)
+
+
+def is_fence_text(text: str) -> bool:
+    low = text.lower()
+    return "denied" not in low and any(t in low for t in FENCE_TEXTS)
 
 
 class VehicleBoard:
@@ -129,9 +138,12 @@ class VehicleBoard:
         appends a tab: the match is on a lower-cased fragment)."""
         text = text.strip()
         self.texts.append((time.monotonic(), text))
+        clock = self.latest_clock_s if self.latest_clock_s is not None else float("-inf")
         if is_failsafe_text(text):
-            clock = self.latest_clock_s if self.latest_clock_s is not None else float("-inf")
             await self.put_status(failsafe_notices=self._status.failsafe_notices + 1, last_failsafe_t_sim_s=clock)
+        if is_fence_text(text):
+            await self.put_status(fence_notices=self._status.fence_notices + 1, last_fence_t_sim_s=clock,
+                                  last_fence_text=text)
 
     async def put_pose(self, **fields: float) -> PoseSample:
         """A new sample. One that jumped from the last plausible one is marked implausible (the

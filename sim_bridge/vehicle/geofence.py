@@ -11,7 +11,9 @@ geofence"), and while armed it takes GF_ACTION: 0 none, 1 warning, 2 Hold, 3 Ret
 5 Land (PX4's default 2). The action is not undone by the stub: a client may switch mode again
 (PX4 lets the user take over a geofence Hold by a mode switch), and a new breach acts again.
 GF_PREDICT 1 also checks the braking point (PX4's experimental predictive trigger, default 0).
-PX4 refuses to arm while the vehicle is outside its fence; so does the stub.
+GF_MAX_HOR_DIST (> 0) is a circle around home, as PX4's ("Geofence violation: exceeding maximum
+distance to Home"), with the same action. PX4 refuses to arm while the vehicle is outside its
+fence; so does the stub.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ if TYPE_CHECKING:
     from sim_bridge.vehicle import SimVehicle
 
 BREACH_TEXT = "Geofence violation: approaching or outside geofence"  # PX4's geofenceCheck.cpp
+DISTANCE_TEXT = "Geofence violation: exceeding maximum distance to Home"  # GF_MAX_HOR_DIST
 _VERTEX = {mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION: True,
            mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION: False}
 _CIRCLE = {mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION: True, mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION: False}
@@ -163,30 +166,38 @@ class Geofence:
 
     def outside(self) -> bool:
         """Whether the vehicle is outside its fence now (or, with GF_PREDICT, will be once it brakes)."""
+        return self.violation() is not None
+
+    def violation(self) -> str | None:
+        """PX4's words for the fence the vehicle is outside of now, or None when inside all."""
         v = self._v
         items = v.missions.plan(FENCE)
         if items is not self._items:
             self._items = items
             self.fence = fence_from_items(items, v.origin)
-        if self.fence.empty or v.params["GF_ACTION"] == GeofenceAction.NONE:
-            return False
+        if v.params["GF_ACTION"] == GeofenceAction.NONE:
+            return None
         s = v.state
-        if self.fence.breached(s.east_m, s.north_m):
-            return True
+        points = [(s.north_m, s.east_m)]
         if v.params["GF_PREDICT"] >= 1:
-            north, east, _ = v.modes.braking_point()
-            return self.fence.breached(east, north)
-        return False
+            points.append(v.modes.braking_point()[:2])
+        max_dist = float(v.params["GF_MAX_HOR_DIST"])
+        home_n, home_e, _ = v.home_ned
+        if max_dist > 0.0 and any(math.hypot(n - home_n, e - home_e) > max_dist for n, e in points):
+            return DISTANCE_TEXT
+        if not self.fence.empty and any(self.fence.breached(e, n) for n, e in points):
+            return BREACH_TEXT
+        return None
 
     def check(self, t: float) -> list[Emit]:
         """One step: on a new breach, say so and (armed) take GF_ACTION."""
-        now = self.outside()
-        started = now and not self.breached
-        self.breached = now
+        text = self.violation()
+        started = text is not None and not self.breached
+        self.breached = text is not None
         if not started:
             return []
         v = self._v
-        out = [Emit(v.tele.statustext(mavlink.MAV_SEVERITY_CRITICAL, BREACH_TEXT))]
+        out = [Emit(v.tele.statustext(mavlink.MAV_SEVERITY_CRITICAL, text))]
         action = self.action
         if not v.armed:
             return out

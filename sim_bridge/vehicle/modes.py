@@ -9,7 +9,6 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sim_bridge.mission_protocol import MISSION
 from sim_bridge.px4 import FlightMode
-from sim_bridge.vehicle.geofence import BREACH_TEXT
 from sim_bridge.vehicle.types import (
     BOOT_HEALTHY_S, BOOT_PREFLIGHT_FAIL_S, PRFLT_DISARM_LAG_S, TAKEOFF_SPOOLUP_S, Emit, OffboardLoss, Result,
     RtlPhase, Setpoint,
@@ -76,8 +75,9 @@ class Modes:
                 return self._denied("Arming denied: no offboard signal")
             if not self.armable():
                 return self._denied("Arming denied: battery too low")
-            if v.geofence.outside():
-                return self._denied(f"Arming denied: {BREACH_TEXT}")
+            violation = v.geofence.violation()
+            if violation is not None:
+                return self._denied(f"Arming denied: {violation}")
         v.armed = True
         self.armed_t = v.sim_time_s
         self.took_off_since_arm = False

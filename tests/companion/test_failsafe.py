@@ -3,9 +3,11 @@ operator's mode change (no notice), in the orders PX4 and MAVSDK deliver them.""
 
 from __future__ import annotations
 
+import asyncio
 import dataclasses
 
 from companion.app.failsafe import FailsafeWatch, ModeVerdict
+from companion.vehicle.board import VehicleBoard
 from companion.vehicle.port import FlightMode, VehicleStatus
 
 GRACE_WALL_S = 1.0
@@ -83,3 +85,49 @@ def test_back_in_offboard_by_itself_is_a_failsafe_that_is_over():
     st = _to(_to(OFFBOARD, FlightMode.RETURN_TO_LAUNCH), FlightMode.OFFBOARD)  # both between two samples
     assert watch.judge(st, 50.0, 0.0, GRACE_WALL_S, False) is ModeVerdict.RESUMED
     assert watch.judge(st, 50.1, 0.1, GRACE_WALL_S, False) is ModeVerdict.FLYING
+
+
+def _breach(st: VehicleStatus, clock_s: float) -> VehicleStatus:
+    text = "Geofence violation: approaching or outside geofence"
+    return dataclasses.replace(st, fence_notices=st.fence_notices + 1, last_fence_t_sim_s=clock_s, last_fence_text=text)
+
+
+def test_a_geofence_hold_is_a_fence_event_not_an_offboard_loss():
+    # The stub and PX4: "Geofence violation: ..." then "Failsafe activated", then Hold (GF_ACTION 2).
+    watch = FailsafeWatch(OFFBOARD)
+    st = _to(_notice(_breach(OFFBOARD, 60.0), 60.0), FlightMode.HOLD)
+    assert watch.judge(st, 60.5, 0.0, GRACE_WALL_S, True) is ModeVerdict.FENCE
+    # The fence's own "Failsafe activated" is used up: it does not explain a later Hold as a loss.
+    st = _to(_to(st, FlightMode.OFFBOARD), FlightMode.HOLD)
+    assert watch.judge(st, 61.0, 0.1, GRACE_WALL_S, False) is ModeVerdict.WAIT
+
+
+def test_a_breach_heard_while_recovering_or_still_in_offboard_is_a_fence_event():
+    # The failsafe text first (recovery begun), the breach notice a moment later.
+    watch = FailsafeWatch(OFFBOARD)
+    st = _to(_notice(OFFBOARD, 60.0), FlightMode.HOLD)
+    assert watch.judge(st, 60.1, 0.0, GRACE_WALL_S, False) is ModeVerdict.RECOVER
+    assert watch.judge(_breach(st, 60.2), 60.3, 0.1, GRACE_WALL_S, False) is ModeVerdict.FENCE
+    # GF_ACTION 1 (warning only): the vehicle stays in OFFBOARD, and it is still a breach.
+    watch = FailsafeWatch(OFFBOARD)
+    assert watch.judge(_breach(OFFBOARD, 70.0), 70.0, 0.0, GRACE_WALL_S, False) is ModeVerdict.FENCE
+
+
+def test_breach_notices_from_before_offboard_do_not_count():
+    before = _breach(OFFBOARD, 10.0)
+    watch = FailsafeWatch(before)
+    assert watch.judge(before, 50.0, 0.0, GRACE_WALL_S, False) is ModeVerdict.FLYING
+
+
+def test_the_board_counts_breach_notices_but_not_an_arming_refusal():
+    async def go():
+        board = VehicleBoard("a")
+        await board.note_clock(12.5)
+        await board.put_text("Arming denied: Geofence violation: approaching or outside geofence")
+        assert board.status().fence_notices == 0
+        await board.put_text("Geofence violation: exceeding maximum distance to Home\t")  # PX4 appends a tab
+        await board.put_text("Failsafe activated")
+        return board.status()
+    st = asyncio.run(go())
+    assert (st.fence_notices, st.last_fence_t_sim_s, st.failsafe_notices) == (1, 12.5, 1)
+    assert st.last_fence_text == "Geofence violation: exceeding maximum distance to Home"

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 from pathlib import Path
 
 import pytest
@@ -25,6 +26,7 @@ from companion.errors import GeofenceRefused
 from companion.sitl.inprocess import open_inprocess_fleet
 from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
 from companion.vehicle.port import GeoFenceZone
+from uav_model.fence_margin import exclusion_margin_m, fence_standoff_m, fence_warnings
 from uav_model.mission import parse_mission
 from sim_bridge.bridge import SimOptions
 from sim_bridge.mission_protocol import FENCE
@@ -44,10 +46,17 @@ vehicles:
   - {name: a, start: A, goal: B, speed_m_s: 10, turn_radius_m: 20, cruise_alt_m: 10}
   - {name: b, start: B, goal: A, speed_m_s: 10, turn_radius_m: 20, cruise_alt_m: 20}
 """
-# 25 small sheds: each inflated rectangle is a 12-vertex fence polygon, 300 items in all, more
-# than the autopilot stores (the stub's FENCE capacity is 256 items).
-SHEDS = "\n".join(f"  - {{id: shed{i}{j}, shape: rectangle, center: [{260 + 16 * i}, {20 + 16 * j}], "
-                  f"width_m: 8, height_m: 8}}" for i in range(5) for j in range(5))
+# 25 small twelve-sided sheds: their inflation is thinner than the fence standoff, so each is
+# uploaded as its footprint, 12 vertices, 300 items in all: more than the autopilot stores (the
+# stub's FENCE capacity is 256 items).
+def _shed(i: int, j: int) -> str:
+    cx, cy = 260 + 16 * i, 20 + 16 * j
+    ring = ", ".join(f"[{cx + 5 * math.cos(k * math.pi / 6):.2f}, {cy + 5 * math.sin(k * math.pi / 6):.2f}]"
+                     for k in range(12))
+    return f"  - {{id: shed{i}{j}, shape: polygon, vertices: [{ring}]}}"
+
+
+SHEDS = "\n".join(_shed(i, j) for i in range(5) for j in range(5))
 TOO_BIG_YAML = MISSION_YAML.replace("vehicles:\n", SHEDS + "\nvehicles:\n")
 
 
@@ -100,8 +109,11 @@ def test_the_fence_is_uploaded_and_read_back_before_arming_and_the_flight_stays_
         stored = sim.missions.plan(FENCE)
         commands = [it.command for it in stored]
         assert commands[:4] == [mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION] * 4  # the area + margin
-        assert commands[4] == mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION and stored[4].param1 == pytest.approx(48.0)
-        assert set(commands[5:]) == {mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION}  # the barn, inflated
+        # The hill (40 m, 8 m of inflation): its exclusion lies the standoff inside the keep-out,
+        # never inside the footprint.
+        hill_fence_m = 40.0 + exclusion_margin_m(mission.world.obstacles[0], fence_standoff_m(mission))
+        assert commands[4] == mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION and stored[4].param1 == pytest.approx(hill_fence_m)
+        assert set(commands[5:]) == {mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION}  # the barn
         assert not sim.geofence.breaches  # the flight never entered an inflated obstacle
         assert any(f"{name}: geofence uploaded and read back (the area and 2 obstacles, " in line for line in lines)
     # The autopilot's zones are the .plan's: the geometry in the stub is the mission's inflated obstacles.
@@ -111,7 +123,8 @@ def test_the_fence_is_uploaded_and_read_back_before_arming_and_the_flight_stays_
     (ring,) = fence.exclusion_polygons
     barn = ring.polygon
     inflated = mission.world.obstacles[1].inflated
-    assert barn.within(inflated.buffer(0.05)) and barn.area > 0.97 * inflated.area
+    footprint = mission.world.obstacles[1].footprint
+    assert barn.within(inflated.buffer(0.05)) and barn.area >= 0.999 * footprint.area
 
 
 def test_no_fence_uploads_nothing():
@@ -168,3 +181,71 @@ def test_the_mavsdk_adapter_uploads_and_reads_back_the_same_fence_over_udp():
     verify_fence_readback("a", mission_fence(mission), got)
     assert len(stored) == sum(1 if z.is_circle else len(z.vertices_deg) for z in got)
     assert lines and "geofence uploaded and read back" in lines[-1]
+
+
+# -- the fence tells the truth: over real UDP, the stub as its own process, the companion's MAVSDK ---
+
+SMALL_FIELD = Path(__file__).resolve().parents[1] / "data" / "small_field.yaml"
+
+
+def test_the_standoff_puts_each_exclusion_inside_the_keep_out_and_never_inside_the_footprint():
+    mission = parse_mission(MISSION_YAML.replace("radius_m: 40", "radius_m: 200"), "fenced.yaml")
+    s = fence_standoff_m(mission)
+    assert s == pytest.approx(10.0 ** 2 / (2 * 3.0))  # v^2 / (2 MPC_ACC_HOR), PX4's default 3 m/s^2
+    hill, barn = mission.world.static_obstacles
+    _, circle, ring = mission_fence(mission)
+    assert circle.radius_m == pytest.approx(200.0 + 40.0 - s)  # 20 % inflation (40 m) less the standoff
+    assert len(ring.vertices_deg) == 4  # the barn's 5 m inflation is thinner than the standoff: its footprint
+    assert [w for w in fence_warnings(mission) if "barn" in w] and not [w for w in fence_warnings(mission)
+                                                                        if "hill" in w or "geofence_margin" in w]
+
+
+def _breach_texts(stub, name: str) -> list[str]:
+    return [t for t in stub.vehicle(name).statustext if "Geofence violation" in t]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_the_small_field_flies_with_the_fence_uploaded_and_never_breaches(sitl, companion):
+    # A user's 800 x 600 m field: the routes skim three inflated obstacles and the area's edge.
+    stub = sitl(SMALL_FIELD, speedup=20)
+    run = companion(stub, timeout_s=240)
+    assert run.exit_code == 0, run.tail
+    assert run.summary["success"] and run.summary["failsafes"] == [], run.summary
+    for name in ("a", "b"):
+        assert f"{name}: geofence uploaded and read back (the area and 3 obstacles" in run.stdout
+        assert _breach_texts(stub, name) == [], name
+    area = stub.mission.world
+    for row in run.flight_log():
+        if row["phase"] == "offboard":
+            assert area.x_min_m - 1.0 <= float(row["x_m"]) <= area.x_max_m + 1.0, row
+            assert area.y_min_m - 1.0 <= float(row["y_m"]) <= area.y_max_m + 1.0, row
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_a_fence_breach_fails_the_run_as_geofence_with_the_failsafe_listed(sitl, companion):
+    # The operator narrows the fence in flight (GF_MAX_HOR_DIST, on the GCS link): a is beyond it at
+    # once. PX4 (and the stub) say "Geofence violation: exceeding maximum distance to Home",
+    # "Failsafe activated", and Hold. That is a breach, not an offboard loss to resume from.
+    stub = sitl(SMALL_FIELD, speedup=20)
+    live = companion.start(stub)
+    stub.wait_for_mode("a", "OFFBOARD", timeout_s=90)
+    stub.wait_for_clock(stub.mode_times("a", "OFFBOARD")[0] + 15.0, timeout_s=60)
+    sysid = stub.mission.vehicle("a").system_id
+
+    async def narrow() -> None:
+        stub.recorder.send(sysid, mavlink.MAVLink_param_set_message(
+            sysid, 1, b"GF_MAX_HOR_DIST", 40.0, mavlink.MAV_PARAM_TYPE_REAL32))
+    stub.telemetry.call(narrow())
+    run = live.wait(180)
+    assert run.exit_code == 1, run.tail
+    assert run.summary["reason"] == "geofence" and not run.summary["success"], run.summary
+    fences = [f for f in run.summary["failsafes"] if f["cause"] == "geofence"]
+    assert [(f["vehicle"], f["mode"], f["recovered"]) for f in fences] == [("a", "HOLD", False)], run.summary
+    assert fences[0]["t_mission_s"] > 15.0 and "maximum distance to Home" in fences[0]["notice"]
+    assert "FAILED (geofence)" in run.stdout and "failsafe: a entered HOLD at" in run.stdout
+    assert "a: autopilot fell back to HOLD (offboard loss)" not in run.stdout, run.stdout[-3000:]
+    assert _breach_texts(stub, "a")
+    modes = stub.modes("a")
+    assert "OFFBOARD" not in modes[modes.index("HOLD", modes.index("OFFBOARD")):], modes  # not fought

@@ -278,6 +278,11 @@ def test_px4_default_failsafe_and_a_3_s_uplink_blackout_the_mission_succeeds(sit
     _failsafe_then_offboard(stub, "HOLD")
     assert "fell back to HOLD (offboard loss)" in run.stdout, run.stdout[-3000:]
     assert "stands down" not in run.stdout
+    # The run succeeded, and says what it came back from: each vehicle's Hold, recovered.
+    listed = {(f["vehicle"], f["mode"], f["cause"], f["recovered"]) for f in run.summary["failsafes"]}
+    assert listed == {("a", "HOLD", "offboard_loss", True), ("b", "HOLD", "offboard_loss", True)}, run.summary["failsafes"]
+    assert all(f["t_mission_s"] > 15.0 for f in run.summary["failsafes"])
+    assert "failsafe: a entered HOLD at" in run.stdout and ", recovered)" in run.stdout
 
 
 @needs_px4_failsafe

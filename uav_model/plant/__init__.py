@@ -40,11 +40,6 @@ _STEPS: dict[Plant, Step] = {Plant.MULTICOPTER: multicopter.step, Plant.UNICYCLE
 TRACKING_LAG_S = {Plant.MULTICOPTER: 2.0, Plant.UNICYCLE: 0.0}
 
 
-def tracking_margin_m(plant: Plant, speed_m_s: float) -> float:
-    """How far the flown path may stray outside a rollout the planner judged legal."""
-    return TRACKING_LAG_S[plant] * speed_m_s
-
-
 def step_for(plant: Plant) -> Step:
     """The pure ``step(state, command, limits, dt_s)`` of ``plant``."""
     return _STEPS[plant]
