@@ -99,19 +99,31 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         return bad_input(exc)
     out = output_dir(args.out or Path(f"simulate-{mission.name}-{run.variant}"))
     summary = run.summary.summary_dict()
-    summary.update(mission=mission.name, variant=run.variant, wall_s=round(run.wall_s, 3),
-                   speed_factor=round(run.speed_factor, 1))
+    summary.update(mission=mission.name, mission_file=str(args.mission), variant=run.variant,
+                   wall_s=round(run.wall_s, 3), speed_factor=round(run.speed_factor, 1))
     from companion.planning.certificate import mission_certificate
     certificate = mission_certificate(mission.with_variant(run.variant), run.routes)
     summary["occlusion_certificate"] = None if certificate is None else certificate.summary_dict()
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     save_trajectory(out / "trajectory.png", mission, run.tracks, run.routes,
                     title=f"{mission.name} ({run.variant})")
+    _write_flight_log(out, run.tracks)
     print(format_summary(run))
     if certificate is not None:
         print(certificate.describe())
-    print(f"wrote {out / 'summary.json'} and {out / 'trajectory.png'}")
+    print(f"wrote {out / 'summary.json'}, flight.csv and trajectory.png")
     return EXIT_OK if run.success else EXIT_FAILED
+
+
+def _write_flight_log(out: Path, tracks) -> None:
+    """flight.csv in `companion run`'s columns (pose per tick; the obstacles' clock is the
+    mission's), so that `companion replay` reads a simulate directory as it reads a run."""
+    from companion.app.flight_log import FlightLog
+    rows = sorted((float(t), name, float(x), float(y)) for name, tr in tracks.items()
+                  for t, x, y in zip(tr.t_s, tr.x_m, tr.y_m))
+    with FlightLog(out, flush_every_s=math.inf) as log:
+        for t, name, x, y in rows:
+            log.row(t_mission_s=t, t_sim_s=t, vehicle=name, phase="simulate", x_m=x, y_m=y)
 
 
 def _f(value, fmt: str = ".1f", none: str = "-") -> str:
