@@ -139,11 +139,11 @@ def format_summary(run) -> str:
     strict = {True: "strict: yes", False: "strict: no (sight line open at closest approach)", None: ""}
     lines = [f"{run.mission.name} [{run.variant}]: {head}  {strict[s.crossing_occluded] if s.success else ''}".rstrip(),
              f"{'vehicle':8} {'arrived':7} {'time_s':>7} {'bound_s':>7} {'ratio':>6} {'path_m':>7} "
-             f"{'clear_m':>7} {'nodes':>9} {'ms/tick':>7}"]
+             f"{'min clear (true) m':>18} {'nodes':>9} {'ms/tick':>7}"]
     for name, v in s.vehicles.items():
         nodes = "-" if v.nodes_raw is None else f"{v.nodes_raw}/{v.nodes_sparse}"
         lines.append(f"{name:8} {'yes' if v.arrived else 'no':7} {v.flight_time_s:7.1f} {_f(v.lower_bound_s):>7} "
-                     f"{_f(v.ratio, '.3f'):>6} {v.path_length_m:7.0f} {_f(v.min_obstacle_clearance_m):>7} "
+                     f"{_f(v.ratio, '.3f'):>6} {v.path_length_m:7.0f} {_f(v.min_obstacle_clearance_m):>18} "
                      f"{nodes:>9} {_f(v.planner_ms_per_tick, '.3f'):>7}")
     if s.min_separation_m is not None:
         lines.append(f"min separation {s.min_separation_m:.0f} m, sight line blocked "
