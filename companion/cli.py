@@ -104,18 +104,31 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     except (MissionError, NoPath) as exc:
         return bad_input(exc)
     summary = run.summary.summary_dict()
-    summary.update(mission=mission.name, variant=run.variant, wall_s=round(run.wall_s, 3),
-                   speed_factor=round(run.speed_factor, 1))
+    summary.update(mission=mission.name, mission_file=str(args.mission), variant=run.variant,
+                   wall_s=round(run.wall_s, 3), speed_factor=round(run.speed_factor, 1))
     from companion.planning.certificate import mission_certificate
     certificate = mission_certificate(mission.with_variant(run.variant), run.routes)
     summary["occlusion_certificate"] = None if certificate is None else certificate.summary_dict()
     print(format_summary(run), flush=True)  # the verdict first: it needs no disk
     if certificate is not None:
         print(certificate.describe(), flush=True)
-    saved = save_results(out, summary, [("trajectory.png", lambda path: save_trajectory(
-        path, mission, run.tracks, run.routes, title=f"{mission.name} ({run.variant})"))])
+    saved = save_results(out, summary, [
+        ("trajectory.png", lambda path: save_trajectory(path, mission, run.tracks, run.routes,
+                                                        title=f"{mission.name} ({run.variant})")),
+        ("flight.csv", lambda path: _write_flight_log(path.parent, run.tracks))])
     print(saved.line(), file=sys.stdout if saved.complete else sys.stderr, flush=True)
     return EXIT_OK if run.success else EXIT_FAILED
+
+
+def _write_flight_log(out: Path, tracks) -> None:
+    """flight.csv in `companion run`'s columns (pose per tick; the obstacles' clock is the
+    mission's), so that `companion replay` reads a simulate directory as it reads a run."""
+    from companion.app.flight_log import FlightLog
+    rows = sorted((float(t), name, float(x), float(y)) for name, tr in tracks.items()
+                  for t, x, y in zip(tr.t_s, tr.x_m, tr.y_m))
+    with FlightLog(out, flush_every_s=math.inf) as log:
+        for t, name, x, y in rows:
+            log.row(t_mission_s=t, t_sim_s=t, vehicle=name, phase="simulate", x_m=x, y_m=y)
 
 
 def _f(value, fmt: str = ".1f", none: str = "-") -> str:
@@ -131,11 +144,11 @@ def format_summary(run) -> str:
     strict = {True: "strict: yes", False: "strict: no (sight line open at closest approach)", None: ""}
     lines = [f"{run.mission.name} [{run.variant}]: {head}  {strict[s.crossing_occluded] if s.success else ''}".rstrip(),
              f"{'vehicle':8} {'arrived':7} {'time_s':>7} {'bound_s':>7} {'ratio':>6} {'path_m':>7} "
-             f"{'clear_m':>7} {'nodes':>9} {'ms/tick':>7}"]
+             f"{'min clear (true) m':>18} {'nodes':>9} {'ms/tick':>7}"]
     for name, v in s.vehicles.items():
         nodes = "-" if v.nodes_raw is None else f"{v.nodes_raw}/{v.nodes_sparse}"
         lines.append(f"{name:8} {'yes' if v.arrived else 'no':7} {v.flight_time_s:7.1f} {_f(v.lower_bound_s):>7} "
-                     f"{_f(v.ratio, '.3f'):>6} {v.path_length_m:7.0f} {_f(v.min_obstacle_clearance_m):>7} "
+                     f"{_f(v.ratio, '.3f'):>6} {v.path_length_m:7.0f} {_f(v.min_obstacle_clearance_m):>18} "
                      f"{nodes:>9} {_f(v.planner_ms_per_tick, '.3f'):>7}")
     if s.min_separation_m is not None:
         lines.append(f"min separation {s.min_separation_m:.0f} m, sight line blocked "

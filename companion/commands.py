@@ -238,23 +238,23 @@ def cmd_plan(args: argparse.Namespace, plan: FlightPlan) -> int:
 
 
 def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
-    """The shared trajectory figure with the planned routes (nothing flown yet) drawn on it."""
-    import warnings
-
-    from companion.plots import trajectory_figure
-    with warnings.catch_warnings():  # the figure's legend is empty until the routes are added
-        warnings.filterwarnings("ignore", message="No artists with labels found", category=UserWarning)
-        fig = trajectory_figure(plan.mission, {}, None, title=f"{plan.mission.name}: planned routes ({plan.variant})")
-    ax = fig.axes[0]
+    """The world with the planned routes (nothing flown yet), moving obstacles swept over the
+    longest route's time at cruise."""
+    from companion.plots import place_legend, vehicle_colors, world_figure
+    nodes = {v.name: plan.nodes_enu_m(v) for v in plan.mission.by_priority}
+    t_end = max(sum(math.dist(p, q) for p, q in zip(nodes[v.name][:-1], nodes[v.name][1:])) / v.speed_m_s
+                for v in plan.mission.vehicles)
+    fig, ax = world_figure(plan.mission, title=f"{plan.mission.name}: planned routes ({plan.variant})",
+                           sweep_until_s=t_end)
+    colors = vehicle_colors(plan.mission)
     for v in plan.mission.by_priority:
-        nodes = plan.nodes_enu_m(v)
         route = plan.routes.get(v.name)
-        if route is not None and len(route.raw_enu_m) != len(nodes):
-            ax.plot(route.raw_enu_m[:, 0], route.raw_enu_m[:, 1], ls="--", lw=0.8, alpha=0.6,
+        if route is not None and len(route.raw_enu_m) != len(nodes[v.name]):
+            ax.plot(route.raw_enu_m[:, 0], route.raw_enu_m[:, 1], ls="--", lw=0.8, alpha=0.6, color=colors[v.name],
                     label=f"{v.name}: raw A* ({route.nodes_raw} nodes)")
-        ax.plot(nodes[:, 0], nodes[:, 1], lw=1.4, marker="o", ms=3.5,
-                label=f"{v.name}: uploaded route ({len(nodes)} waypoints)")
-    ax.legend(loc="lower right", fontsize=7, framealpha=0.85)
+        ax.plot(nodes[v.name][:, 0], nodes[v.name][:, 1], lw=1.4, marker="o", ms=3.5, color=colors[v.name],
+                label=f"{v.name}: uploaded route ({len(nodes[v.name])} waypoints)")
+    place_legend(fig, ax)
     fig.savefig(path)
 
 

@@ -77,6 +77,7 @@ class PreflightSettings:
     climb_m_s: float = 1.5  # PX4 MPC_TKO_SPEED
     descent_m_s: float = 1.5  # PX4 MPC_Z_VEL_MAX_DN (MPC_LAND_SPEED 0.7 only for the last metres)
     min_loss_timeout_s: float = 0.3  # COM_OF_LOSS_T below this cannot be fed reliably
+    material_turn_widening: float = 1.25  # a derate widening the turns beyond this factor warns; below it: info
     set_failsafe_hold: bool = True  # COM_OBL_RC_ACT becomes 5 (Hold) at connect (RunSettings.failsafe_hold)
 
 
@@ -164,19 +165,21 @@ def check_limits(spec: VehicleSpec, facts: VehicleFacts, s: PreflightSettings) -
                            f"MPC_XY_VEL_MAX {vmax:g} m/s < mission {v:g} m/s: planning at {vmax:g} m/s"))
         v = vmax
     acc = _param(facts, "MPC_ACC_HOR")
+    turns: list[str] = []
     if acc is not None and v * v / r > acc * (1 + 1e-9):
         r_new = v * v / acc
-        out.append(Finding(spec.name, Check.TURN, Severity.WARN,
-                           f"a {r:g} m turn at {v:g} m/s needs {v * v / r:.2f} m/s^2 > MPC_ACC_HOR {acc:g}: "
-                           f"planning {r_new:.1f} m turns ({math.degrees(v / r_new):.1f} deg/s)"))
+        turns.append(f"a {r:g} m turn at {v:g} m/s needs {v * v / r:.2f} m/s^2 > MPC_ACC_HOR {acc:g}: "
+                     f"planning {r_new:.1f} m turns ({math.degrees(v / r_new):.1f} deg/s)")
         r = r_new
     yaw_max = _param(facts, "MC_YAWRATE_MAX")
     if yaw_max is not None and math.degrees(v / r) > yaw_max:
         r_new = v / math.radians(yaw_max)
-        out.append(Finding(spec.name, Check.TURN, Severity.WARN,
-                           f"mission yaw rate {math.degrees(v / r):.1f} deg/s > MC_YAWRATE_MAX {yaw_max:g}: "
-                           f"planning {r_new:.1f} m turns"))
+        turns.append(f"mission yaw rate {math.degrees(v / r):.1f} deg/s > MC_YAWRATE_MAX {yaw_max:g}: "
+                     f"planning {r_new:.1f} m turns")
         r = r_new
+    # The companion derates the plan to the autopilot's limits; only a material widening warns.
+    material = r > s.material_turn_widening * spec.turn_radius_m
+    out += [Finding(spec.name, Check.TURN, Severity.WARN if material else Severity.INFO, t) for t in turns]
     if acc is None and yaw_max is None:
         out.append(Finding(spec.name, Check.TURN, Severity.WARN, "MPC_ACC_HOR and MC_YAWRATE_MAX not reported"))
     if (v, r) != (spec.speed_m_s, spec.turn_radius_m):

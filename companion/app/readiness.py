@@ -113,7 +113,7 @@ async def get_ready(plan: FlightPlan, vehicles: Mapping[str, Vehicle], settings:
     routes = {n: route_length_m(plan, n) for n in vehicles}
     result = preflight(plan.mission, facts, routes, settings.keepalive_sim_s, checks)
     for f in result.findings:
-        if f.severity is not Severity.INFO or f.check.value in ("station", "heading", "offboard loss", "battery"):
+        if f.severity is not Severity.INFO or f.check.value in ("station", "heading", "turn", "offboard loss", "battery"):
             report(f"pre-flight {f.severity.name.lower()}: {f.line()}")
     if result.refusals:
         first = result.refusals[0]

@@ -236,7 +236,7 @@ def summary_table(plan: FlightPlan, result: RunResult) -> str:
     """The human summary printed on exit."""
     doc = result.summary_dict
     lines = [f"{'vehicle':<8} {'arrived':<8} {'flight s':>9} {'bound s':>8} {'ratio':>6} {'path m':>8} "
-             f"{'min clear m':>11} {'nodes':>9} {'plan ms':>8} {'phase':<9}"]
+             f"{'min clear (true) m':>18} {'nodes':>9} {'plan ms':>8} {'phase':<9}"]
 
     def f(v, fmt):
         width = int(fmt.split(".")[0]) if fmt[:1].isdigit() else 0
@@ -248,7 +248,7 @@ def summary_table(plan: FlightPlan, result: RunResult) -> str:
         nodes = "-" if v.get("nodes_raw") is None else f"{v['nodes_raw']}->{v['nodes_sparse']}"
         lines.append(f"{spec.name:<8} {str(v.get('arrived', False)):<8} {f(v.get('flight_time_s'), '9.1f')} "
                      f"{f(v.get('lower_bound_s'), '8.1f')} {f(v.get('ratio'), '6.3f')} {f(v.get('path_length_m'), '8.0f')} "
-                     f"{f(v.get('min_obstacle_clearance_m'), '11.1f')} {nodes:>9} "
+                     f"{f(v.get('min_obstacle_clearance_m'), '18.1f')} {nodes:>9} "
                      f"{f(v.get('planner_ms_per_tick'), '8.2f')} {(o.phase if o else '-'):<9}")
     verdict = "SUCCESS" if result.success else f"FAILED ({result.reason})"
     lines.append(f"run: {verdict}; min separation {f(doc.get('min_separation_m'), '.1f')} m; "

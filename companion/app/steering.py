@@ -194,4 +194,4 @@ class Steering:
         if t_mission >= self._next_progress_s:
             self._next_progress_s = t_mission + self.ctx.settings.progress_every_s
             self.ctx.report(f"t={t_mission:7.1f} s  {self.name:>3} {mode:<8} to go {to_go:7.0f} m  "
-                            f"clearance {clear_m:6.0f} m  separation {sep_m:6.0f} m  {action}")
+                            f"clear (inflated) {clear_m:6.0f} m  separation {sep_m:6.0f} m  {action}")

@@ -22,7 +22,7 @@ def add_parsers(sub) -> None:
     p = sub.add_parser("replay", help="render a flown run (flight.csv, traffic.csv) as an animation")
     p.add_argument("out_dir", type=Path, help="the --out directory of a run or simulate")
     p.add_argument("--mission", type=Path, default=None, help="the mission flown (default: summary.json's)")
-    p.add_argument("--output", type=Path, default=None, help="FILE.gif or FILE.mp4 (default OUT_DIR/replay.gif)")
+    p.add_argument("--output", type=Path, default=None, help="FILE.gif (default OUT_DIR/replay.gif)")
     p.add_argument("--fps", type=int, default=15)
     p.add_argument("--seconds", type=float, default=12.0, help="length of the animation")
     p.set_defaults(func=cmd_replay)

@@ -1,8 +1,10 @@
 """``companion import``: a QGC ``.plan`` or a GeoJSON file (plus an optional base mission) to mission YAML.
 
 The imported file gives the geometry (origin, area, obstacles, and stations from GeoJSON); the
-base mission, when given, gives everything else (stations, vehicles, planner and safety). The
-result is validated by the one mission loader before anything is written.
+base mission, when given, gives everything else (stations, vehicles, planner and safety). Without
+a base, a ``.plan``'s planned home and landing (or last waypoint) are the stations A and B, and
+two stations make the paper's pair (a flies A to B, b flies B to A) with the default settings.
+The result is validated by the one mission loader before anything is written.
 """
 
 from __future__ import annotations
@@ -54,6 +56,8 @@ def merged_document(path: Path, base: Path | None = None) -> dict[str, Any]:
     """The mission document: the imported geometry over the base mission (or a default pair)."""
     parts = parts_from_file(path)
     doc = _read_base(base)
+    if base is None and "route_stations" in parts:
+        parts.setdefault("stations", parts["route_stations"])
     doc.setdefault("name", path.stem)
     if "origin" in parts and "origin" not in doc:
         doc["origin"] = parts["origin"]
@@ -65,8 +69,9 @@ def merged_document(path: Path, base: Path | None = None) -> dict[str, Any]:
     if "vehicles" not in doc:
         stations = list(doc.get("stations", {}))
         if len(stations) != 2:
-            raise ImportError_(f"{path}: no vehicles to fly: give --base MISSION.yaml for the stations and "
-                               f"vehicles (or exactly two stations, for the paper's pair)")
+            raise ImportError_(f"{path}: no vehicles to fly: the file names {len(stations)} station(s) (a .plan: "
+                               f"a planned home and a landing or waypoint elsewhere; GeoJSON: two station "
+                               f"points); give --base MISSION.yaml for the stations and vehicles")
         a, b = stations
         doc["vehicles"] = [{"name": "a", "start": a, "goal": b}, {"name": "b", "start": b, "goal": a}]
     return doc

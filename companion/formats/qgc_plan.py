@@ -1,19 +1,25 @@
 """QGroundControl ``.plan`` files: each vehicle's route and the mission's fences, out and in.
 
-Export (:func:`plan_document`): one ``.plan`` per vehicle. Its ``mission`` holds the route the
-companion uploads (NAV_WAYPOINTs at cruise altitude above home, exactly ``FlightPlan.waypoints``);
-its ``geoFence`` holds the area plus the geofence margin as an inclusion polygon and every static
-obstacle, *inflated*, as an exclusion circle or polygon: what the autopilot must never enter. These
-are the zones :func:`companion.app.fence.mission_fence` gives, the ones ``companion run`` uploads.
-MAVSDK's importer is stricter than QGC's documentation, so the file always has top-level
-``version`` 1, ``mission.version`` 2, and ``geoFence`` and ``rallyPoints`` blocks of ``version`` 2.
+Export (:func:`plan_document`): one ``.plan`` per vehicle, shaped as QGroundControl's own plans.
+Its ``mission`` has the vehicle's start station as ``plannedHomePosition``, then a NAV_TAKEOFF (22)
+there to cruise altitude, the route the companion uploads (NAV_WAYPOINTs at cruise altitude above
+home, exactly ``FlightPlan.waypoints``) and last a NAV_LAND (21) at the goal station (a mission's
+goal is never its start, so no plan ends in a return to launch). Its ``geoFence`` holds the area
+plus the geofence margin as an inclusion polygon and every static obstacle, *inflated*, as an
+exclusion circle or polygon: what the autopilot must never enter. These are the zones
+:func:`companion.app.fence.mission_fence` gives, the ones ``companion run`` uploads. MAVSDK's
+importer is stricter than QGC's documentation, so the file always has top-level ``version`` 1,
+``mission.version`` 2, and ``geoFence`` and ``rallyPoints`` blocks of ``version`` 2.
 
 Each exclusion also carries the true obstacle under the key ``astar_bdwa`` (QGC and MAVSDK ignore
 unknown keys), so that importing our own file gives back the obstacle, not its inflated fence.
 
 Import (:func:`fences_to_document`): exclusion circles and polygons become obstacles, and the
-first inclusion polygon's bounding box becomes the area. A foreign file's fences are taken as
-the true obstacle footprints (they are inflated again by the mission's planner settings).
+first inclusion polygon's bounding box becomes the area (without one: the box around the
+stations and obstacles). The planned home and the landing (else the last waypoint) are the start
+and end stations (``A`` and ``B``, or the names our own export stored), which the importer uses
+when it is given no base mission. A foreign file's fences are taken as the true obstacle
+footprints (they are inflated again by the mission's planner settings).
 """
 
 from __future__ import annotations
@@ -30,10 +36,13 @@ from uav_model.mission_read import finite
 from uav_model.world import Obstacle
 
 MAV_CMD_NAV_WAYPOINT = 16
+MAV_CMD_NAV_LAND = 21
+MAV_CMD_NAV_TAKEOFF = 22
 MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
 QGC_FIRMWARE_PX4 = 12
 QGC_VEHICLE_MULTIROTOR = 2
 EXTRA_KEY = "astar_bdwa"
+AREA_PAD_M = 100.0
 
 
 class PlanFormatError(ValueError):
@@ -64,15 +73,22 @@ def _exclusion(origin: frames.GeoOrigin, o: Obstacle, zone: GeoFenceZone) -> tup
     return "polygons", {"inclusion": False, "polygon": [_deg(v) for v in zone.vertices_deg], "version": 1, **extra}
 
 
+def _item(seq: int, command: int, lat_lon_alt: tuple[float | None, float | None, float]) -> dict[str, Any]:
+    lat, lon, alt = lat_lon_alt
+    return {"AMSLAltAboveTerrain": None, "Altitude": alt, "AltitudeMode": 1, "autoContinue": True,
+            "command": command, "doJumpId": seq, "frame": MAV_FRAME_GLOBAL_RELATIVE_ALT,
+            "params": [0, 0, 0, None, lat, lon, alt], "type": "SimpleItem"}
+
+
 def _mission_items(plan: FlightPlan, vehicle: VehicleSpec) -> list[dict[str, Any]]:
-    items = []
-    for i, wp in enumerate(plan.waypoints(vehicle)):
-        items.append({
-            "AMSLAltAboveTerrain": None, "Altitude": wp.alt_rel_m, "AltitudeMode": 1, "autoContinue": True,
-            "command": MAV_CMD_NAV_WAYPOINT, "doJumpId": i + 1, "frame": MAV_FRAME_GLOBAL_RELATIVE_ALT,
-            "params": [0, 0, 0, None, wp.lat_deg, wp.lon_deg, wp.alt_rel_m], "type": "SimpleItem",
-        })
-    return items
+    """Take-off at the start, the uploaded route, then land at the goal."""
+    origin = plan.mission.origin
+    start, goal = _latlon(origin, *vehicle.start_enu_m), _latlon(origin, *vehicle.goal_enu_m)
+    route = [(wp.lat_deg, wp.lon_deg, wp.alt_rel_m) for wp in plan.waypoints(vehicle)]
+    steps = [(MAV_CMD_NAV_TAKEOFF, (start[0], start[1], vehicle.cruise_alt_m))]
+    steps += [(MAV_CMD_NAV_WAYPOINT, p) for p in route]
+    steps.append((MAV_CMD_NAV_LAND, (goal[0], goal[1], 0)))  # a mission's goal is never its start
+    return [_item(i + 1, command, where) for i, (command, where) in enumerate(steps)]
 
 
 def plan_document(plan: FlightPlan, vehicle: VehicleSpec) -> dict[str, Any]:
@@ -81,7 +97,9 @@ def plan_document(plan: FlightPlan, vehicle: VehicleSpec) -> dict[str, Any]:
     w = mission.world
     sw, ne = _latlon(origin, w.x_min_m, w.y_min_m), _latlon(origin, w.x_max_m, w.y_max_m)
     area = {"area": {"south_west": {"lat_deg": sw[0], "lon_deg": sw[1]},
-                     "north_east": {"lat_deg": ne[0], "lon_deg": ne[1]}, "geofence_margin_m": w.geofence_margin_m}}
+                     "north_east": {"lat_deg": ne[0], "lon_deg": ne[1]}, "geofence_margin_m": w.geofence_margin_m},
+            "origin": {"lat_deg": origin.lat_deg, "lon_deg": origin.lon_deg, "alt_m": origin.alt_m},
+            "stations": {"start": vehicle.start, "goal": vehicle.goal}}
     inclusion, *exclusions = mission_fence(mission)  # exactly what the companion uploads before arming
     fence = {"circles": [], "polygons": [{"inclusion": True, "polygon": [_deg(v) for v in inclusion.vertices_deg],
                                           "version": 1, EXTRA_KEY: area}], "version": 2}
@@ -95,7 +113,7 @@ def plan_document(plan: FlightPlan, vehicle: VehicleSpec) -> dict[str, Any]:
         "mission": {
             "cruiseSpeed": vehicle.speed_m_s, "firmwareType": QGC_FIRMWARE_PX4, "globalPlanAltitudeMode": 1,
             "hoverSpeed": vehicle.speed_m_s, "items": _mission_items(plan, vehicle),
-            "plannedHomePosition": [origin.lat_deg, origin.lon_deg, origin.alt_m],
+            "plannedHomePosition": [*_latlon(origin, *vehicle.start_enu_m), origin.alt_m],
             "vehicleType": QGC_VEHICLE_MULTIROTOR, "version": 2,
         },
         "rallyPoints": {"points": [], "version": 2},
@@ -156,6 +174,7 @@ def fences_to_document(doc: Any, source: str) -> dict[str, Any]:
         raise PlanFormatError(f"{source}: not a QGroundControl plan (fileType is not 'Plan')")
     fence = _block(doc.get("geoFence"), f"{source}: geoFence")
     out: dict[str, Any] = {"obstacles": []}
+    names: dict[str, str] = {}  # our own export's station names
     home = _block(doc.get("mission"), f"{source}: mission").get("plannedHomePosition")
     if home is not None:
         where = f"{source}: mission.plannedHomePosition"
@@ -183,6 +202,8 @@ def fences_to_document(doc: Any, source: str) -> dict[str, Any]:
         if p.get("inclusion"):
             if "area" not in out and isinstance(p.get(EXTRA_KEY), dict) and "area" in p[EXTRA_KEY]:
                 out["area"] = p[EXTRA_KEY]["area"]
+                out["origin"] = p[EXTRA_KEY].get("origin", out.get("origin"))
+                names = p[EXTRA_KEY].get("stations", names)
             elif "area" not in out and ring:
                 lats = [v["lat_deg"] for v in ring]
                 lons = [v["lon_deg"] for v in ring]
@@ -194,4 +215,55 @@ def fences_to_document(doc: Any, source: str) -> dict[str, Any]:
             out["obstacles"].append(_obstacle_from_extra(p[EXTRA_KEY], where))
         else:
             out["obstacles"].append({"id": f"fence_polygon{i}", "shape": "polygon", "vertices": ring})
+    ends = _route_ends(doc.get("mission") or {}, source, names.get("start", "A"), names.get("goal", "B"))
+    if ends is not None:
+        out["route_stations"] = ends
+    if "area" not in out and "origin" in out:
+        out["area"] = _area_around(out, ends)
     return out
+
+
+def _area_around(parts: dict[str, Any], ends: dict[str, dict[str, float]] | None) -> dict[str, Any]:
+    """A foreign plan without an inclusion fence: the box around its stations and obstacles, plus
+    a tenth of its size (at least AREA_PAD_M) on every side."""
+    o = parts["origin"]
+    origin = frames.GeoOrigin(o["lat_deg"], o["lon_deg"], o.get("alt_m", 0.0))
+    xy = [(0.0, 0.0)]
+
+    def add(p: dict[str, float], r: float = 0.0) -> None:
+        x, y, _ = frames.geodetic_to_local(origin, p["lat_deg"], p["lon_deg"])
+        xy.extend([(x - r, y - r), (x + r, y + r)])
+    for p in (ends or {}).values():
+        add(p)
+    for ob in parts["obstacles"]:
+        for v in ob.get("vertices", []):
+            add(v)
+        if "center" in ob:
+            add(ob["center"], ob["radius_m"])
+    xs, ys = [p[0] for p in xy], [p[1] for p in xy]
+    pad = max(0.1 * max(max(xs) - min(xs), max(ys) - min(ys)), AREA_PAD_M)
+    sw = frames.local_to_geodetic(origin, min(xs) - pad, min(ys) - pad)
+    ne = frames.local_to_geodetic(origin, max(xs) + pad, max(ys) + pad)
+    return {"south_west": {"lat_deg": round(sw[0], 9), "lon_deg": round(sw[1], 9)},
+            "north_east": {"lat_deg": round(ne[0], 9), "lon_deg": round(ne[1], 9)}}
+
+
+def _route_ends(mission: dict[str, Any], source: str, start: str, goal: str) -> dict[str, dict[str, float]] | None:
+    """The start station (the planned home) and the goal (the landing, else the last waypoint),
+    named as our own export names them (else A and B); None when the plan has no such two."""
+    home = mission.get("plannedHomePosition")
+    if not (isinstance(home, list) and len(home) >= 2):
+        return None
+    end = None
+    for i, item in enumerate(mission.get("items") or []):
+        if not isinstance(item, dict) or item.get("type") != "SimpleItem" \
+                or item.get("command") not in (MAV_CMD_NAV_WAYPOINT, MAV_CMD_NAV_LAND):
+            continue
+        params = item.get("params")
+        if not isinstance(params, list) or len(params) < 6 or not params[4] or not params[5]:
+            continue  # no position (e.g. a land "here"): it names no end
+        end = _geo(params[4:6], f"{source}: mission.items[{i}].params")
+        if item["command"] == MAV_CMD_NAV_LAND:
+            break
+    home_geo = _geo(home[:2], f"{source}: mission.plannedHomePosition")
+    return None if end is None or end == home_geo else {start: home_geo, goal: end}

@@ -72,10 +72,62 @@ def test_plan_fences_are_the_inflated_obstacles_and_the_geofence(tmp_path):
     (area,) = doc["geoFence"]["polygons"]
     ring = Polygon([frames.geodetic_to_local(mission.origin, lat, lon)[:2] for lat, lon in area["polygon"]])
     assert ring.hausdorff_distance(mission.world.geofence) < TOLERANCE_M
-    # The route is the one the companion uploads, waypoint for waypoint.
-    sent = prepare(mission).waypoints(mission.vehicles[0])
+    # As QGroundControl's own plans: take-off first, the route the companion uploads (waypoint for
+    # waypoint), and a landing at the goal last; numbered from 1.
+    vehicle = mission.vehicles[0]
+    sent = prepare(mission).waypoints(vehicle)
     items = doc["mission"]["items"]
-    assert [(i["params"][4], i["params"][5]) for i in items] == [(w.lat_deg, w.lon_deg) for w in sent]
+    assert [i["command"] for i in items] == [22] + [16] * len(sent) + [21]
+    assert [i["doJumpId"] for i in items] == list(range(1, len(items) + 1))
+    assert [(i["params"][4], i["params"][5]) for i in items[1:-1]] == [(w.lat_deg, w.lon_deg) for w in sent]
+    assert items[0]["Altitude"] == vehicle.cruise_alt_m
+    home = doc["mission"]["plannedHomePosition"]
+    assert frames.geodetic_to_local(mission.origin, *home[:2])[:2] == pytest.approx(vehicle.start_enu_m, abs=0.01)
+    landing = frames.geodetic_to_local(mission.origin, *items[-1]["params"][4:6])[:2]
+    assert landing == pytest.approx(vehicle.goal_enu_m, abs=0.01)
+    # QGroundControl's top-level keys, as in its own file (tests/data/small_mission.plan).
+    theirs = json.loads((ROOT / "tests" / "data" / "small_mission.plan").read_text())
+    assert doc.keys() == theirs.keys() and doc["fileType"] == "Plan" and doc["groundStation"] == "QGroundControl"
+    assert set(theirs["mission"]) <= set(doc["mission"])
+    assert all(set(theirs["mission"]["items"][0]) == set(i) for i in items)
+
+
+def test_our_plan_imports_without_a_base_with_its_start_and_goal(tmp_path):
+    mission = load_mission(REFERENCE)
+    plan = prepare(mission)
+    b = mission.vehicles[1]
+    path = tmp_path / "b.plan"
+    path.write_text(json.dumps(plan_document(plan, b)))
+    _, again = import_mission(path)
+    _same_geometry(mission, again)
+    assert again.origin == mission.origin
+    # The .plan's home and landing are b's stations, under their own names.
+    assert again.stations[b.start] == pytest.approx(b.start_enu_m, abs=TOLERANCE_M)
+    assert again.stations[b.goal] == pytest.approx(b.goal_enu_m, abs=TOLERANCE_M)
+    first = again.vehicles[0]
+    assert (first.start, first.goal) == (b.start, b.goal)
+
+
+def test_qgroundcontrols_own_plan_imports_without_a_base():
+    """Its planned home is the start, its landing the end; no fence: the area is drawn around them."""
+    path = ROOT / "tests" / "data" / "small_mission.plan"
+    doc, mission = import_mission(path)
+    theirs = json.loads(path.read_text())
+    home, land = theirs["mission"]["plannedHomePosition"], theirs["mission"]["items"][-1]["params"]
+    assert mission.stations["A"] == pytest.approx(frames.geodetic_to_local(mission.origin, *home[:2])[:2], abs=0.01)
+    assert mission.stations["B"] == pytest.approx(frames.geodetic_to_local(mission.origin, *land[4:6])[:2], abs=0.01)
+    for x, y in mission.stations.values():
+        assert mission.world.x_min_m < x < mission.world.x_max_m and mission.world.y_min_m < y < mission.world.y_max_m
+
+
+def test_a_plan_without_a_home_or_an_end_asks_for_a_base_in_one_line(tmp_path):
+    theirs = json.loads((ROOT / "tests" / "data" / "small_mission.plan").read_text())
+    theirs["mission"]["items"] = theirs["mission"]["items"][:1]  # only the take-off: no end
+    path = tmp_path / "takeoff_only.plan"
+    path.write_text(json.dumps(theirs))
+    with pytest.raises(ImportError_, match="--base") as info:
+        import_mission(path)
+    assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
 
 
 GEOJSON = {

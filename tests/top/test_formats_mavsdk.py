@@ -38,8 +38,9 @@ def test_mavsdk_imports_our_plan_with_route_and_fences(tmp_path):
 
     data = asyncio.run(asyncio.wait_for(scenario(), 60))
     waypoints = plan.waypoints(vehicle)
-    assert len(data.mission_items) == len(waypoints)
-    for item, wp in zip(data.mission_items, waypoints):
+    commands = [item.command for item in data.mission_items]
+    assert commands == [22] + [16] * len(waypoints) + [21]  # take-off, the route, land
+    for item, wp in zip(data.mission_items[1:-1], waypoints):
         assert (item.x, item.y) == (round(wp.lat_deg * 1e7), round(wp.lon_deg * 1e7))
     # PX4 fences: one item per polygon vertex, one per circle.
     fence = doc["geoFence"]
