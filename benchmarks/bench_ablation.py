@@ -30,6 +30,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from companion.bench.machine import machine_line
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # Runs in the child: a slice of the bench, then its vehicle-ticks as JSON on the last line.
@@ -79,6 +81,7 @@ def main() -> None:
     parser.add_argument("--numpy-too", action="store_true", help="also time this tree without numba's paths")
     parser.add_argument("--baseline", type=Path, default=None, metavar="DIR", help="also time the tree in DIR")
     args = parser.parse_args()
+    print(machine_line(), flush=True)
     if args.baseline is not None and not (args.baseline / "companion").is_dir():
         sys.exit(f"bench_ablation: --baseline {args.baseline} is not a tree of the project")
 

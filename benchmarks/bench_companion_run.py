@@ -24,6 +24,7 @@ from pathlib import Path
 from uav_model.mission import load_mission
 from companion.planning.runner import simulate
 from sim_bridge.testing import free_udp_port_block, free_udp_ports
+from companion.bench.machine import machine_line
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -36,6 +37,7 @@ def main() -> None:
     p.add_argument("--loss", type=float, default=0.0)
     p.add_argument("--latency-ms", type=float, default=0.0)
     args = p.parse_args()
+    print(machine_line(), flush=True)
 
     mission = load_mission(args.mission)
     headless = simulate(mission).summary

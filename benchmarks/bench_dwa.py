@@ -25,6 +25,7 @@ from uav_model.mission import parse_mission
 from companion.planning.dwa import Command, OtherUav, Pose, kernels, plan_step
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.vehicle_planner import VehiclePlanner, window_settings
+from companion.bench.machine import machine_line
 
 HEAD = """
 area: {x_min_m: 0, y_min_m: 0, x_max_m: 3181.98, y_max_m: 3181.98}
@@ -100,6 +101,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3000)
     args = parser.parse_args()
+    print(machine_line(), flush=True)
     for name, (text, pose) in WORLDS.items():
         mission = parse_mission(text, f"bench_dwa_{name}")
         planner = VehiclePlanner.build(mission, mission.by_priority[1], None, "bdwa")
