@@ -3,8 +3,8 @@
 Runs the real command (a child process, real UDP, MAVSDK) ``--repeats`` times and prints the
 median wall time of the whole run (connect, upload, take-off, flight, landing), each vehicle's
 flight time beside ``companion simulate``'s, and the offboard re-entries the stub forced. No
-pass/fail. Target from issue 4: the reference mission at 20x in <= 60 s wall, flight times within
-3 % of simulate.
+pass/fail. Target: the reference mission at 20x in <= 60 s wall, flight times within 3 % of
+simulate.
 
     python benchmarks/bench_companion_run.py [--mission M] [--speedup 20] [--repeats 3]
                                              [--loss P --latency-ms MS]

@@ -6,7 +6,7 @@ a triangle and a polygon; two of them moving), the other UAV in view. Prints med
 Two worlds: "spread" (obstacles over the whole area, as in the random scenarios; most are culled
 because no rollout can reach them) and "clutter" (all 7 within one rollout length of the UAV, so
 every obstacle is evaluated against every rollout point: the worst case).
-Target (docs/results-reference.md): <= 1 ms per UAV per tick; the bench needs ~0.3 ms all-in.
+Target (docs/results.md, "Speed and resources"): <= 1 ms per UAV per tick.
 The same step with the astar-bdwa-timed window (4 speeds x 31 rates, sloped sightline, fixed
 scales) is timed in alternating rounds with the paper's window; with numba installed, each also
 on the numpy kernels (the code without numba). Wall medians, and CPU per call (shared machine).

@@ -1,4 +1,4 @@
-"""``companion run`` with a fleet (issue 15): CPU per vehicle and the achieved speed factor.
+"""``companion run`` with a fleet: CPU per vehicle and the achieved speed factor.
 
 Runs the real command (a child process; the embedded stub is its child; real UDP, one MAVSDK
 System per vehicle on ports 14540+i) ``--repeats`` times against the 8-vehicle mission at

@@ -2,7 +2,7 @@
 
     python benchmarks/bench_mission.py [MISSION.yaml] [--repeat N] [--variant V]
 
-Target (docs/results-reference.md): >= 500x real time. The speed factor is simulated seconds
+Target (docs/results.md, "Speed and resources"): >= 500x real time. The speed factor is simulated seconds
 over wall seconds; CPU seconds are printed too, since a shared machine inflates wall time.
 """
 

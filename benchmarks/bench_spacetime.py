@@ -1,7 +1,7 @@
 """Coordinated-timing timings on the reference mission (10 m cells): the pre-flight space-time plan
 and the occlusion certificate. Prints medians over repeats, wall and CPU time (this machine is
 shared: CPU time is what the code costs, wall what it waited); no pass/fail.
-Target (issue 10): the pre-flight space-time plan <= 2 s on the reference.
+Target (docs/results.md, "Speed and resources"): the pre-flight space-time plan <= 2 s on the reference.
 
     python benchmarks/bench_spacetime.py [--repeats 5] [--scenarios N --seed S]
 

@@ -1,6 +1,6 @@
 """The reference mission flown by astar-bdwa-timed with a timed route that holds UAV a at its
-station before departure (issue 10: with a departing at t = 0, keeping the sight line blocked at
-closest approach is impossible whatever b does). Prints, per hold, the sight line blocked
+station before departure (with a departing at t = 0, keeping the sight line blocked at
+closest approach is impossible whatever b does: the occlusion certificate says so). Prints, per hold, the sight line blocked
 fraction, whether it is blocked at closest approach, both flight times against the bound and the
 planner's ms per tick.
 
