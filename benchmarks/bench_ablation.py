@@ -8,8 +8,8 @@ time, CPU time (the run and its workers, without the interpreter's start and imp
 the 120 x 4 wall time that CPU cost extrapolates to on ``--workers`` otherwise idle cores, and
 this tree's CPU per vehicle-tick over each other kind's, repeat by repeat (median). CPU
 per tick is the number to compare across machines and loads: wall time on a shared 2-core box
-mostly measures the neighbours. Issue 15's targets: 120 x 4 in <= 60 s on 2 cores, <= 0.1 ms
-per vehicle-tick.
+mostly measures the neighbours, and the CPU model (printed first) decides the rest. Targets: 120 x
+4 in <= 60 s on 2 cores, <= 0.1 ms per vehicle-tick.
 
 Every repeat runs in a fresh process, one per kind of code, alternately (old and new in one
 window, as the shared machine's speed drifts):
@@ -29,6 +29,8 @@ import statistics
 import subprocess
 import sys
 from pathlib import Path
+
+from companion.bench.machine import machine_line
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,6 +81,7 @@ def main() -> None:
     parser.add_argument("--numpy-too", action="store_true", help="also time this tree without numba's paths")
     parser.add_argument("--baseline", type=Path, default=None, metavar="DIR", help="also time the tree in DIR")
     args = parser.parse_args()
+    print(machine_line(), flush=True)
     if args.baseline is not None and not (args.baseline / "companion").is_dir():
         sys.exit(f"bench_ablation: --baseline {args.baseline} is not a tree of the project")
 

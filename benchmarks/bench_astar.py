@@ -29,6 +29,7 @@ from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.routes import plan_routes
 from companion.planning.sparse import sparsify
 from uav_model.world import make_obstacle
+from companion.bench.machine import machine_line
 
 REFERENCE = Path(__file__).resolve().parents[1] / "missions" / "paper_reference.yaml"
 ORACLE = Path(__file__).resolve().parents[1] / "tests" / "planning" / "astar_reference.py"
@@ -65,6 +66,7 @@ def main() -> None:
     parser.add_argument("--reference", action="store_true",
                         help="also time the pre-speed-up A*, alternating run by run")
     args = parser.parse_args()
+    print(machine_line(), flush=True)
     rep = args.repeats
     mission = load_mission(REFERENCE)
     world = mission.world

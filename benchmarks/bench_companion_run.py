@@ -3,8 +3,8 @@
 Runs the real command (a child process, real UDP, MAVSDK) ``--repeats`` times and prints the
 median wall time of the whole run (connect, upload, take-off, flight, landing), each vehicle's
 flight time beside ``companion simulate``'s, and the offboard re-entries the stub forced. No
-pass/fail. Target from issue 4: the reference mission at 20x in <= 60 s wall, flight times within
-3 % of simulate.
+pass/fail. Target: the reference mission at 20x in <= 60 s wall, flight times within 3 % of
+simulate.
 
     python benchmarks/bench_companion_run.py [--mission M] [--speedup 20] [--repeats 3]
                                              [--loss P --latency-ms MS]
@@ -24,6 +24,7 @@ from pathlib import Path
 from uav_model.mission import load_mission
 from companion.planning.runner import simulate
 from sim_bridge.testing import free_udp_port_block, free_udp_ports
+from companion.bench.machine import machine_line
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -36,6 +37,7 @@ def main() -> None:
     p.add_argument("--loss", type=float, default=0.0)
     p.add_argument("--latency-ms", type=float, default=0.0)
     args = p.parse_args()
+    print(machine_line(), flush=True)
 
     mission = load_mission(args.mission)
     headless = simulate(mission).summary

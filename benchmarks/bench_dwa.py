@@ -6,7 +6,7 @@ a triangle and a polygon; two of them moving), the other UAV in view. Prints med
 Two worlds: "spread" (obstacles over the whole area, as in the random scenarios; most are culled
 because no rollout can reach them) and "clutter" (all 7 within one rollout length of the UAV, so
 every obstacle is evaluated against every rollout point: the worst case).
-Target (docs/results-reference.md): <= 1 ms per UAV per tick; the bench needs ~0.3 ms all-in.
+Target (docs/results.md, "Speed and resources"): <= 1 ms per UAV per tick.
 The same step with the astar-bdwa-timed window (4 speeds x 31 rates, sloped sightline, fixed
 scales) is timed in alternating rounds with the paper's window; with numba installed, each also
 on the numpy kernels (the code without numba). Wall medians, and CPU per call (shared machine).
@@ -25,6 +25,7 @@ from uav_model.mission import parse_mission
 from companion.planning.dwa import Command, OtherUav, Pose, kernels, plan_step
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.vehicle_planner import VehiclePlanner, window_settings
+from companion.bench.machine import machine_line
 
 HEAD = """
 area: {x_min_m: 0, y_min_m: 0, x_max_m: 3181.98, y_max_m: 3181.98}
@@ -100,6 +101,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3000)
     args = parser.parse_args()
+    print(machine_line(), flush=True)
     for name, (text, pose) in WORLDS.items():
         mission = parse_mission(text, f"bench_dwa_{name}")
         planner = VehiclePlanner.build(mission, mission.by_priority[1], None, "bdwa")

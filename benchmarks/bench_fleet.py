@@ -1,4 +1,4 @@
-"""``companion run`` with a fleet (issue 15): CPU per vehicle and the achieved speed factor.
+"""``companion run`` with a fleet: CPU per vehicle and the achieved speed factor.
 
 Runs the real command (a child process; the embedded stub is its child; real UDP, one MAVSDK
 System per vehicle on ports 14540+i) ``--repeats`` times against the 8-vehicle mission at
@@ -30,6 +30,7 @@ import psutil
 
 from sim_bridge.testing import free_udp_port_block, free_udp_ports
 from uav_model.mission import load_mission
+from companion.bench.machine import machine_line
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -74,6 +75,7 @@ def main() -> None:
     p.add_argument("--speedup", type=float, default=20.0)
     p.add_argument("--repeats", type=int, default=3)
     args = p.parse_args()
+    print(machine_line(), flush=True)
     count = len(load_mission(args.mission).vehicles)
     runs = []
     for i in range(args.repeats):

@@ -20,6 +20,7 @@ from companion.vehicle.convert import MAV_FRAME_GLOBAL, fence_items
 from uav_model.mission import load_mission
 from sim_bridge.testing import GcsCodec, boot
 from sim_bridge.vehicle import SimVehicle
+from companion.bench.machine import machine_line
 
 FENCE = mavlink.MAV_MISSION_TYPE_FENCE
 
@@ -44,6 +45,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=9)
     ap.add_argument("--steps", type=int, default=2000)
     args = ap.parse_args()
+    print(machine_line(), flush=True)
     gcs = GcsCodec()
     for path in args.missions:
         mission = load_mission(path)

@@ -23,6 +23,7 @@ from companion.app.runner import run_mission
 from uav_model.mission import load_mission
 from companion.planning.runner import simulate
 from companion.sitl.inprocess import InProcessOptions, open_inprocess_fleet
+from companion.bench.machine import machine_line
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -41,6 +42,7 @@ def main() -> None:
     p.add_argument("--speedup", type=float, default=None, help="pace the sim (default: as fast as the loop turns)")
     p.add_argument("--wire", action="store_true", help="pack and parse every message both ways")
     args = p.parse_args()
+    print(machine_line(), flush=True)
 
     mission = load_mission(args.mission)
     plan = prepare(mission, None)

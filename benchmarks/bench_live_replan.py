@@ -31,6 +31,7 @@ from companion.planning.runner import simulate
 from companion.testing.runs import CompanionFactory
 from companion.testing.stub import SitlFactory
 from uav_model.mission import load_mission
+from companion.bench.machine import machine_line
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANT = "astar-bdwa-timed"
@@ -109,6 +110,7 @@ def main() -> None:
                    help="also fly the frozen flight with the companion from this checkout (its PYTHONPATH)")
     p.add_argument("--keep", type=Path, default=None, metavar="DIR", help="keep every flight's files here")
     args = p.parse_args()
+    print(machine_line(), flush=True)
 
     args.mission = args.mission.resolve()  # the compared companion runs from its own checkout
     s = simulate(load_mission(args.mission), VARIANT).summary

@@ -2,7 +2,7 @@
 
     python benchmarks/bench_mission.py [MISSION.yaml] [--repeat N] [--variant V]
 
-Target (docs/results-reference.md): >= 500x real time. The speed factor is simulated seconds
+Target (docs/results.md, "Speed and resources"): >= 500x real time. The speed factor is simulated seconds
 over wall seconds; CPU seconds are printed too, since a shared machine inflates wall time.
 """
 
@@ -15,6 +15,7 @@ import time
 from uav_model.mission import VARIANTS, load_mission
 from companion.planning.routes import plan_routes
 from companion.planning.runner import simulate
+from companion.bench.machine import machine_line
 
 
 def main() -> None:
@@ -23,6 +24,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=7)
     parser.add_argument("--variant", choices=VARIANTS, default=None)
     args = parser.parse_args()
+    print(machine_line(), flush=True)
     mission = load_mission(args.mission)
     if args.variant:
         mission = mission.with_variant(args.variant)

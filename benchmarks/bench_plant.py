@@ -15,6 +15,7 @@ import statistics
 import time
 
 from uav_model.plant import KinematicState, Plant, VelocityCommand, VelocityFrame, limits_for, step_for
+from companion.bench.machine import machine_line
 
 TURN = VelocityCommand(VelocityFrame.BODY_NED, 10.0, 0.0, 0.0, math.radians(-19.1))
 
@@ -34,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=15)
     ap.add_argument("--calls", type=int, default=5000)
     args = ap.parse_args(argv)
+    print(machine_line(), flush=True)
     cases = [(p, dt) for dt in (0.5, 0.02) for p in (Plant.UNICYCLE, Plant.MULTICOPTER)]
     times: dict[tuple[Plant, float], list[float]] = {c: [] for c in cases}
     for _ in range(args.repeat):

@@ -20,6 +20,8 @@ import statistics
 import sys
 import time
 
+from companion.bench.machine import machine_line
+
 MISSION_YAML = """
 name: bench
 area: {x_min_m: 0, y_min_m: 0, x_max_m: 3000, y_max_m: 3000}
@@ -166,6 +168,7 @@ def main() -> None:
     if args.child:
         child(args)
         return
+    print(machine_line(), flush=True)
     results = []
     for i in range(args.runs):
         r = asyncio.run(one_run(args))

@@ -1,7 +1,7 @@
 """Coordinated-timing timings on the reference mission (10 m cells): the pre-flight space-time plan
 and the occlusion certificate. Prints medians over repeats, wall and CPU time (this machine is
 shared: CPU time is what the code costs, wall what it waited); no pass/fail.
-Target (issue 10): the pre-flight space-time plan <= 2 s on the reference.
+Target (docs/results.md, "Speed and resources"): the pre-flight space-time plan <= 2 s on the reference.
 
     python benchmarks/bench_spacetime.py [--repeats 5] [--scenarios N --seed S]
 
@@ -22,6 +22,7 @@ from uav_model.mission import load_mission
 from companion.planning.certificate import certify
 from companion.planning.coordination import plan_coordinated
 from companion.planning.routes import plan_routes
+from companion.bench.machine import machine_line
 
 REFERENCE = Path(__file__).resolve().parents[1] / "missions" / "paper_reference.yaml"
 
@@ -43,6 +44,7 @@ def main() -> None:
     parser.add_argument("--scenarios", type=int, default=0)
     parser.add_argument("--seed", type=int, default=99)
     args = parser.parse_args()
+    print(machine_line(), flush=True)
     if args.scenarios:
         random_scenarios(args.seed, args.scenarios)
         return

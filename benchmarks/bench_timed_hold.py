@@ -1,6 +1,6 @@
 """The reference mission flown by astar-bdwa-timed with a timed route that holds UAV a at its
-station before departure (issue 10: with a departing at t = 0, keeping the sight line blocked at
-closest approach is impossible whatever b does). Prints, per hold, the sight line blocked
+station before departure (with a departing at t = 0, keeping the sight line blocked at
+closest approach is impossible whatever b does: the occlusion certificate says so). Prints, per hold, the sight line blocked
 fraction, whether it is blocked at closest approach, both flight times against the bound and the
 planner's ms per tick.
 
@@ -21,6 +21,7 @@ from companion.planning.routes import plan_routes
 from companion.planning.runner import simulate
 from companion.planning.timed import forecast
 from uav_model.mission import load_mission
+from companion.bench.machine import machine_line
 
 REFERENCE = Path(__file__).resolve().parents[1] / "missions" / "paper_reference.yaml"
 
@@ -29,6 +30,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("holds", nargs="*", type=float, default=[0.0, 75.0, 150.0])
     args = parser.parse_args()
+    print(machine_line(), flush=True)
     mission = load_mission(REFERENCE)
     routes = plan_routes(mission)
     a = mission.by_priority[0]

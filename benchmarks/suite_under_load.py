@@ -1,4 +1,4 @@
-"""Issue 11's load acceptance: the test suite, N times in a row, while busy loops hog the cores.
+"""The load acceptance: the test suite, N times in a row, while busy loops hog the cores.
 
 Starts ``--loops`` busy Python loops (default 2: one per core of the 2-core CI machine), runs
 ``python -m pytest -n 2`` (the README's command) ``--runs`` times, and prints each run's result

@@ -20,6 +20,7 @@ from typing import Any
 import yaml
 
 from companion.bench.executors import CONNECT_TIMEOUT_S, ExecutorError, ExecutorKind, ExecutorSpec
+from companion.bench.machine import cpu_model
 from uav_model.mission import VARIANTS
 
 DEFAULT_VARIANTS = ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa")
@@ -221,7 +222,7 @@ def _bench(args: argparse.Namespace) -> int:
     meta = {"command": command,
             "seed": args.seed, "scenarios": args.scenarios, "variants": list(args.variants),
             "executor": flown.where, "workers": spec.workers or (None if spec.scheduler else os.cpu_count()),
-            "wall_s": round(flown.wall_s, 2), "cpu_count": os.cpu_count(),
+            "wall_s": round(flown.wall_s, 2), "cpu": cpu_model(), "cpu_count": os.cpu_count(),
             "python": platform.python_version(), "scenario_config": config_dict(flown.config)}
     (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     figures.save(figures.violin_figure(rows), out / "violin.png")
@@ -229,7 +230,7 @@ def _bench(args: argparse.Namespace) -> int:
 
     print(format_table(summary))
     print(f"\n{len(rows)} runs ({args.scenarios} scenarios x {len(args.variants)} variants, seed {args.seed}) "
-          f"in {flown.wall_s:.1f} s wall on {flown.where}; results in {out}/")
+          f"in {flown.wall_s:.1f} s wall on {flown.where} ({cpu_model()}); results in {out}/")
     return finish("companion bench", flown)
 
 

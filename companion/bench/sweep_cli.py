@@ -14,6 +14,7 @@ import platform
 from pathlib import Path
 
 from companion.bench.cli import add_common_arguments, finish, fly, guarded
+from companion.bench.machine import cpu_model
 from companion.bench.weights import Weights, grid
 from uav_model.mission import VARIANTS
 
@@ -84,12 +85,12 @@ def _sweep(args: argparse.Namespace) -> int:
                f"{lists} --plant {flown.config.plant} {flown.spec.describe()} --out {out}")
     meta = {"command": command, "seed": args.seed, "scenarios": args.scenarios, "variant": args.variant,
             "weight_sets": len(weight_sets), "executor": flown.where, "wall_s": round(flown.wall_s, 2),
-            "cpu_count": os.cpu_count(), "python": platform.python_version(),
+            "cpu": cpu_model(), "cpu_count": os.cpu_count(), "python": platform.python_version(),
             "scenario_config": config_dict(flown.config)}
     (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     figures.save(figures.weight_sweep_figure(rows, summary), out / "weight_sweep.png")
 
     print(table + "\n\n" + text)
     print(f"\n{len(rows)} runs ({args.scenarios} scenarios x {len(weight_sets)} weight sets, {args.variant}, "
-          f"seed {args.seed}) in {flown.wall_s:.1f} s wall on {flown.where}; results in {out}/")
+          f"seed {args.seed}) in {flown.wall_s:.1f} s wall on {flown.where} ({cpu_model()}); results in {out}/")
     return finish("companion sweep weights", flown)

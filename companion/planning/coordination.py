@@ -47,7 +47,7 @@ if TYPE_CHECKING:
     from companion.planning.routes import Route
 
 _MAX_NEAR_ROUNDS = 200  # D <- g(D) rounds; each raises D to a new state distance
-NEAR_RUNGS = 6  # distances D tried from D* on (nearpath.ladder_m2: up to D* + 16 margins); 4 and 6 compared on seeds 11-12
+NEAR_RUNGS = 6  # distances D tried from D* on (nearpath.ladder_m2: up to D* + 16 margins); 4 and 6 compared on tuning seeds
 
 
 class Blocking(Enum):
@@ -160,9 +160,9 @@ def _closest_blocked(problem: SpaceTimeProblem, fwd: Layers, bwd: Layers) -> tup
 
 def _solve_near(problem: SpaceTimeProblem, margin_m: float) -> Solution | None:
     """The earliest-arriving path over the ladder of D from the least feasible D*
-    (:func:`nearpath.best_near`). Until issue 10's fifth round the path went through the one
-    witness state at D*, the nearest blocked state: on the tuning seeds 11-13 that made b wait
-    minutes for it (plans 1.2-1.7 x bound where the ladder gives 1.16-1.25)."""
+    (:func:`nearpath.best_near`), rather than the path through the one witness state at D*,
+    the nearest blocked state, which can make b wait minutes for it (plans up to 1.7 x bound
+    where the ladder stays near 1.2)."""
     witness = _near_witness(problem, margin_m)
     if witness is None:
         return None

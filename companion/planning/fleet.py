@@ -1,4 +1,4 @@
-"""Whom one vehicle's planner reacts to, when more than two fly (issue 15).
+"""Whom one vehicle's planner reacts to, when more than two fly.
 
 The BDWA step (:func:`companion.planning.dwa.plan_step`) reacts to the other UAVs in two ways:
 

@@ -1,16 +1,15 @@
 """The first vehicle's forecast as it will fly: its own planner on the mission's plant, alone.
 
 The lower vehicles are planned in (position, time) against a forecast of the first
-(:mod:`coordination`). Flying its sparse route at cruise, the forecast was 80-110 m off where the
-vehicle really flew on the multicopter (it rounds the route's corners and keeps its distance
-from the obstacles), and b, planned to hide behind an obstacle from that forecast, met the real
-one elsewhere (tuning seed 13 i042: the line open at the closest approach). Flown alone
-headless first, with the runner that flies the mission (:func:`runner.simulate`), it is 5-25 m
-off. The lower vehicles change the first one's flight only through the separation rule, which
-binds only when they meet.
+(:mod:`coordination`). A forecast along its sparse route at cruise can be 80-110 m off where the
+multicopter really flies (it rounds the route's corners and keeps its distance from the
+obstacles), so b, planned to hide behind an obstacle from that forecast, meets the real one
+elsewhere with the line open. Flown alone headless first, with the runner that flies the
+mission (:func:`runner.simulate`), the forecast is 5-25 m off. The lower vehicles change the
+first one's flight only through the separation rule, which binds only when they meet.
 
 The default (``coordination.forecast: flown``). Pure and deterministic: no I/O. It costs one headless
-flight of one vehicle (0.06 s of CPU on the reference).
+flight of one vehicle.
 """
 
 from __future__ import annotations

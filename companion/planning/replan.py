@@ -7,7 +7,7 @@ Before flight every lower vehicle is planned against the *forecasts* of the vehi
 while those vehicles lag their forecasts. What the clock cannot absorb is the lower vehicle's own
 lag: a vehicle 100-600 m behind its plan (the sightline term made it hide and hover, a long turn,
 a detour round a moving obstacle) is not where its plan keeps the sight line blocked, and the
-plan's times ask for cruise until the end, so it never gets back (seed 11, the tuning seed).
+plan's times ask for cruise until the end, so it never gets back.
 Then, before the plan's closest approach, :meth:`TimedFleet.update` plans it again in (position,
 time) from where it is, at the time it is, against the vehicles above it re-forecast from where
 they are (:func:`coordination.plan_vehicle` with ``from_xy`` / ``t0_s``), and every vehicle below
@@ -58,8 +58,8 @@ class ReplanRule:
     """When a lower vehicle is re-planned in flight: it lags its plan by more than ``lag_m``
     along its path, before the plan's closest approach to a vehicle above it, at most every
     ``every_s`` and ``most`` times per flight. The numbers are set by judgement, not tuned; the
-    "before the closest approach" condition was chosen on seed 11 (the tuning seed): without it,
-    re-plans after the closest approach made b slower and blocked nothing more."""
+    "before the closest approach" condition was chosen on a tuning seed: without it, re-plans
+    after the closest approach make b slower and block nothing more."""
 
     lag_m: float = 100.0
     every_s: float = 30.0
@@ -158,7 +158,7 @@ class TimedFleet:
             return False
         tau = self.now(name, t_s)
         if tau >= self._ca_s[name]:
-            return False  # past the planned closest approach: re-plans from there cost more than they saved (seed 11)
+            return False  # past the planned closest approach: re-plans from there cost more than they save
         return float(self.routes[name].planned_along_at(tau)) - self._along[name] > self.rule.lag_m
 
     def fresh(self, t_s: float) -> bool:

@@ -340,7 +340,7 @@ class PriorityClocks:
         return t_s if clock is None else clock.now(t_s)
 
 
-SIGHT_NEAR_MARGIN_M = 200.0  # see VehiclePlanner.sight_near_m; chosen on seed 11
+SIGHT_NEAR_MARGIN_M = 200.0  # see VehiclePlanner.sight_near_m; chosen on a tuning seed
 
 
 def sight_near_m(mission: "Mission", timed_routes: dict[str, TimedRoute], name: str) -> float | None:

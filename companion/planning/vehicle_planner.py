@@ -55,7 +55,7 @@ class VariantSpec:
     timed: bool = False  # tracks a timed route (arrival times) when one is given
     # The sightline weight as a multiple of the mission's, for fixed scales: there S / cap spans
     # [-1, 1] against a heading spread of a few hundredths, and the mission's 0.8 (the paper's,
-    # meant for sum normalisation) leaves the open line too cheap. 2 was chosen on seed 11.
+    # meant for sum normalisation) leaves the open line too cheap. 2 was chosen on a tuning seed.
     sightline_gain: float = 1.0
 
 
@@ -92,7 +92,7 @@ def approach_config(mission: "Mission", config: DwaConfig) -> DwaConfig | None:
 
     Why: the multicopter flies the paper's 10 m/s at 0.3 rad/s on a 25 m circle, not 30 m, so a
     vehicle that passed 19-22 m from its station (arrival radius 20 m) orbited it at ~25 m until
-    the time limit: no constant-speed rollout reaches it from there (issue 11)."""
+    the time limit: no constant-speed rollout reaches it from there."""
     on = mission.planner.final_approach
     if not (mission.plant is Plant.MULTICOPTER if on is None else on) or config.count > config.samples:
         return None
@@ -135,8 +135,8 @@ class TickResult:
 
 _AIM_FRACTION = 0.5  # of the arrival radius, aimed at by a speed window (see VehiclePlanner)
 # A vehicle this far behind its timed plan flies it without the sightline term: the term had
-# it hover where the line was blocked while the plan moved on (seed 11: 40-60 s stalls, b
-# hundreds of metres behind its plan, and the real closest approach then where no plan had it).
+# it hover where the line was blocked while the plan moved on (stalls of 40-60 s, b hundreds of
+# metres behind its plan, and the real closest approach then where no plan had it).
 SIGHT_LAG_M = 50.0
 _PROGRESS_M = 20.0  # the remaining route must shorten by more than this to count as progress
 
@@ -185,7 +185,7 @@ class VehiclePlanner:
         # With a timed route the plan decides where the sight line is blocked; the sightline term
         # only acts within ``sight_near_m`` of the other UAV (around the closest approach). Farther
         # out it pulled b hundreds of metres off its timed path to hide from a distant a, and the
-        # plan's timing was lost where it mattered (seed 11).
+        # plan's timing was lost where it mattered.
         self.sight_near_m = sight_near_m
         self._along_m: float | None = None  # how far along its timed path it is (windowed: timed.progress_window)
         # Local goals are the timed path's nodes: they advance with the progress along it (below).
@@ -303,7 +303,7 @@ class VehiclePlanner:
             # A space-time path can step out and back (a cell or a few beside a wait, round a
             # shadow's edge); the multicopter cuts such a corner and never reaches the node, so
             # the tracker held it as the goal and b turned back to it, hovering 10 s or more near the
-            # closest approach (seed 13, the tuning seeds). The goal is past wherever b is along the path.
+            # closest approach. The goal is past wherever b is along the path.
             self.tracker.advance_to(self._along_m)
         held = bool(route.is_waiting_at(t_s)) or self.lead_m > 0.0
         return speed, held

@@ -19,6 +19,7 @@ from companion.bench import sweep
 from companion.bench.cli import run
 from companion.bench.diagnose import diagnose
 from companion.bench.execute import failure_dir_name, run_bench
+from companion.bench.machine import cpu_model
 from companion.bench.table import format_table, write_runs_csv
 from companion.bench.weights import Weights
 from companion.cli import main as cli_main
@@ -73,6 +74,7 @@ def test_bench_writes_every_artefact(small_bench):
     meta = json.loads((out / "meta.json").read_text())
     assert meta["command"].startswith("companion bench --scenarios 2 --seed 7 --variants astar-bdwa,bdwa")
     assert meta["scenario_config"]["side_m"] == 1000.0
+    assert meta["cpu"] == cpu_model()  # a wall time means nothing without the CPU that made it
     rows = read_runs_csv(out / "runs.csv")
     index = (out / "failures" / "index.md").read_text()
     for r in rows:  # a gallery entry for exactly the failed runs

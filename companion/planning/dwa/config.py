@@ -30,7 +30,7 @@ class DwaConfig:
     ``min_separation_m``: the planning separation from the other UAV (see from_settings).
     ``yield_margin_m``: kept from a UAV that has right of way (``OtherUav.right_of_way``) on top
     of ``min_separation_m``: the lower-priority vehicle gives way first, which breaks the
-    symmetric standoffs of several vehicles meeting (issue 15).
+    symmetric standoffs of several vehicles meeting.
     ``turnaround_deg``: see :func:`companion.planning.dwa.legality.commit_turn`; 180 disables the rule.
     ``fence_m``: the geofence box; rollout points must stay inside it (legality, like obstacles).
     ``speed_samples``: speeds sampled from ``min_speed_m_s`` (hover: 0) to cruise ``speed_m_s``,

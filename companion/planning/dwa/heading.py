@@ -40,7 +40,7 @@ def heading_from_ends(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray,
     the horizon it takes to get there (0, the paper's: every arriving rollout ties). With a speed
     window many slow rollouts reach a near station within the horizon; scored alike, the one
     picked could graze the arrival circle at the horizon's end, tick after tick, and the vehicle
-    circled its station (seed 7 i007: 1,800 s at 22.7 m from it, arrival radius 20 m)."""
+    circled its station just outside the arrival radius until the time limit."""
     nodes = goals.nodes_xy
     count = len(nodes)
     at_station = None

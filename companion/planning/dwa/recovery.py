@@ -97,8 +97,8 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
     and gets going again that lag after its yaw. The obstacles are judged on the whole braking
     segment (the worst point of it at every time) and over the spin plus the lag plus a horizon,
     so that a recovery never parks the vehicle in the path of a moving obstacle that only misses
-    the pose (seed 7 i015: a shuttling disc reversed, the vehicle stopped 7 m inside its path to
-    yaw 105 deg, and was hit while it yawed)."""
+    the pose (a shuttling disc that reverses while the braking vehicle ends up inside its path
+    and yaws there is otherwise a collision)."""
     dt = config.dt_s
     hover_steps = config.steps + round((config.spin_time_s + config.tracking_lag_s) / dt)
     t_hover = dt * np.arange(hover_steps + 1)
@@ -216,9 +216,8 @@ def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.
         # Of those, the one that keeps the most true clearance (the heading breaks ties). The
         # plant lags its commands, so a rollout that grazes a true footprint is a collision, and
         # an escape repeated tick after tick that trades clearance for heading ratchets into an
-        # obstacle: seed 2027 i054 (b escaped along a static disc at 0-9 m and hit it) and seed
-        # 2026 i115 (22 s of escapes from a shuttle, each 5-15 m closer to a static disc than
-        # the best one, until b hit the disc).
+        # obstacle (escaping a shuttle, each tick a few metres closer to a static disc than the
+        # clearest rollout, until the lagging plant hits the disc).
         longest = longest & (kept >= kept[longest].max() - 1e-9)
     i = int(np.argmax(np.where(longest, heading, -np.inf)))
     command = command_for(config, i, heading, np.zeros(config.count), None, 0.0, 0)

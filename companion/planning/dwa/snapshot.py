@@ -211,10 +211,9 @@ def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float) -> Obst
     is legal only if it keeps clear of both. A shuttle turns back at its lane's end, and a
     sensor's (ADS-B's) velocity says nothing of when; a vehicle that may slow down (a speed
     window) otherwise trails a moving obstacle down its lane just beyond the margin at its pace
-    and has no room when it turns (seed 2026 i079: b trailed m1 at 140 m, 19 m beyond its
-    inflated disc, for 50 s, and m1 turned back into it). Obstacles crossing or coming closer
-    are left as they are: reversing every moving obstacle held vehicles off crossing lanes too
-    (tuning seeds 11, 13: three closest approaches lost their block)."""
+    and has no room when it turns back into it. Obstacles crossing or coming closer are left
+    as they are: reversing every moving obstacle also holds vehicles off lanes they must cross,
+    and costs the sight line its block at the closest approach."""
     n_c = len(snapshot.circle_ids)
     vel = np.concatenate([snapshot.circle_vel_m_s, snapshot.poly_vel_m_s])
     away = np.einsum("ij,ij->i", vel, snapshot.bound_xy_m - (x_m, y_m))

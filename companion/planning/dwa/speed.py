@@ -7,7 +7,8 @@ v_ref is cruise speed, unless
 - a timed route schedules less (the caller passes it: slow down or wait where the plan says), or
 - the station is within reach but inside the turning circle a max-rate turn at cruise speed
   flies: then v_ref is the speed whose max-rate turn passes through the station, so the vehicle
-  slows down and arrives instead of circling it (what PX4 did for 500 s, issue 10).
+  slows down and arrives instead of circling it (as a PX4 multicopter otherwise does, for as
+  long as the mission lasts).
 """
 
 from __future__ import annotations

@@ -55,8 +55,8 @@ def _step(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: Obsta
     """:func:`plan_step` against ``snapshot``; the sightline term reads ``sighted`` (where the
     obstacles are predicted to be). ``cautious``: ``snapshot`` also has the receding obstacles
     turned back, a precaution only: when it leaves no legal move, None (the caller plans without
-    it) rather than an escape from obstacles that are not coming (seed 2027 i054: b, among
-    three moving discs, escaped into a static one)."""
+    it) rather than an escape from obstacles that are not coming, which can take the vehicle
+    into a static one."""
     shape = (config.count, config.steps + 1)
     reach = config.reach_m + config.distance_saturation_m
     if kernels.obstacle_pass is not None and config.row_of is None:
@@ -195,10 +195,10 @@ def _toward_only_hovers(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_
                         turn_error_rad: float) -> bool:
     """Whether the turn-around preference (:func:`legality.commit_turn`) would leave only hovers
     while a moving rollout is legal. It drops itself when it would leave no legal rollout; with
-    a speed window, only hovers is the same (see :func:`_only_hover`): seed 11 i018 (a tuning
-    seed), a in a pocket with its goal 147 deg to the left, turned left in place until nothing
-    was legal, the spin recovery turned it right, and again, for 2,200 s; two moving rollouts
-    to the right were legal throughout. Unless its timed route holds it still."""
+    a speed window, only hovers is the same (see :func:`_only_hover`). Otherwise a vehicle in a
+    pocket with its goal far to one side turns that way in place until nothing is legal, the
+    spin recovery turns it back, and again until the time limit, while moving rollouts to the
+    other side were legal throughout. Unless its timed route holds it still."""
     if math.isnan(turn_error_rad) or config.speed_samples == 1 or config.min_speed_m_s > 0.0:
         return False
     moving = config.speeds_m_s > 0.0
