@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from companion.cli_common import with_plant
+from companion.cli_common import BadInput, with_plant
 from companion.planning.runner import simulate
 from companion.sitl.px4 import PX4_DIR_ENV, find_px4
 from uav_model.mission import load_mission
@@ -63,7 +63,10 @@ def main() -> None:
     p.add_argument("--px4-dir", default=None, help=f"PX4 SITL build (default: ${PX4_DIR_ENV})")
     p.add_argument("--timeout", type=float, default=900.0, help="wall seconds per run")
     args = p.parse_args()
-    px4_dir = find_px4(args.px4_dir)
+    try:
+        px4_dir = find_px4(args.px4_dir)
+    except BadInput as exc:
+        sys.exit(f"bench_px4: {exc}")
     print(f"speedup {args.speedup:g}x, PX4 from {px4_dir}, {os.cpu_count()} CPUs, "
           f"load {os.getloadavg()[0]:.1f} at the start")
     print(f"{'mission':16} {'run':22} {'exit':>4} {'wall_s':>7} {'cpu_s':>7}  flight times (s)")

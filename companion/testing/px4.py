@@ -9,6 +9,7 @@ for each other), and the tier is best run in its own network and mount namespace
 
 from __future__ import annotations
 
+import asyncio
 import fcntl
 import os
 import re
@@ -112,6 +113,34 @@ class Px4Sitl(Telemetry):
                 for msg_id, hz in GCS_STREAMS_HZ.items():
                     self.command(v.name, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz if hz else -1)
 
+    def start_gcs_heartbeat(self) -> None:
+        """Say hello as a GCS once a second (on the recorder's loop) until :meth:`stop_gcs_heartbeat`:
+        PX4 sends STATUSTEXT on its GCS link only once it has heard a GCS there."""
+        hello = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                  mavlink.MAV_STATE_ACTIVE, 3)
+        ids = [v.system_id for v in self.mission.vehicles]
+
+        async def beat() -> None:
+            while True:
+                for sysid in ids:
+                    self.recorder.send(sysid, hello)
+                await asyncio.sleep(1.0)
+
+        async def start() -> asyncio.Task:
+            return asyncio.get_running_loop().create_task(beat(), name="gcs-heartbeat")
+        self._heartbeat = self.telemetry.call(start())
+
+    def stop_gcs_heartbeat(self) -> None:
+        task = getattr(self, "_heartbeat", None)
+        if task is None:
+            return
+
+        async def stop() -> None:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+        self.telemetry.call(stop())
+        self._heartbeat = None
+
     def log_text(self, name: str) -> str:
         """Vehicle ``name``'s PX4 console output so far."""
         return self.fleet.log_text(name)
@@ -130,6 +159,7 @@ class Px4Factory:
         self._tmp = tmp_path
         self.px4_dir = px4_dir
         self._running: list[tuple[Px4Fleet, BackgroundRecorder]] = []
+        self._sitls: list[Px4Sitl] = []
         self._lock = open(LOCK_PATH, "a+")
         fcntl.flock(self._lock, fcntl.LOCK_EX)  # released by close(), or by the OS if this process dies
 
@@ -155,14 +185,21 @@ class Px4Factory:
             raise AssertionError(f"PX4: {exc}\n{fleet.log_text(mission.vehicles[0].name)[-2000:]}") from None
         sitl = Px4Sitl(mission, mission_path, recorder, fleet)
         sitl.calm_gcs_link()
+        sitl.start_gcs_heartbeat()
+        self._sitls.append(sitl)
         return sitl
 
     def close(self) -> None:
         try:
             for fleet, recorder in self._running:
                 try:
-                    fleet.stop()
+                    for sitl in self._sitls:
+                        if sitl.fleet is fleet:
+                            sitl.stop_gcs_heartbeat()
                 finally:
-                    recorder.close()
+                    try:
+                        fleet.stop()
+                    finally:
+                        recorder.close()
         finally:
             self._lock.close()
