@@ -213,7 +213,7 @@ class LiveVehicle:
             0, self.sysid or 1, 1, L.MAV_FRAME_BODY_NED, BODY_VELOCITY_YAWRATE, 0, 0, 0,
             forward_m_s, 0.0, down_m_s, 0, 0, 0, 0, math.radians(yawspeed_deg_s))
 
-    def command(self, cmd: int, *params: float, wall_s: float = 3.0) -> int:
+    def command(self, cmd: int, *params: float, wall_s: float = 6.0) -> int:
         """The final COMMAND_ACK result (IN_PROGRESS skipped); SequenceError without one."""
         p = (list(params) + [0.0] * 7)[:7]
         n0 = len(self.acks)
