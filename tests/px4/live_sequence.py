@@ -39,6 +39,7 @@ DECIMATED_IDS = frozenset({
     L.MAVLINK_MSG_ID_ATTITUDE, L.MAVLINK_MSG_ID_LOCAL_POSITION_NED, L.MAVLINK_MSG_ID_GLOBAL_POSITION_INT})
 DECIMATE_WALL_S = 0.01
 DRAIN_WALL_S = 0.05  # at most this long in one drain, so that every wait checks its deadline
+BOOT_WALL_S = 90.0  # PX4's startup script on a loaded machine
 MIN_SPEEDUP = 0.5  # a sim-time wait gives up after sim_s / MIN_SPEEDUP of wall time (plus a margin)
 BODY_VELOCITY_YAWRATE = 0x5C7  # velocity + yaw rate, position / acceleration / yaw ignored
 ON_GROUND = L.MAV_LANDED_STATE_ON_GROUND
@@ -212,7 +213,7 @@ class LiveVehicle:
             0, self.sysid or 1, 1, L.MAV_FRAME_BODY_NED, BODY_VELOCITY_YAWRATE, 0, 0, 0,
             forward_m_s, 0.0, down_m_s, 0, 0, 0, 0, math.radians(yawspeed_deg_s))
 
-    def command(self, cmd: int, *params: float, wall_s: float = 3.0) -> int:
+    def command(self, cmd: int, *params: float, wall_s: float = 6.0) -> int:
         """The final COMMAND_ACK result (IN_PROGRESS skipped); SequenceError without one."""
         p = (list(params) + [0.0] * 7)[:7]
         n0 = len(self.acks)
@@ -249,12 +250,13 @@ class LiveVehicle:
         raise SequenceError(f"PARAM_SET {name}={value}: neither echoed nor read back")
 
     # ------------------------------------------------------------ waiting in sim time
-    def wait(self, pred: Callable[[], bool], sim_s: float, what: str, stream: Stream | None = None) -> float:
+    def wait(self, pred: Callable[[], bool], sim_s: float, what: str, stream: Stream | None = None,
+             wall_s: float | None = None) -> float:
         """Pump until ``pred``, streaming ``stream`` (forward, yawspeed, down; or a function giving them) if
         given; the sim time then."""
         t0 = self.s.sim_s
         wall0 = time.monotonic()
-        wall_end = wall0 + sim_s / MIN_SPEEDUP + 10.0
+        wall_end = wall0 + (sim_s / MIN_SPEEDUP + 10.0 if wall_s is None else wall_s)
         next_sp = 0.0
         while not pred():
             now = time.monotonic()
@@ -318,8 +320,10 @@ FIGURES = (
 
 def arm_at_boot(v: LiveVehicle, fig: dict) -> float:
     """Arm from the first heartbeat on, retrying every 0.25 s sim; the sim time it was accepted."""
-    v.wait(lambda: v.sysid is not None and v.s.sim_s > 0, 60.0, "the first heartbeat")
+    v.wait(lambda: v.s.sim_s > 0, math.inf, "the first telemetry", wall_s=BOOT_WALL_S)
     sim0, wall0 = v.s.sim_s, time.monotonic()
+    # A starved PX4 streams telemetry long before its startup script gets to the heartbeat.
+    v.wait(lambda: v.sysid is not None, math.inf, "the first heartbeat", wall_s=BOOT_WALL_S)
     refused = 0
     fig["boot.arm_refused_until_s"] = 0.0
     while True:
