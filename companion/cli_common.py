@@ -110,14 +110,14 @@ def quiet_mavsdk(out_dir: Path | None) -> QuietFileHandler | None:
     return handler
 
 
-CERTIFICATE_BUDGET_S = 20.0  # with imports and loading, a mission at the schema's limits validates in < 30 s
+CERTIFICATE_BUDGET_S = 20.0  # CPU s: with imports and loading, a mission at the schema's limits validates in < 30 s
 
 
 def add_certificate_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-certificate", action="store_true",
                         help="skip the occlusion certificate (whether the sight line can be kept blocked)")
     parser.add_argument("--certificate-budget", type=_seconds, default=CERTIFICATE_BUDGET_S, metavar="S",
-                        help=f"wall seconds the certificate may take before it says 'undecided within budget' "
+                        help=f"CPU seconds the certificate may take before it says 'undecided within budget' "
                              f"(default {CERTIFICATE_BUDGET_S:g})")
 
 
@@ -136,15 +136,16 @@ def with_certificate_options(plan: FlightPlan, args: argparse.Namespace) -> Flig
     if not hasattr(args, "no_certificate"):
         return plan
     return dataclasses.replace(plan, with_certificate=not args.no_certificate,
-                               certificate_budget=WallBudget(args.certificate_budget, "occlusion certificate"))
+                               certificate_budget=SecondsBudget(args.certificate_budget, "occlusion certificate"))
 
 
-class WallBudget:
-    """A work budget (:mod:`companion.planning.budget`) of wall seconds, counted from the first
-    unit spent, that shows progress on stderr every ``every_s`` seconds."""
+class SecondsBudget:
+    """A work budget (:mod:`companion.planning.budget`) of seconds of this process's CPU time
+    (other processes' load does not change the verdict), counted from the first unit spent, that
+    shows progress on stderr every ``every_s`` of them."""
 
     def __init__(self, seconds: float, what: str, every_s: float = 5.0,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.process_time):
         self.seconds, self.what, self.every_s, self.clock = seconds, what, every_s, clock
         self.units = 0
         self.started: float | None = None
@@ -159,5 +160,5 @@ class WallBudget:
             raise BudgetSpent(f"{self.seconds:g} s budget spent")
         if now >= self._next_report:
             self._next_report += self.every_s
-            print(f"{self.what}: {now - self.started:.0f} s of at most {self.seconds:g} s, {self.units} work units "
+            print(f"{self.what}: {now - self.started:.0f} s of at most {self.seconds:g} CPU s, {self.units} work units "
                   f"(--certificate-budget S to change, --no-certificate to skip)", file=sys.stderr, flush=True)

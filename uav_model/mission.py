@@ -101,7 +101,7 @@ def _validated(data: dict[str, Any], source: str, root: yaml.Node | None) -> Mis
     try:
         broken = {re.match(r"^[a-z_]+(\[\d+\])?", p.field_path).group(0) for p in problems if p.field_path}
         mission = _build(localise(data, origin), source, root, origin, found, broken)
-    except (KeyError, TypeError, ValueError, AttributeError, IndexError):
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, ArithmeticError):
         if not problems and not found:  # a valid document must build: our bug, not the file's
             raise
     problems += found
@@ -229,7 +229,7 @@ def _world(data: dict, inflation_ratio: float, report: _Problems, broken: set[st
         if oid in seen_ids:
             report.add(["obstacles", i, "id"], f"duplicate obstacle id {oid!r}")
         seen_ids.add(oid)
-        if f"obstacles[{i}]" in broken:
+        if f"obstacles[{i}]" in broken or "obstacles" in broken:  # the item, or the list (over its limit)
             continue
         obstacle = _obstacle(o, oid, i, inflation_ratio, report)
         if obstacle is not None:

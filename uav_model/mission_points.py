@@ -11,6 +11,7 @@ where metres are expected (``[47.3977, 8.5456]`` is 47 m east, 8 m north of the 
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Iterator
 from typing import Any
 
@@ -65,7 +66,7 @@ def localise(data: dict[str, Any], origin: GeoOrigin) -> dict[str, Any]:
 
 def looks_like_latlon(p: Any, origin: GeoOrigin) -> bool:
     """A metres pair that is really the origin's neighbourhood in degrees (either order)."""
-    if not (isinstance(p, list) and len(p) == 2 and all(isinstance(v, (int, float)) for v in p)):
+    if not (isinstance(p, list) and len(p) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) for v in p)):
         return False
     a, b = float(p[0]), float(p[1])
     near = lambda u, v: abs(u - origin.lat_deg) < 1.0 and abs(v - origin.lon_deg) < 1.0  # noqa: E731

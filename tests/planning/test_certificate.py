@@ -138,3 +138,23 @@ def test_the_certificate_judges_the_flight_the_coordinated_plan_forecasts():
         routes = plan_routes(mission)
         cert = certify(mission, routes)
         assert cert.whole_flight and cert.whole_flight_min_hold_s == plan_coordinated(mission, routes).hold_s
+
+
+@pytest.mark.parametrize("units, decided", [(50, 0), (10**9, 2)])
+def test_a_budget_that_runs_out_leaves_the_certificate_undecided_and_says_so(units, decided):
+    from companion.planning.budget import WorkBudget
+    mission = load_mission(REFERENCE)
+    routes = plan_routes(mission)
+    budget = WorkBudget(units)
+    cert = certify(mission, routes, budget=budget)
+    assert (cert.whole_flight_decided, cert.closest_approach_decided) == (decided >= 1, decided >= 2)
+    if decided == 0:
+        assert budget.spent == units + 1  # it stopped at the first unit over the budget
+        assert cert.verdict == "undecided" and not cert.whole_flight and not cert.closest_approach
+        assert cert.describe().count("undecided within budget") == 2
+        assert cert.advice("astar-bdwa", ("astar-bdwa-timed",)) is None
+    else:  # within the budget: the same answers as without one
+        assert cert == certify(mission, routes)
+        assert cert.advice("astar-bdwa", ("astar-bdwa-timed",)) == (
+            "variant astar-bdwa does not plan the sight line; astar-bdwa-timed keeps a-b blocked at closest "
+            "approach with a 54 s departure hold of a: --variant astar-bdwa-timed and coordination.hold_s_max: 54")
