@@ -275,6 +275,13 @@ class Pilot(Departure, Steering):
         grace_wall = max(wall_for_sim(self.vehicle, OVERRIDE_GRACE_SIM_S, 0.0), OVERRIDE_GRACE_MIN_WALL_S)
         verdict = self._failsafes.judge(st, self.vehicle.clock_s(), time.monotonic(), grace_wall, recent_gap)
         if verdict is ModeVerdict.FENCE:
+            if st.mode is FlightMode.OFFBOARD:  # the notice comes before the mode: wait for GF_ACTION's
+                try:
+                    await self.vehicle.wait_until(lambda s, p: s.mode is not FlightMode.OFFBOARD, grace_wall,
+                                                  "the geofence action")
+                except TelemetryLost:
+                    pass  # GF_ACTION 1 (warning only): still in OFFBOARD
+                st = self.vehicle.status()
             self._note_failsafe(st.mode, FailsafeCause.GEOFENCE, st.last_fence_text)
             if st.mode is not FlightMode.OFFBOARD:
                 self.outcome.phase = "geofence"  # the autopilot's fence action stands: nothing to send

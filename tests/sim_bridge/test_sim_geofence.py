@@ -24,7 +24,7 @@ from uav_model.mission import parse_mission
 from sim_bridge.mission_protocol import FENCE, MissionItem
 from sim_bridge.px4 import FlightMode, decode_custom_mode
 from sim_bridge.testing import free_udp_port_block, send_command, step_for
-from sim_bridge.vehicle.geofence import BREACH_TEXT, fence_from_items
+from sim_bridge.vehicle.geofence import BREACH_TEXT, DISTANCE_TEXT, fence_from_items
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -115,6 +115,21 @@ def test_gf_predict_triggers_on_the_braking_point(mission, make_vehicle, gcs):
     assert not v.geofence.outside()
     v.params.override("GF_PREDICT", 1)
     assert v.geofence.outside()
+
+
+def test_gf_max_hor_dist_is_a_circle_around_home_with_its_own_words(mission, make_vehicle, gcs):
+    v = make_vehicle(mission)
+    home_n, home_e, _ = v.home_ned
+    v.state = replace(v.state, north_m=home_n, east_m=home_e + 30.0)
+    assert v.geofence.violation() is None  # no fence, no limit
+    v.params.override("GF_MAX_HOR_DIST", 40.0)
+    assert v.geofence.violation() is None
+    v.state = replace(v.state, east_m=home_e + 41.0)
+    assert v.geofence.violation() == DISTANCE_TEXT == "Geofence violation: exceeding maximum distance to Home"
+    texts = [m.text for m in step_for(v, 0.1) if m.get_type() == "STATUSTEXT"]
+    assert texts == [DISTANCE_TEXT]  # on the ground: said, no action
+    ack = send_command(v, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert ack.result == mavlink.MAV_RESULT_DENIED and not v.armed
 
 
 # ---------------------------------------------------------------- over UDP ------------------

@@ -180,7 +180,7 @@ def test_the_mavsdk_adapter_uploads_and_reads_back_the_same_fence_over_udp():
     stored, got = asyncio.run(asyncio.wait_for(go(), 60.0))
     verify_fence_readback("a", mission_fence(mission), got)
     assert len(stored) == sum(1 if z.is_circle else len(z.vertices_deg) for z in got)
-    assert lines and "geofence uploaded and read back" in lines[-1]
+    assert any("geofence uploaded and read back" in line for line in lines), lines
 
 
 # -- the fence tells the truth: over real UDP, the stub as its own process, the companion's MAVSDK ---
@@ -189,12 +189,12 @@ SMALL_FIELD = Path(__file__).resolve().parents[1] / "data" / "small_field.yaml"
 
 
 def test_the_standoff_puts_each_exclusion_inside_the_keep_out_and_never_inside_the_footprint():
-    mission = parse_mission(MISSION_YAML.replace("radius_m: 40", "radius_m: 200"), "fenced.yaml")
+    mission = parse_mission(MISSION_YAML.replace("radius_m: 40", "radius_m: 100"), "fenced.yaml")
     s = fence_standoff_m(mission)
     assert s == pytest.approx(10.0 ** 2 / (2 * 3.0))  # v^2 / (2 MPC_ACC_HOR), PX4's default 3 m/s^2
     hill, barn = mission.world.static_obstacles
     _, circle, ring = mission_fence(mission)
-    assert circle.radius_m == pytest.approx(200.0 + 40.0 - s)  # 20 % inflation (40 m) less the standoff
+    assert circle.radius_m == pytest.approx(100.0 + 20.0 - s)  # 20 % inflation (20 m) less the standoff
     assert len(ring.vertices_deg) == 4  # the barn's 5 m inflation is thinner than the standoff: its footprint
     assert [w for w in fence_warnings(mission) if "barn" in w] and not [w for w in fence_warnings(mission)
                                                                         if "hill" in w or "geofence_margin" in w]
@@ -217,7 +217,7 @@ def test_the_small_field_flies_with_the_fence_uploaded_and_never_breaches(sitl, 
         assert _breach_texts(stub, name) == [], name
     area = stub.mission.world
     for row in run.flight_log():
-        if row["phase"] == "offboard":
+        if row["phase"] == "offboard" and row["x_m"]:
             assert area.x_min_m - 1.0 <= float(row["x_m"]) <= area.x_max_m + 1.0, row
             assert area.y_min_m - 1.0 <= float(row["y_m"]) <= area.y_max_m + 1.0, row
 
