@@ -211,6 +211,10 @@ def _bench(args: argparse.Namespace) -> int:
     from companion.bench.table import aggregate, format_table, markdown_table, write_runs_csv
     from companion.scenarios import config_dict
 
+    if "orca" in args.variants:  # before anything flies, not after every other variant has
+        from companion.bench.orca import pyrvo_missing
+        if (why := pyrvo_missing()) is not None:
+            raise BadInput(why)
     flown = fly(args, args.out or Path(f"bench_s{args.seed}_n{args.scenarios}"), args.variants)
     rows, out, spec = flown.rows, flown.out, flown.spec
     summary = aggregate(rows)

@@ -46,11 +46,20 @@ class OrcaSettings:
     circle_sides: int = 24  # a circle becomes the polygon circumscribing it
 
 
+MISSING_PYRVO = "the orca baseline needs pyrvo (the orca extra): pip install -e '.[orca]'"
+
+
+def pyrvo_missing() -> str | None:
+    """The one-line refusal when ``orca`` is asked for without pyrvo installed, else None."""
+    import importlib.util
+    return MISSING_PYRVO if importlib.util.find_spec("pyrvo") is None else None
+
+
 def _import_pyrvo():
     try:
         import pyrvo
     except ImportError:  # the optional extra
-        raise RuntimeError("the orca baseline needs pyrvo: pip install 'astar-bdwa[orca]'") from None
+        raise RuntimeError(MISSING_PYRVO) from None
     return pyrvo
 
 

@@ -9,6 +9,7 @@ The flights are real headless runs of the real planner, on a small world (a 1 km
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -302,3 +303,13 @@ def test_sweep_weights_refuses_bad_grids(capsys):
         assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "listed twice" in err and "[0, 100]" in err
+
+
+def test_orca_without_its_extra_is_refused_before_anything_flies(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "pyrvo", None)  # as when the orca extra is not installed
+    out = tmp_path / "bench"
+    code = cli_main(["bench", "--variants", "astar-bdwa,orca", "--scenarios", "2", "--workers", "1",
+                     "--quiet", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and "pip install -e '.[orca]'" in err
+    assert not (out / "runs.csv").exists()
