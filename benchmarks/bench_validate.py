@@ -2,7 +2,7 @@
 
 Each row is a fresh ``companion validate`` process on a generated mission (two vehicles at
 opposite corners of a square, ``obstacles`` regular polygons of ``vertices`` corners each on a
-lattice between them), timed from outside: wall seconds and peak RSS (``ru_maxrss`` of the child).
+lattice between them), timed from outside: wall and CPU seconds and peak RSS (``ru_maxrss`` of the children so far).
 The certificate runs with its default budget, so a row that hits it says "undecided".
 
     PYTHONPATH=$PWD python benchmarks/bench_validate.py                 # obstacles 10..200 x vertices 4..256
@@ -44,17 +44,20 @@ def sized_mission(obstacles: int, vertices: int, *, side_m: float = 6000.0) -> s
     return "\n".join(lines) + "\n"
 
 
-def measure(path: Path, extra: list[str]) -> tuple[float, float, int, str]:
-    """(wall s, peak RSS MiB, exit code, last stdout or stderr line) of one validate process."""
+def measure(path: Path, extra: list[str]) -> tuple[float, float, float, int, str]:
+    """(wall s, CPU s, peak RSS MiB, exit code, last stdout or stderr line) of one validate process."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     env = {**os.environ, "PYTHONPATH": os.environ.get("PYTHONPATH", str(Path(__file__).resolve().parents[1]))}
     started = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "companion", "validate", str(path), *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     out, err = proc.communicate()
     wall = time.perf_counter() - started
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0  # the largest child so far
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    peak = after.ru_maxrss / 1024.0  # the largest child so far: rows go from small to large
     lines = [ln for ln in (out + err).splitlines() if ln.strip()]
-    return wall, peak, proc.returncode, (lines[-1].strip() if lines else "")
+    return wall, cpu, peak, proc.returncode, (lines[-1].strip() if lines else "")
 
 
 def main() -> None:
@@ -64,15 +67,15 @@ def main() -> None:
     parser.add_argument("--no-certificate", action="store_true", help="pass --no-certificate to validate")
     args = parser.parse_args()
     extra = ["--no-certificate"] if args.no_certificate else []
-    print(f"{'obstacles':>9} {'vertices':>8} {'bytes':>9} {'wall_s':>7} {'peak_MiB':>8} {'exit':>4}  last line")
+    print(f"{'obstacles':>9} {'vertices':>8} {'bytes':>9} {'wall_s':>7} {'cpu_s':>6} {'peak_MiB':>8} {'exit':>4}  last line")
     with tempfile.TemporaryDirectory() as tmp:
         for n in args.obstacles:
             for v in args.vertices:
                 path = Path(tmp) / f"m{n}x{v}.yaml"
                 path.write_text(sized_mission(n, v), encoding="utf-8")
-                wall, peak, code, last = measure(path, extra)
-                print(f"{n:>9} {v:>8} {path.stat().st_size:>9} {wall:>7.2f} {peak:>8.0f} {code:>4}  {last[:90]}",
-                      flush=True)
+                wall, cpu, peak, code, last = measure(path, extra)
+                print(f"{n:>9} {v:>8} {path.stat().st_size:>9} {wall:>7.2f} {cpu:>6.2f} {peak:>8.0f} {code:>4}  "
+                      f"{last[:80]}", flush=True)
 
 
 if __name__ == "__main__":
