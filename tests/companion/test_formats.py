@@ -14,6 +14,7 @@ from companion.app.flight_plan import prepare
 from companion.formats.importer import ImportError_, import_mission
 from companion.formats.qgc_plan import plan_document
 from companion.scenarios import ScenarioConfig, generate_scenario
+from uav_model.fence_margin import fence_standoff_m
 from uav_model import frames
 from uav_model.mission import load_mission, mission_from_data
 
@@ -62,13 +63,15 @@ def test_random_scenarios_round_trip_through_plan(tmp_path, index):
     _same_geometry(mission, again)
 
 
-def test_plan_fences_are_the_inflated_obstacles_and_the_geofence(tmp_path):
+def test_plan_fences_lie_the_standoff_inside_the_inflated_obstacles_and_are_the_geofence(tmp_path):
     mission = load_mission(REFERENCE)
     doc = plan_document(prepare(mission), mission.vehicles[0])
     assert doc["version"] == 1 and doc["mission"]["version"] == 2
     assert doc["geoFence"]["version"] == 2 and doc["rallyPoints"]["version"] == 2
     (circle,) = doc["geoFence"]["circles"]
-    assert circle["inclusion"] is False and circle["circle"]["radius"] == pytest.approx(600.0)
+    # The inflated 600 m disk less the fence standoff (v^2 / 2a: 10 m/s, the unicycle's 8 m/s^2).
+    assert circle["inclusion"] is False and circle["circle"]["radius"] == pytest.approx(600.0 - 6.25)
+    assert fence_standoff_m(mission) == pytest.approx(6.25)
     (area,) = doc["geoFence"]["polygons"]
     ring = Polygon([frames.geodetic_to_local(mission.origin, lat, lon)[:2] for lat, lon in area["polygon"]])
     assert ring.hausdorff_distance(mission.world.geofence) < TOLERANCE_M
