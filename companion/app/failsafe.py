@@ -12,7 +12,11 @@ that notice, and PX4 does not leave it by itself. The evidence for a failsafe, a
 - the vehicle is already back in OFFBOARD without being asked (only PX4's failsafe does that).
 
 MAVSDK delivers texts and modes on separate streams, so the text may also come a little after
-the mode: a Hold or RTL without evidence is given a short grace before it counts as an operator's.
+the mode: a Hold or RTL without evidence is given a grace before it counts as an operator's. The
+grace is seconds of wall time, not a moment: when the uplink is cut, PX4 stops hearing our
+heartbeats and its "Failsafe activated" never reaches us, while the telemetry still does (no
+gap either). The only evidence is then PX4 itself re-entering OFFBOARD once the setpoints,
+streamed all through the grace, reach it again (measured: 0.2-3 s after they resume).
 
 A geofence breach is told apart first: PX4 says "Geofence violation: ..." as it takes GF_ACTION
 (Hold by default, then "Failsafe activated" too). Any such notice heard in flight is a breach, in
@@ -32,7 +36,7 @@ from companion.vehicle.port import FlightMode, VehicleStatus
 RECOVERABLE_MODES = frozenset({FlightMode.HOLD, FlightMode.RETURN_TO_LAUNCH})
 NOTICE_WINDOW_SIM_S = 10.0  # a failsafe text this old (vehicle clock) still explains a Hold/RTL
 OVERRIDE_GRACE_SIM_S = 2.0  # Hold/RTL without evidence: wait this long for a late text ...
-OVERRIDE_GRACE_MIN_WALL_S = 1.0  # ... and at least this long in wall time (streams reordered under load)
+OVERRIDE_GRACE_MIN_WALL_S = 6.0  # ... and at least this long in wall time: a cut uplink (~3 s) and PX4's re-entry
 
 
 class FailsafeCause(enum.Enum):
