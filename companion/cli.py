@@ -20,6 +20,7 @@ and returns the exit code. To add one, add a registration entry to ``_COMMAND_MO
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import importlib
 import json
@@ -98,10 +99,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     except MissionError as exc:
         return bad_input(exc)
     variant = args.variant or mission.planner.variant
-    out = output_dir(args.out or Path(f"simulate-{mission.name}-{variant}"))  # before flying: minutes lost otherwise
+    out_path = args.out or Path(f"simulate-{mission.name}-{variant}")
+    made = not out_path.exists()
+    out = output_dir(out_path)  # before flying: minutes lost otherwise
     try:
         run = simulate(mission, args.variant)
     except (MissionError, NoPath) as exc:
+        if made:  # bad input leaves nothing behind
+            with contextlib.suppress(OSError):
+                out.rmdir()
         return bad_input(exc)
     summary = run.summary.summary_dict()
     summary.update(mission=mission.name, mission_file=str(args.mission), variant=run.variant,
@@ -115,20 +121,25 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     saved = save_results(out, summary, [
         ("trajectory.png", lambda path: save_trajectory(path, mission, run.tracks, run.routes,
                                                         title=f"{mission.name} ({run.variant})")),
-        ("flight.csv", lambda path: _write_flight_log(path.parent, run.tracks))])
+        ("flight.csv", lambda path: _write_flight_log(path, run.tracks))])
     print(saved.line(), file=sys.stdout if saved.complete else sys.stderr, flush=True)
     return EXIT_OK if run.success else EXIT_FAILED
 
 
-def _write_flight_log(out: Path, tracks) -> None:
+def _write_flight_log(path: Path, tracks) -> None:
     """flight.csv in `companion run`'s columns (pose per tick; the obstacles' clock is the
     mission's), so that `companion replay` reads a simulate directory as it reads a run."""
-    from companion.app.flight_log import FlightLog
+    import csv
+    from companion.app.flight_log import FLIGHT_COLUMNS
     rows = sorted((float(t), name, float(x), float(y)) for name, tr in tracks.items()
                   for t, x, y in zip(tr.t_s, tr.x_m, tr.y_m))
-    with FlightLog(out, flush_every_s=math.inf) as log:
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        out = csv.writer(f)
+        out.writerow(FLIGHT_COLUMNS)
         for t, name, x, y in rows:
-            log.row(t_mission_s=t, t_sim_s=t, vehicle=name, phase="simulate", x_m=x, y_m=y)
+            row = dict(t_mission_s=f"{t:.3f}", t_sim_s=f"{t:.3f}", vehicle=name, phase="simulate",
+                       x_m=f"{x:.3f}", y_m=f"{y:.3f}")
+            out.writerow([row.get(c, "") for c in FLIGHT_COLUMNS])
 
 
 def _f(value, fmt: str = ".1f", none: str = "-") -> str:

@@ -124,8 +124,8 @@ def save_results(out_dir: Path, summary: dict[str, Any],
                  artefacts: Sequence[tuple[str, Callable[[Path], None]]] = (),
                  problems: Sequence[str] = ()) -> SaveReport:
     """summary.json first (after giving back the space reserve), then each artefact ``(file
-    name, writer)``. The summary lists the output problems (``outputs``); it is written again at
-    the end when an artefact failed after it, so that it names that failure too."""
+    name, writer)``. The summary lists the output problems (``outputs``); it is written again as
+    soon as an artefact fails, so that it names that failure too."""
     report = SaveReport(out_dir, problems=list(problems))
     if not out_dir.is_dir():
         report.problems.append("the output folder was removed during the run (recreated; its logs are lost)")
@@ -155,9 +155,9 @@ def save_results(out_dir: Path, summary: dict[str, Any],
             report.written.append(name)
         except OSError as exc:
             report.failed.append((name, _why(exc)))
+            if summary_ok:  # at once, while the failed file's space is free again; if it cannot, the last one stands
+                write_summary(first=False)
     if summary_ok:
-        if report.failed:
-            write_summary(first=False)  # again, naming the artefacts that failed; if it cannot, the first one stands
         report.written.insert(0, SUMMARY_NAME)
     return report
 

@@ -157,4 +157,4 @@ def test_a_budget_that_runs_out_leaves_the_certificate_undecided_and_says_so(uni
         assert cert == certify(mission, routes)
         assert cert.advice("astar-bdwa", ("astar-bdwa-timed",)) == (
             "variant astar-bdwa does not plan the sight line; astar-bdwa-timed keeps a-b blocked at closest "
-            "approach with a 54 s departure hold of a: --variant astar-bdwa-timed and coordination.hold_s_max: 54")
+            "approach with a 59 s departure hold of a: --variant astar-bdwa-timed and coordination.hold_s_max: 60")
