@@ -23,9 +23,10 @@ from companion.app.offload import in_child_process
 from companion.app.preflight import (LIMIT_PARAMS, OBL_ACTIONS, OBL_HOLD, PreflightReport, PreflightSettings, Severity,
                                      VehicleFacts, preflight)
 from companion.errors import PreflightRefused
+from companion.planning.errors import PlanningError
 from companion.planning.routes import Route
 from companion.planning.vehicle_planner import VARIANTS
-from uav_model.mission import Mission
+from uav_model.mission import Mission, MissionError
 from companion.vehicle.port import LandedState, Vehicle
 
 SHARED_CLOCK_TOLERANCE_S = 0.5  # sim: two clocks this close are one (an external sim-bridge) ...
@@ -128,7 +129,10 @@ async def get_ready(plan: FlightPlan, vehicles: Mapping[str, Vehicle], settings:
         # process, so telemetry keeps flowing; inline only where the sim clock follows this loop.
         job = (result.mission, plan.variant, None if result.replan else plan.routes, plan.geofence)
         report("planning again for the flown mission" + ("" if inline else " (in a child process)"))
-        flown = plan_for_flight(*job) if inline else await in_child_process(plan_for_flight, *job)
+        try:
+            flown = plan_for_flight(*job) if inline else await in_child_process(plan_for_flight, *job)
+        except (MissionError, PlanningError) as exc:  # e.g. no route from where a vehicle is
+            raise PreflightRefused(f"pre-flight: planning the flown mission: {exc}") from None
         if flown.coordinated is not None:
             report(f"schedule re-planned for the flown mission: departure hold {flown.coordinated.hold_s:.1f} s")
     else:

@@ -99,14 +99,15 @@ class OccupancyGrid:
 
 
 def rasterise(world: World, resolution_m: float, *, t_s: float = 0.0,
-              extra: Sequence[BaseGeometry] = ()) -> OccupancyGrid:
+              extra: Sequence[BaseGeometry] = (), keep_in_with: Sequence[tuple[float, float]] = ()) -> OccupancyGrid:
     """Rasterise the inflated STATIC obstacles (and ``extra`` geometries) over the geofence box.
 
     Moving obstacles are left to the local planner. ``t_s`` places the static obstacles (their
     offset is zero; it is here so the call reads the same as the time-aware queries). Cells whose
     centre lies outside the declared area by more than half a cell are occupied too: a route stays
     in the area (within half a cell of it, where a station sits on its edge) and keeps the
-    geofence margin, which is the autopilot's, clear.
+    geofence margin, which is the autopilot's, clear. ``keep_in_with``: points the keep-in grows to
+    take in (a vehicle planned from where it is, outside the area but inside the geofence).
     """
     if not (isinstance(resolution_m, (int, float)) and math.isfinite(resolution_m) and resolution_m > 0):
         raise PlanningError(f"grid resolution must be a positive number of metres, got {resolution_m!r}")
@@ -119,6 +120,8 @@ def rasterise(world: World, resolution_m: float, *, t_s: float = 0.0,
     h = _half_diagonal(resolution_m)
     occ = np.zeros((ny, nx), dtype=bool)
     kx0, ky0, kx1, ky1 = keep_in_box(world)
+    for px, py in keep_in_with:
+        kx0, ky0, kx1, ky1 = min(kx0, px), min(ky0, py), max(kx1, px), max(ky1, py)
     tol = resolution_m / 2.0 + 1e-9
     occ[:, (xs < kx0 - tol) | (xs > kx1 + tol) | (xs > fx1)] = True
     occ[(ys < ky0 - tol) | (ys > ky1 + tol) | (ys > fy1), :] = True

@@ -84,7 +84,8 @@ def plan_routes(mission: Mission, *, max_expansions: int | None = None) -> dict[
     """
     world = mission.world
     resolution_m = mission.planner.grid_resolution_m
-    base = rasterise(world, resolution_m)
+    ends = [xy for v in mission.vehicles for xy in (v.start_enu_m, v.goal_enu_m)]
+    base = rasterise(world, resolution_m, keep_in_with=ends)
     routes: dict[str, Route] = {}
     for vehicle in mission.by_priority:
         earlier = list(routes.values()) if priority_rule_applies(mission) else []
