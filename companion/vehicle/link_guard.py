@@ -23,7 +23,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from companion.errors import LinkConflict
-from companion.vehicle.link_probe import frame_system_ids, probe_udpin, udpin_port
+from companion.vehicle.link_probe import frame_system_ids, probe_udpin, socket_closed, udpin_port
 
 LOOPBACK = "127.0.0.1"
 RELAY_BUFFER_BYTES = 4 << 20  # a burst (a parameter list at 20x) waits here while the event loop is busy
@@ -141,7 +141,4 @@ async def guarded_port(host: str, port: int, system_id: int, vehicle: str | None
         yield guard
     finally:
         guard.close()
-        for _ in range(10):  # the transports close their sockets on a later loop turn: free the port now
-            if outer.fileno() == -1:
-                break
-            await asyncio.sleep(0)
+        await socket_closed(outer)

@@ -79,11 +79,17 @@ async def listen(host: str, port: int, seconds: float = PROBE_S) -> dict[int, se
         await asyncio.sleep(seconds)
     finally:
         transport.close()
-        for _ in range(10):  # the transport closes its socket on a later loop turn: free the port now
-            if sock.fileno() == -1:
-                break
-            await asyncio.sleep(0)
+        await socket_closed(sock)
     return dict(proto.senders)
+
+
+async def socket_closed(sock: socket.socket, turns: int = 10) -> None:
+    """A closed transport closes its socket on a later loop turn: wait those turns, so that the
+    port is free when the caller goes on."""
+    for _ in range(turns):
+        if sock.fileno() == -1:
+            return
+        await asyncio.sleep(0)
 
 
 async def probe_udpin(url: str, system_id: int, vehicle: str, seconds: float = PROBE_S) -> None:
