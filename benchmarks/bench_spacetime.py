@@ -19,8 +19,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from uav_model.mission import load_mission
-from companion.planning.certificate import certify
-from companion.planning.coordination import plan_coordinated
+from companion.planning.coordination.certificate import certify
+from companion.planning.coordination.plan import plan_coordinated
 from companion.planning.routes import plan_routes
 from companion.bench.machine import machine_line
 

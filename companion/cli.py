@@ -112,7 +112,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     summary = run.summary.summary_dict()
     summary.update(mission=mission.name, mission_file=str(args.mission), variant=run.variant,
                    wall_s=round(run.wall_s, 3), speed_factor=round(run.speed_factor, 1))
-    from companion.planning.certificate import mission_certificate
+    from companion.planning.coordination.certificate import mission_certificate
     certificate = mission_certificate(mission.with_variant(run.variant), run.routes)
     summary["occlusion_certificate"] = None if certificate is None else certificate.summary_dict()
     print(format_summary(run), flush=True)  # the verdict first: it needs no disk

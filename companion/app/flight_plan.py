@@ -17,11 +17,11 @@ from uav_model import frames
 from companion.errors import MissionUploadError
 from uav_model.mission import Mission, VehicleSpec, mission_error
 from companion.planning.budget import Budget
-from companion.planning.certificate import OcclusionCertificate, mission_certificate
-from companion.planning.coordination import CoordinatedPlan, plan_coordinated
+from companion.planning.coordination.certificate import OcclusionCertificate, mission_certificate
+from companion.planning.coordination.plan import CoordinatedPlan, plan_coordinated
 from companion.planning.errors import NoPath
 from companion.planning.fleet_setup import Fleet, build_fleet
-from companion.planning.timed import TimedRoute
+from companion.planning.coordination.timed import TimedRoute
 from companion.planning.vehicle_planner import VARIANTS, variant_needs_route, variant_nodes
 from companion.vehicle.port import GeoWaypoint
 

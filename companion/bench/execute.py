@@ -31,7 +31,7 @@ from companion.bench.executors import ExecutorError, ExecutorSpec, Pool, open_po
 from companion.bench.table import certificate_columns, run_row
 from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
 from companion.bench.weights import Weights
-from companion.planning.certificate import certify
+from companion.planning.coordination.certificate import certify
 from companion.planning.errors import NoPath
 from companion.planning.vehicle_planner import variant_needs_route
 from companion.planning.metrics import vehicle_lower_bound_s

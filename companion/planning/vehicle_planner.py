@@ -31,7 +31,7 @@ from uav_model.plant import TRACKING_LAG_S, Plant
 if TYPE_CHECKING:
     from uav_model.mission import Mission, VehicleSpec
     from companion.planning.routes import Route
-    from companion.planning.timed import TimedRoute
+    from companion.planning.coordination.timed import TimedRoute
 
 
 class GoalSource(Enum):

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
 from uav_model.mission import MissionError, load_mission, mission_from_data
-from companion.planning.certificate import certify
+from companion.planning.coordination.certificate import certify
 from companion.planning.errors import NoPath
 from companion.planning.routes import plan_routes
 from spacetime_bruteforce import BruteForce
@@ -130,7 +130,7 @@ def test_the_certificate_judges_the_flight_the_coordinated_plan_forecasts():
     the hold the coordinated plan takes, under either forecast (with the route forecast the
     certificate judged a's route at cruise while the plan flew the flown forecast: 161.6 s
     against the plan's 156.2 s)."""
-    from companion.planning.coordination import plan_coordinated
+    from companion.planning.coordination.plan import plan_coordinated
     for forecast in ("flown", "route"):
         base = load_mission(REFERENCE)
         mission = dataclasses.replace(base, coordination=dataclasses.replace(

@@ -13,15 +13,15 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from uav_model.mission import Forecast, load_mission, mission_from_data
-from companion.planning.coordination import Blocking, plan_coordinated, plan_vehicle
+from companion.planning.coordination.plan import Blocking, plan_coordinated, plan_vehicle
 from companion.planning.errors import NoPath
 from companion.planning.grid import rasterise
 from companion.planning.metrics import TruthGeometry, pair_min_distance
 from companion.planning.routes import detour_route, plan_routes
-from companion.planning import shadow as shadow_module
-from companion.planning.shadow import SightShadows
-from companion.planning.spacetime import step_model
-from companion.planning.timed import TimedRoute, forecast, forecast_along, forecast_from, held
+from companion.planning.coordination import shadow as shadow_module
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.spacetime import step_model
+from companion.planning.coordination.timed import TimedRoute, forecast, forecast_along, forecast_from, held
 from world_strategies import worlds
 
 REFERENCE = Path(__file__).resolve().parents[2] / "missions" / "paper_reference.yaml"

@@ -18,7 +18,7 @@ from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.routes import plan_routes
 from companion.planning.runner import body_command
-from companion.planning.timed import forecast
+from companion.planning.coordination.timed import forecast
 from companion.planning.vehicle_planner import Replanning, VehiclePlanner
 from tests.planning.world_strategies import worlds
 from uav_model.frames import enu_heading_to_ned_yaw, ned_yaw_to_enu_heading

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.planning.coordination import Blocking, plan_coordinated
+from companion.planning.coordination.plan import Blocking, plan_coordinated
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.replan import ReplanRule, TimedFleet, closest_approach_s
+from companion.planning.coordination.replan import ReplanRule, TimedFleet, closest_approach_s
 from companion.planning.routes import plan_routes
-from companion.planning.timed import PriorityClocks, ScheduleClock, TimedRoute, forecast, sight_near_m
+from companion.planning.coordination.timed import PriorityClocks, ScheduleClock, TimedRoute, forecast, sight_near_m
 from companion.planning.vehicle_planner import SIGHT_LAG_M, VehiclePlanner
 from uav_model.mission import load_mission
 

@@ -8,7 +8,7 @@ import pytest
 from companion.bench import aggregate, read_runs_csv
 from companion.bench.execute import ScenarioTask, run_scenario
 from companion.bench.table import certificate_columns, format_table, markdown_table, write_runs_csv
-from companion.planning.certificate import OcclusionCertificate, certify
+from companion.planning.coordination.certificate import OcclusionCertificate, certify
 from companion.scenarios import ScenarioConfig, generate_scenario
 
 SMALL = {"side_m": 1000.0, "static_count": 2, "static_circumradius_m": [40.0, 90.0],

@@ -36,11 +36,11 @@ from uav_model.mission import Forecast
 from companion.planning.budget import Budget
 from companion.planning.flown_forecast import flown_forecast
 from companion.planning.grid import OccupancyGrid, rasterise
-from companion.planning.nearpath import best_near
-from companion.planning.shadow import SightShadows
-from companion.planning.spacetime import (AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, backward,
+from companion.planning.coordination.nearpath import best_near
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.spacetime import (AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, backward,
                                           earliest_arrival, forward, stay_from, step_model)
-from companion.planning.timed import TimedRoute, forecast, held
+from companion.planning.coordination.timed import TimedRoute, forecast, held
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
@@ -261,7 +261,7 @@ def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: 
     if hold_s is None:
         hold_s = 0.0
         if len(order) > 1 and mission.coordination.hold_s_max > 0:
-            from companion.planning.certificate import least_hold
+            from companion.planning.coordination.certificate import least_hold
             margin = near_margin_m(mission, order[1].name, top.speed_m_s)
             for blocking, margin_m in ((Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
                                        (Blocking.CLOSEST_APPROACH, 0.0)):

@@ -21,10 +21,10 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 from companion.planning.budget import Budget, BudgetSpent
-from companion.planning.coordination import Blocking, feasible, first_forecast, problem_for
+from companion.planning.coordination.plan import Blocking, feasible, first_forecast, problem_for
 from companion.planning.grid import OccupancyGrid, rasterise
-from companion.planning.shadow import SightShadows
-from companion.planning.timed import TimedRoute, held
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.timed import TimedRoute, held
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
