@@ -91,7 +91,7 @@ def _add_simulate(sub) -> None:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from companion.app.results import save_results
-    from companion.planning.runner import simulate
+    from companion.planning.flight.headless import simulate
     from companion.plots import save_trajectory
 
     try:
@@ -261,7 +261,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                                       "the sweeps vary the paper's scenario: two vehicles and (table3) one obstacle"))
     if args.out is not None:
         output_dir(args.out)
-    from companion.planning.runner import simulate  # after the input checks: they need neither
+    from companion.planning.flight.headless import simulate  # after the input checks: they need neither
     from companion.plots import save_trajectory
 
     title, paper = PAPER_TABLES[args.table]

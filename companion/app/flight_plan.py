@@ -20,7 +20,7 @@ from companion.planning.budget import Budget
 from companion.planning.coordination.certificate import OcclusionCertificate, mission_certificate
 from companion.planning.coordination.plan import CoordinatedPlan, plan_coordinated
 from companion.planning.errors import NoPath
-from companion.planning.fleet_setup import Fleet, build_fleet
+from companion.planning.flight.fleet_setup import Fleet, build_fleet
 from companion.planning.coordination.timed import TimedRoute
 from companion.planning.vehicle_planner import VARIANTS, variant_needs_route, variant_nodes
 from companion.vehicle.port import GeoWaypoint
@@ -73,7 +73,7 @@ class FlightPlan:
 
     def fleet(self) -> Fleet:
         """Fresh planners for every vehicle and the timed routes' clocks, built as the headless
-        runner builds them (:func:`companion.planning.fleet_setup.build_fleet`), on the
+        runner builds them (:func:`companion.planning.flight.fleet_setup.build_fleet`), on the
         coordinated plan computed before (:attr:`coordinated`)."""
         plan = self.coordinated
         return build_fleet(self.mission, self.routes, self.variant, None if plan is None else plan.timed,

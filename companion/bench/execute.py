@@ -35,7 +35,7 @@ from companion.planning.coordination.certificate import certify
 from companion.planning.errors import NoPath
 from companion.planning.vehicle_planner import variant_needs_route
 from companion.planning.metrics import vehicle_lower_bound_s
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 from companion.scenarios import (ScenarioConfig, ScenarioError, generate_scenario, mission_yaml_text,
                                  with_variant)
 

@@ -302,7 +302,7 @@ def test_the_first_vehicle_is_forecast_where_it_flies_not_on_its_route():
     """Tuning seed 13 i042: on the multicopter a flew 80-110 m off its route at cruise, so b,
     planned against that, met the real a elsewhere with the line open. Flown alone first, a's
     forecast is where it flies beside b too."""
-    from companion.planning.runner import simulate
+    from companion.planning.flight.headless import simulate
     from companion.scenarios import generate_scenario
     scenario = generate_scenario(13, 42)
     mission = scenario.mission.with_variant("astar-bdwa-timed")

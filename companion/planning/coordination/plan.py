@@ -34,7 +34,7 @@ import numpy as np
 
 from uav_model.mission import Forecast
 from companion.planning.budget import Budget
-from companion.planning.flown_forecast import flown_forecast
+from companion.planning.flight.forecast import flown_forecast
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.coordination.nearpath import best_near
 from companion.planning.coordination.shadow import SightShadows

@@ -1,6 +1,6 @@
 """One mission's planners and schedule clocks, built in one place for every caller that flies it.
 
-The headless runner (:func:`companion.planning.runner.simulate`), the live companion
+The headless runner (:func:`companion.planning.flight.headless.simulate`), the live companion
 (``companion.app``: its flight context, and the warm-up before it) and anything else that flies a
 mission call :func:`build_fleet`, so that what a vehicle's planner is made of (its route, the
 routes above it for a detour, its timed route, where its sightline term acts) and how the timed

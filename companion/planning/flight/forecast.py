@@ -5,7 +5,7 @@ The lower vehicles are planned in (position, time) against a forecast of the fir
 multicopter really flies (it rounds the route's corners and keeps its distance from the
 obstacles), so b, planned to hide behind an obstacle from that forecast, meets the real one
 elsewhere with the line open. Flown alone headless first, with the runner that flies the
-mission (:func:`runner.simulate`), the forecast is 5-25 m off. The lower vehicles change the
+mission (:func:`headless.simulate`), the forecast is 5-25 m off. The lower vehicles change the
 first one's flight only through the separation rule, which binds only when they meet.
 
 The default (``coordination.forecast: flown``). Pure and deterministic: no I/O. It costs one headless
@@ -36,7 +36,7 @@ def flown_forecast(mission: "Mission", route: "Route", name: str, budget: "Budge
     (:func:`timed.held`): the moving obstacles it meets then are elsewhere, which the flight
     itself absorbs as it absorbs any other difference from its forecast. ``budget``: charged a
     unit per tick (:mod:`budget`)."""
-    from companion.planning.runner import simulate  # the runner builds fleets, which plan with this module
+    from companion.planning.flight.headless import simulate  # the runner builds fleets, which plan with this module
 
     vehicle = mission.vehicle(name)
     alone = dataclasses.replace(mission, vehicles=(vehicle,))

@@ -31,7 +31,7 @@ from companion.planning.budget import Budget, spend
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.fleet import Neighbour, react_to
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.fleet_setup import build_fleet
+from companion.planning.flight.fleet_setup import build_fleet
 from companion.planning.vehicle_planner import TickResult, variant_needs_route
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
