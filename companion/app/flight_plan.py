@@ -21,7 +21,7 @@ from companion.planning.coordination.certificate import OcclusionCertificate, mi
 from companion.planning.coordination.plan import CoordinatedPlan, plan_coordinated
 from companion.planning.errors import NoPath
 from companion.planning.flight.fleet_setup import Fleet, build_fleet
-from companion.planning.coordination.timed import TimedRoute
+from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import VARIANTS, variant_needs_route, variant_nodes
 from companion.vehicle.port import GeoWaypoint
 

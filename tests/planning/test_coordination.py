@@ -21,7 +21,8 @@ from companion.planning.routes import detour_route, plan_routes
 from companion.planning.coordination import shadow as shadow_module
 from companion.planning.coordination.shadow import SightShadows
 from companion.planning.coordination.spacetime import step_model
-from companion.planning.coordination.timed import TimedRoute, forecast, forecast_along, forecast_from, held
+from companion.planning.coordination.timed import forecast, forecast_along, forecast_from, held
+from companion.planning.timed_route import TimedRoute
 from world_strategies import worlds
 
 REFERENCE = Path(__file__).resolve().parents[2] / "missions" / "paper_reference.yaml"

@@ -15,7 +15,9 @@ from companion.planning.dwa import OtherUav, Pose
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.coordination.replan import ReplanRule, TimedFleet, closest_approach_s
 from companion.planning.routes import plan_routes
-from companion.planning.coordination.timed import PriorityClocks, ScheduleClock, TimedRoute, forecast, sight_near_m
+from companion.planning.coordination.clocks import PriorityClocks, ScheduleClock, sight_near_m
+from companion.planning.coordination.timed import forecast
+from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import SIGHT_LAG_M, VehiclePlanner
 from uav_model.mission import load_mission
 

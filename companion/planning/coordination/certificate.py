@@ -24,7 +24,8 @@ from companion.planning.budget import Budget, BudgetSpent
 from companion.planning.coordination.plan import Blocking, feasible, first_forecast, problem_for
 from companion.planning.grid import OccupancyGrid, rasterise
 from companion.planning.coordination.shadow import SightShadows
-from companion.planning.coordination.timed import TimedRoute, held
+from companion.planning.coordination.timed import held
+from companion.planning.timed_route import TimedRoute
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission

@@ -40,7 +40,8 @@ from companion.planning.coordination.nearpath import best_near
 from companion.planning.coordination.shadow import SightShadows
 from companion.planning.coordination.spacetime import (AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, backward,
                                           earliest_arrival, forward, stay_from, step_model)
-from companion.planning.coordination.timed import TimedRoute, forecast, held
+from companion.planning.coordination.timed import forecast, held
+from companion.planning.timed_route import TimedRoute
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission

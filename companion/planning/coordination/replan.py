@@ -45,7 +45,9 @@ from uav_model.mission import Forecast
 from companion.planning.coordination.plan import Blocking, plan_vehicle
 from companion.planning.grid import rasterise
 from companion.planning.coordination.shadow import SightShadows
-from companion.planning.coordination.timed import PriorityClocks, TimedRoute, forecast_along, forecast_from, sight_near_m
+from companion.planning.coordination.clocks import PriorityClocks, sight_near_m
+from companion.planning.coordination.timed import forecast_along, forecast_from
+from companion.planning.timed_route import TimedRoute
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission

@@ -29,7 +29,7 @@ from companion.planning.coordination import bitgrid
 from companion.planning.budget import Budget, spend
 from companion.planning.grid import OccupancyGrid
 from companion.planning.coordination.shadow import SightShadows
-from companion.planning.coordination.timed import TimedRoute
+from companion.planning.timed_route import TimedRoute
 
 
 class SightRule(Enum):

@@ -5,7 +5,7 @@ The headless runner (:func:`companion.planning.flight.headless.simulate`), the l
 mission call :func:`build_fleet`, so that what a vehicle's planner is made of (its route, the
 routes above it for a detour, its timed route, where its sightline term acts) and how the timed
 routes are read in flight (:class:`companion.planning.coordination.replan.TimedFleet`: the per-priority clocks of
-:class:`companion.planning.coordination.timed.PriorityClocks`, and the in-flight re-plan) cannot differ
+:class:`companion.planning.coordination.clocks.PriorityClocks`, and the in-flight re-plan) cannot differ
 between them:
 
     fleet = build_fleet(mission, routes, variant)
@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 from companion.planning.coordination.plan import Blocking, plan_coordinated
 from companion.planning.routes import higher_routes
 from companion.planning.coordination.replan import TimedFleet
-from companion.planning.coordination.timed import sight_near_m
+from companion.planning.coordination.clocks import sight_near_m
 from companion.planning.vehicle_planner import VARIANTS, VehiclePlanner
 
 if TYPE_CHECKING:
@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 
     from uav_model.mission import Mission
     from companion.planning.routes import Route
-    from companion.planning.coordination.timed import TimedRoute
+    from companion.planning.timed_route import TimedRoute
 
 
 @dataclass(frozen=True, eq=False)

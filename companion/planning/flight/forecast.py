@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.planning.coordination.timed import TimedRoute
+from companion.planning.timed_route import TimedRoute
 
 if TYPE_CHECKING:
     from companion.planning.budget import Budget

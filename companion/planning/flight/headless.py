@@ -40,7 +40,7 @@ from uav_model.plant import (HOVER, KinematicState, PlantLimits, VelocityCommand
                              limits_for, step_for)
 
 if TYPE_CHECKING:
-    from companion.planning.coordination.timed import TimedRoute
+    from companion.planning.timed_route import TimedRoute
 
 
 @dataclass(frozen=True)
