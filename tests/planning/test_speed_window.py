@@ -17,7 +17,7 @@ from companion.planning.dwa import NO_OBSTACLES, Command, DwaConfig, NoLegalRoll
 from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.routes import plan_routes
-from companion.planning.flight.headless import body_command
+from companion.planning.flight.loop import body_command
 from companion.planning.coordination.timed import forecast
 from companion.planning.vehicle_planner import Replanning, VehiclePlanner
 from tests.planning.world_strategies import worlds

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from companion.planning.coordination.plan import Blocking, plan_coordinated
+from companion.planning.flight.forecast import first_forecast
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.coordination.replan import ReplanRule, TimedFleet, closest_approach_s
@@ -83,7 +84,7 @@ def held_reference():
     mission = load_mission(REFERENCE)
     mission = replace(mission, coordination=replace(mission.coordination, hold_s_max=200.0))
     routes = plan_routes(mission)
-    return mission, plan_coordinated(mission, routes)
+    return mission, plan_coordinated(mission, routes, first_forecast(mission, routes))
 
 
 def test_a_vehicle_lagging_before_the_closest_approach_is_replanned_from_where_it_is(held_reference):

@@ -50,16 +50,21 @@ class Fleet:
 
 def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | None = None,
                 timed_routes: Mapping[str, TimedRoute] | None = None,
-                blocking: Mapping[str, Blocking] | None = None) -> Fleet:
+                blocking: Mapping[str, Blocking] | None = None, *, first: TimedRoute | None = None) -> Fleet:
     """The planners and schedule clocks that fly ``mission`` with ``variant`` (default: the
     mission's). ``timed_routes`` (timed variants): the routes with arrival times to fly; by default
-    the coordinated space-time plan (:func:`coordination.plan_coordinated`, seconds of numpy: a
-    caller that already has it passes it in, with its ``blocking``: what each plan keeps, which an
-    in-flight re-plan must keep at least as well; unknown, any re-plan is adopted)."""
+    the coordinated space-time plan (:func:`coordination.plan.plan_coordinated`, seconds of numpy)
+    against ``first``, the first vehicle's forecast (:func:`forecast.first_forecast`), which the
+    caller then passes in. A caller that already has the plan passes its routes in, with its
+    ``blocking``: what each plan keeps, which an in-flight re-plan must keep at least as well;
+    unknown, any re-plan is adopted."""
     variant = variant or mission.planner.variant
     timed_variant = VARIANTS[variant].timed
     if timed_routes is None and timed_variant and routes:
-        plan = plan_coordinated(mission, routes)  # the space-time plan (docs/design.md)
+        if first is None:
+            raise ValueError(f"build_fleet: variant {variant!r} plans against the first vehicle's forecast: "
+                             f"pass first (forecast.first_forecast)")
+        plan = plan_coordinated(mission, routes, first)  # the space-time plan (docs/design.md)
         timed_routes, blocking = plan.timed, plan.blocking
     timed = dict(timed_routes or {})
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
