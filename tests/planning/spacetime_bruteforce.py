@@ -1,6 +1,6 @@
 """The occlusion certificate, decided the slow and obvious way (for tests only).
 
-Same discrete model as companion.planning.coordination.plan (mission grid cells, the lower vehicle's
+Same discrete model as companion.planning.coordination.search (mission grid cells, the lower vehicle's
 step from ``step_model``, the higher vehicle forecast along its route after a hold), but none of
 its machinery: Python sets of (cell, step) states, neighbours found by walking the sub-steps cell
 by cell, the sight line tested with plain shapely per state, every hold tried in turn, and for

@@ -13,7 +13,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from uav_model.mission import Forecast, load_mission, mission_from_data
-from companion.planning.coordination.plan import Blocking, plan_coordinated, plan_vehicle
+from companion.planning.coordination.plan import plan_coordinated
+from companion.planning.coordination.search import Blocking, plan_vehicle
 from companion.planning.errors import NoPath
 from companion.planning.flight.forecast import first_forecast
 from companion.planning.grid import rasterise

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from uav_model.mission import load_mission
-from companion.planning.coordination.plan import Blocking, _near_witness, near_margin_m, plan_vehicle, problem_for
+from companion.planning.coordination.search import Blocking, _near_witness, near_margin_m, plan_vehicle, problem_for
 from companion.planning.grid import rasterise
 from companion.planning.coordination.nearpath import best_near, earliest_near, ladder_m2
 from companion.planning.routes import plan_routes

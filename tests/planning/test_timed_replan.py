@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.planning.coordination.plan import Blocking, plan_coordinated
+from companion.planning.coordination.plan import plan_coordinated
+from companion.planning.coordination.search import Blocking
 from companion.planning.flight.forecast import first_forecast
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.obstacle_field import ObstacleField

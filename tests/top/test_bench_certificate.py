@@ -66,11 +66,17 @@ def test_every_run_carries_the_certificate_of_the_forecast_its_own_variant_flies
     variants = ("astar-bdwa", "bdwa", "astar-bdwa-timed")
     rows = run_scenario(ScenarioTask(7, 0, variants, config)).rows
     scenario = generate_scenario(7, 0, config)
+    forecasts = {}
     for variant, row in zip(variants, rows):
         mission = scenario.mission.with_variant(variant)
-        expected = certificate_columns(certify(mission, first_forecast(mission, scenario.routes)))
+        forecasts[variant] = first = first_forecast(mission, scenario.routes)
+        expected = certificate_columns(certify(mission, first))
         assert expected["cert_closest_approach"] in ("feasible", "needs-hold", "infeasible")
         assert row["variant"] == variant and {k: row[k] for k in expected} == expected
+    # Each variant flies the first vehicle its own way: one certificate for all would judge
+    # a flight the other rows do not fly.
+    ends = {v: float(f.t_s[-1]) for v, f in forecasts.items()}
+    assert len(set(ends.values())) > 1, ends
 
 
 def test_without_the_certificate_the_runs_are_the_same_and_its_columns_empty():

@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from uav_model.mission import Forecast
-from companion.planning.coordination.plan import Blocking, plan_vehicle
+from companion.planning.coordination.search import Blocking, plan_vehicle
 from companion.planning.grid import rasterise
 from companion.planning.coordination.shadow import SightShadows
 from companion.planning.coordination.clocks import PriorityClocks, sight_near_m

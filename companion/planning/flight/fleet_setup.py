@@ -25,7 +25,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from companion.planning.coordination.plan import Blocking, plan_coordinated
+from companion.planning.coordination.plan import plan_coordinated
+from companion.planning.coordination.search import Blocking
 from companion.planning.routes import higher_routes
 from companion.planning.coordination.replan import TimedFleet
 from companion.planning.coordination.clocks import sight_near_m
