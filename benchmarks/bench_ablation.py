@@ -39,7 +39,7 @@ _CHILD = """
 import json, sys
 seed, count, workers, numpy_only = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
 if numpy_only:
-    from companion.planning import shadow
+    from companion.planning.coordination import shadow
     from companion.planning.dwa import kernels
     from uav_model.plant import multicopter
     kernels.numpy_only().__enter__()

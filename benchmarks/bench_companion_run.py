@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 from uav_model.mission import load_mission
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 from sim_bridge.testing import free_udp_port_block, free_udp_ports
 from companion.bench.machine import machine_line
 

@@ -21,7 +21,7 @@ from companion.app.flight_plan import prepare
 from companion.app.pilot import RunSettings
 from companion.app.runner import run_mission
 from uav_model.mission import load_mission
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 from companion.sitl.inprocess import InProcessOptions, open_inprocess_fleet
 from companion.bench.machine import machine_line
 

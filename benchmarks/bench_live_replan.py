@@ -27,7 +27,7 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 from companion.testing.runs import CompanionFactory
 from companion.testing.stub import SitlFactory
 from uav_model.mission import load_mission

@@ -14,7 +14,7 @@ import time
 
 from uav_model.mission import VARIANTS, load_mission
 from companion.planning.routes import plan_routes
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 from companion.bench.machine import machine_line
 
 

@@ -19,8 +19,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from uav_model.mission import load_mission
-from companion.planning.certificate import certify
-from companion.planning.coordination import plan_coordinated
+from companion.planning.coordination.plan import plan_coordinated
+from companion.planning.flight.forecast import first_forecast, mission_certificate
 from companion.planning.routes import plan_routes
 from companion.bench.machine import machine_line
 
@@ -52,10 +52,10 @@ def main() -> None:
     routes = plan_routes(mission)
     held = replace(mission, coordination=replace(mission.coordination, hold_s_max=200.0))
     cases = [
-        ("plan, paper's rule (a never waits)", lambda: plan_coordinated(mission, routes)),
-        ("plan, a may hold 200 s (hold search + plan)", lambda: plan_coordinated(held, routes)),
-        ("plan, a holds 162 s (given)", lambda: plan_coordinated(held, routes, hold_s=161.55494421403512)),
-        ("occlusion certificate", lambda: certify(mission, routes)),
+        ("plan, paper's rule (a never waits)", lambda: plan_coordinated(mission, routes, first_forecast(mission, routes))),
+        ("plan, a may hold 200 s (hold search + plan)", lambda: plan_coordinated(held, routes, first_forecast(held, routes))),
+        ("plan, a holds 162 s (given)", lambda: plan_coordinated(held, routes, first_forecast(held, routes), hold_s=161.55494421403512)),
+        ("occlusion certificate", lambda: mission_certificate(mission, routes)),
     ]
     print(f"reference mission, 10 m cells, median of {args.repeats}")
     for label, fn in cases:
@@ -71,9 +71,9 @@ def random_scenarios(seed: int, n: int) -> None:
     for i in range(n):
         mission = generate_scenario(seed, i).mission
         routes = plan_routes(mission)
-        _, cert_cpu, cert = measure(lambda: certify(mission, routes), 1)
+        _, cert_cpu, cert = measure(lambda: mission_certificate(mission, routes), 1)
         held = replace(mission, coordination=replace(mission.coordination, hold_s_max=300.0))
-        _, plan_cpu, plan = measure(lambda: plan_coordinated(held, routes), 1)
+        _, plan_cpu, plan = measure(lambda: plan_coordinated(held, routes, first_forecast(held, routes)), 1)
         verdicts[cert.verdict] = verdicts.get(cert.verdict, 0) + 1
         lower = mission.by_priority[1].name
         print(f"seed {seed} #{i}: closest approach {cert.verdict} (least hold {cert.closest_approach_min_hold_s}), "

@@ -18,8 +18,8 @@ import dataclasses
 from pathlib import Path
 
 from companion.planning.routes import plan_routes
-from companion.planning.runner import simulate
-from companion.planning.timed import forecast
+from companion.planning.flight.headless import simulate
+from companion.planning.coordination.timed import forecast
 from uav_model.mission import load_mission
 from companion.bench.machine import machine_line
 

@@ -91,7 +91,7 @@ def _add_simulate(sub) -> None:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from companion.app.results import save_results
-    from companion.planning.runner import simulate
+    from companion.planning.flight.headless import simulate_certified
     from companion.plots import save_trajectory
 
     try:
@@ -103,7 +103,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     made = not out_path.exists()
     out = output_dir(out_path)  # before flying: minutes lost otherwise
     try:
-        run = simulate(mission, args.variant)
+        run, certificate = simulate_certified(mission, args.variant)
     except (MissionError, NoPath) as exc:
         if made:  # bad input leaves nothing behind
             with contextlib.suppress(OSError):
@@ -112,8 +112,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     summary = run.summary.summary_dict()
     summary.update(mission=mission.name, mission_file=str(args.mission), variant=run.variant,
                    wall_s=round(run.wall_s, 3), speed_factor=round(run.speed_factor, 1))
-    from companion.planning.certificate import mission_certificate
-    certificate = mission_certificate(mission.with_variant(run.variant), run.routes)
     summary["occlusion_certificate"] = None if certificate is None else certificate.summary_dict()
     print(format_summary(run), flush=True)  # the verdict first: it needs no disk
     if certificate is not None:
@@ -261,7 +259,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                                       "the sweeps vary the paper's scenario: two vehicles and (table3) one obstacle"))
     if args.out is not None:
         output_dir(args.out)
-    from companion.planning.runner import simulate  # after the input checks: they need neither
+    from companion.planning.flight.headless import simulate  # after the input checks: they need neither
     from companion.plots import save_trajectory
 
     title, paper = PAPER_TABLES[args.table]

@@ -229,9 +229,12 @@ def cmd_plan(args: argparse.Namespace, plan: FlightPlan) -> int:
         doc["occlusion_certificate"] = plan.certificate.summary_dict()
         print(plan.certificate.describe())
     (out / "routes.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    from companion.app.fence import mission_fence
     from companion.formats.qgc_plan import plan_document
+    zones = mission_fence(plan.mission)
     for v in plan.mission.vehicles:
-        (out / f"{v.name}.plan").write_text(json.dumps(plan_document(plan, v), indent=2) + "\n", encoding="utf-8")
+        doc = plan_document(plan.mission, v, plan.waypoints(v), zones)
+        (out / f"{v.name}.plan").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     _save_plan_figure(out / "trajectory.png", plan)
     print(f"wrote {out / 'routes.json'}, {out / 'trajectory.png'} and a QGroundControl .plan per vehicle")
     return EXIT_OK

@@ -33,7 +33,7 @@ from sim_bridge.clock import SimClock
 from sim_bridge.endpoint import Endpoint, Link
 from sim_bridge.faults import Blackout, FaultConfig, LinkFaults
 from sim_bridge.options import SimBridgeError, SimOptions
-from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.px4 import FlightMode
 from sim_bridge.statustext import StatustextSplitter
 from sim_bridge.tlog import TlogSet
 from sim_bridge.vehicle import Emit, SimVehicle

@@ -14,7 +14,7 @@ from sim_bridge.admission import SigningKeyError, load_signing_key, parse_sysids
 from sim_bridge.bridge import SimBridge, SimBridgeError, SimOptions, run_stub
 from sim_bridge.clock import ClockError, SimClock
 from sim_bridge.faults import Blackout, FaultConfig, FaultSpecError
-from sim_bridge.px4 import default_params
+from sim_bridge.vehicle.px4 import default_params
 
 log = logging.getLogger("sim_bridge")
 _MISSION_DEPENDENT = frozenset({"MAV_SYS_ID"})  # bounds depend on the vehicle: checked when it is built

@@ -6,9 +6,9 @@ import ipaddress
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sim_bridge.energy import EnergyModel
+from sim_bridge.vehicle.energy import EnergyModel
 from sim_bridge.faults import FaultConfig
-from sim_bridge.streams import API_PROFILE, GCS_PROFILE, StreamProfile
+from sim_bridge.vehicle.streams import API_PROFILE, GCS_PROFILE, StreamProfile
 
 
 class SimBridgeError(RuntimeError):

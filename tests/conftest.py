@@ -28,7 +28,7 @@ def reference_mission() -> Mission:
 @pytest.fixture(scope="session")
 def reference_headless(reference_mission: Mission):
     """The reference mission flown by ``companion simulate``'s runner: its RunSummary."""
-    from companion.planning.runner import simulate
+    from companion.planning.flight.headless import simulate
 
     return simulate(reference_mission).summary
 

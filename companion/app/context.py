@@ -17,7 +17,7 @@ from companion.app.failsafe import FailsafeEvent
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import FlightPlan
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.replan import ReplanJob, Replanned
+from companion.planning.coordination.replan import ReplanJob, Replanned
 from companion.vehicle.port import PoseSample, Vehicle
 
 if TYPE_CHECKING:
@@ -144,7 +144,7 @@ class FlightContext:
             self.clocks.observe(name, (pose.x_east_m, pose.y_north_m), pose.t_sim_s - self.departure_sim_s)
 
     def _start_replan(self, t_s: float) -> None:
-        """Re-plan a lower vehicle that lags its plan (:class:`companion.planning.replan.TimedFleet`,
+        """Re-plan a lower vehicle that lags its plan (:class:`companion.planning.coordination.replan.TimedFleet`,
         as the headless runner does each tick): the cheap check here, the planning (seconds of
         CPU) in a worker thread, the new routes adopted back on the loop when it is done. At most
         one in flight; none outside a running loop (a pilot ticked by hand)."""

@@ -16,12 +16,13 @@ import numpy as np
 from uav_model import frames
 from companion.errors import MissionUploadError
 from uav_model.mission import Mission, VehicleSpec, mission_error
-from companion.planning.budget import Budget
-from companion.planning.certificate import OcclusionCertificate, mission_certificate
-from companion.planning.coordination import CoordinatedPlan, plan_coordinated
+from companion.planning.budget import Budget, BudgetSpent
+from companion.planning.coordination.certificate import OcclusionCertificate, certify
+from companion.planning.coordination.plan import CoordinatedPlan, plan_coordinated
 from companion.planning.errors import NoPath
-from companion.planning.fleet_setup import Fleet, build_fleet
-from companion.planning.timed import TimedRoute
+from companion.planning.flight.fleet_setup import Fleet, build_fleet
+from companion.planning.flight.forecast import first_forecast, mission_certificate
+from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import VARIANTS, variant_needs_route, variant_nodes
 from companion.vehicle.port import GeoWaypoint
 
@@ -48,7 +49,23 @@ class FlightPlan:
         ``certificate_budget``; None without one (a single vehicle, or ``with_certificate`` off)."""
         if not self.with_certificate:
             return None
-        return mission_certificate(self.mission, self.routes, self.certificate_budget)
+        first = None
+        if len(self.mission.vehicles) > 1 and self.mission.by_priority[0].name in self.routes:
+            first = self._first_forecast(self.certificate_budget)
+            if first is None:  # the forecast itself ran out of budget: nothing is decided
+                return certify(self.mission, None, budget=self.certificate_budget)
+        return mission_certificate(self.mission, self.routes, self.certificate_budget, first=first)
+
+    def _first_forecast(self, budget: Budget | None = None) -> TimedRoute | None:
+        """The first vehicle's forecast (:func:`first_forecast`), flown once for the certificate and
+        the coordinated plan alike; None when it ran out of ``budget`` (it is then flown again,
+        without one, when the plan needs it)."""
+        if "_first" not in self.__dict__:
+            try:
+                self.__dict__["_first"] = first_forecast(self.mission, self.routes, budget)  # as cached_property does
+            except BudgetSpent:
+                return None
+        return self.__dict__["_first"]
 
     def certificate_advice(self) -> str | None:
         """What keeps the sight line blocked when this plan's variant will not (a timed variant,
@@ -65,7 +82,7 @@ class FlightPlan:
         beside the in-process fleet, whose loop it would stall."""
         if not VARIANTS[self.variant].timed or not self.routes:
             return None
-        return plan_coordinated(self.mission, self.routes)
+        return plan_coordinated(self.mission, self.routes, self._first_forecast())
 
     def timed_route(self, name: str) -> TimedRoute | None:
         """The vehicle's route with arrival times (timed variants only)."""
@@ -73,7 +90,7 @@ class FlightPlan:
 
     def fleet(self) -> Fleet:
         """Fresh planners for every vehicle and the timed routes' clocks, built as the headless
-        runner builds them (:func:`companion.planning.fleet_setup.build_fleet`), on the
+        runner builds them (:func:`companion.planning.flight.fleet_setup.build_fleet`), on the
         coordinated plan computed before (:attr:`coordinated`)."""
         plan = self.coordinated
         return build_fleet(self.mission, self.routes, self.variant, None if plan is None else plan.timed,

@@ -31,11 +31,12 @@ from companion.bench.executors import ExecutorError, ExecutorSpec, Pool, open_po
 from companion.bench.table import certificate_columns, run_row
 from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
 from companion.bench.weights import Weights
-from companion.planning.certificate import certify
 from companion.planning.errors import NoPath
+from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import variant_needs_route
 from companion.planning.metrics import vehicle_lower_bound_s
-from companion.planning.runner import simulate
+from companion.planning.flight.forecast import first_forecast, mission_certificate
+from companion.planning.flight.headless import simulate
 from companion.scenarios import (ScenarioConfig, ScenarioError, generate_scenario, mission_yaml_text,
                                  with_variant)
 
@@ -83,12 +84,14 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
                                                   None, wall_s=0.0, reason="no_scenario", error=str(exc)), w)
                                 for v, w in task.runs()])
     rows, files = [], []
-    cert = _certificate(scenario) if task.certificate else {}
+    judged = _Certificates(scenario, task.certificate)
     bounds = {v.name: vehicle_lower_bound_s(scenario.mission, v.name) for v in scenario.mission.vehicles}
     for k, (variant, weights) in enumerate(task.runs()):
         mission = scenario.mission if weights is None else weights.apply(scenario.mission)
         routes = scenario.routes if variant in BASELINES or variant_needs_route(variant) else {}
-        row, result = _fly(task, scenario.doc["name"], mission, variant, routes, bounds)
+        flies = ROUTE_VARIANT if variant in BASELINES else variant  # ORCA follows that variant's routes
+        first, cert = judged.of(mission.with_variant(flies), (flies, weights))
+        row, result = _fly(task, scenario.doc["name"], mission, variant, routes, bounds, first)
         rows.append(_weighted({**row, **cert}, weights))
         if not task.artefacts:
             continue
@@ -101,15 +104,47 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
     return ScenarioOutcome(rows, tuple(files))
 
 
-def _certificate(scenario: Any) -> dict[str, Any]:
-    """The scenario's occlusion certificate as row columns, worked out once for all its runs."""
-    if len(scenario.mission.vehicles) < 2:
-        return {}
-    try:
-        return certificate_columns(certify(scenario.mission, scenario.routes))
-    except Exception as exc:  # a certificate bug must not sink the scenario's flights
-        print(f"certificate of {scenario.doc['name']} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return {}
+class _Certificates:
+    """Each run's occlusion certificate, of the forecast its own variant (and weights) fly: the
+    first vehicle flown alone once per forecast, shared with the timed run that plans against
+    it, and one certificate per distinct forecast."""
+
+    def __init__(self, scenario: Any, wanted: bool):
+        self.scenario, self.wanted = scenario, wanted
+        self._forecasts: dict[Any, TimedRoute | None] = {}
+        self._columns: dict[bytes, dict[str, Any]] = {}
+
+    def of(self, mission: Any, key: Any) -> tuple[TimedRoute | None, dict[str, Any]]:
+        """(the first vehicle's forecast as ``mission`` flies it, or None; its ``cert_*`` columns);
+        ``key`` names ``mission`` among the scenario's runs (its variant and weights)."""
+        if not self.wanted or len(mission.vehicles) < 2:
+            return None, {}
+        if key not in self._forecasts:
+            self._forecasts[key] = self._forecast(mission)
+        first = self._forecasts[key]
+        if first is None:
+            return None, {}
+        tag = first.t_s.tobytes() + first.xy_enu_m.tobytes()
+        if tag not in self._columns:
+            self._columns[tag] = self._judge(mission, first)
+        return first, self._columns[tag]
+
+    def _forecast(self, mission: Any) -> TimedRoute | None:
+        try:
+            return first_forecast(mission, self.scenario.routes)
+        except Exception as exc:  # a certificate bug must not sink the scenario's flights
+            self._report(exc)
+            return None
+
+    def _judge(self, mission: Any, first: TimedRoute) -> dict[str, Any]:
+        try:
+            return certificate_columns(mission_certificate(mission, self.scenario.routes, first=first))
+        except Exception as exc:  # a certificate bug must not sink the scenario's flights
+            self._report(exc)
+            return {}
+
+    def _report(self, exc: Exception) -> None:
+        print(f"certificate of {self.scenario.doc['name']} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
 
 
 def _weighted(row: dict[str, Any], weights: Weights | None) -> dict[str, Any]:
@@ -117,14 +152,15 @@ def _weighted(row: dict[str, Any], weights: Weights | None) -> dict[str, Any]:
 
 
 def _fly(task: ScenarioTask, name: str, mission: Any, variant: str, routes: dict,
-         bounds: dict) -> tuple[dict[str, Any], Any]:
-    """One run as a row (and its result, None when it did not fly)."""
+         bounds: dict, first: TimedRoute | None = None) -> tuple[dict[str, Any], Any]:
+    """One run as a row (and its result, None when it did not fly); ``first``: the first
+    vehicle's forecast as this run's variant flies it, when already flown."""
     started = time.perf_counter()
     try:
         if variant in BASELINES:
             result = simulate_orca(mission, routes=routes, lower_bounds_s=bounds)
         else:
-            result = simulate(mission, variant, routes=routes, lower_bounds_s=bounds)
+            result = simulate(mission, variant, routes=routes, lower_bounds_s=bounds, first=first)
         summary = result.summary.summary_dict()
         facts = {"hold_ticks": hold_ticks(result.ticks), **diagnose(result.mission, result.tracks, summary)}
         return run_row(task.seed, task.index, name, variant, summary,

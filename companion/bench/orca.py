@@ -24,7 +24,7 @@ import numpy as np
 from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.metrics import TruthGeometry, summarize
 from companion.planning.routes import Route, plan_routes
-from companion.planning.runner import RunResult, SafetyWatch, start_states, tracks_from_rows
+from companion.planning.flight.loop import RunResult, SafetyWatch, start_states, tracks_from_rows
 from uav_model.frames import enu_to_ned, ned_to_enu
 from uav_model.mission import Mission
 from uav_model.plant import HOVER, VelocityCommand, VelocityFrame, step_for

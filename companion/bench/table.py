@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
 
 if TYPE_CHECKING:
-    from companion.planning.certificate import OcclusionCertificate
+    from companion.planning.coordination.certificate import OcclusionCertificate
 
 UNSAFE_REASONS = ("collision", "separation", "geofence")
 

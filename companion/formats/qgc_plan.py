@@ -1,6 +1,7 @@
 """QGroundControl ``.plan`` files: each vehicle's route and the mission's fences, out and in.
 
-Export (:func:`plan_document`): one ``.plan`` per vehicle, shaped as QGroundControl's own plans.
+Export (:func:`plan_document`): one ``.plan`` per vehicle, shaped as QGroundControl's own plans,
+from what the app uploads (the waypoints and fence zones it is given).
 Its ``mission`` has the vehicle's start station as ``plannedHomePosition``, then a NAV_TAKEOFF (22)
 there to cruise altitude, the route the companion uploads (NAV_WAYPOINTs at cruise altitude above
 home, exactly ``FlightPlan.waypoints``) and last a NAV_LAND (21) at the goal station (a mission's
@@ -26,11 +27,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from companion.app.fence import mission_fence
-from companion.app.flight_plan import FlightPlan
-from companion.vehicle.port import GeoFenceZone
+from collections.abc import Sequence
+
+from companion.vehicle.port import GeoFenceZone, GeoWaypoint
 from uav_model import frames
-from uav_model.mission import VehicleSpec
+from uav_model.mission import Mission, VehicleSpec
 from uav_model.mission_errors import echo
 from uav_model.mission_read import finite
 from uav_model.world import Obstacle
@@ -80,27 +81,29 @@ def _item(seq: int, command: int, lat_lon_alt: tuple[float | None, float | None,
             "params": [0, 0, 0, None, lat, lon, alt], "type": "SimpleItem"}
 
 
-def _mission_items(plan: FlightPlan, vehicle: VehicleSpec) -> list[dict[str, Any]]:
+def _mission_items(origin: frames.GeoOrigin, vehicle: VehicleSpec, waypoints: Sequence[GeoWaypoint]) -> list[dict[str, Any]]:
     """Take-off at the start, the uploaded route, then land at the goal."""
-    origin = plan.mission.origin
     start, goal = _latlon(origin, *vehicle.start_enu_m), _latlon(origin, *vehicle.goal_enu_m)
-    route = [(wp.lat_deg, wp.lon_deg, wp.alt_rel_m) for wp in plan.waypoints(vehicle)]
+    route = [(wp.lat_deg, wp.lon_deg, wp.alt_rel_m) for wp in waypoints]
     steps = [(MAV_CMD_NAV_TAKEOFF, (start[0], start[1], vehicle.cruise_alt_m))]
     steps += [(MAV_CMD_NAV_WAYPOINT, p) for p in route]
     steps.append((MAV_CMD_NAV_LAND, (goal[0], goal[1], 0)))  # a mission's goal is never its start
     return [_item(i + 1, command, where) for i, (command, where) in enumerate(steps)]
 
 
-def plan_document(plan: FlightPlan, vehicle: VehicleSpec) -> dict[str, Any]:
-    """The QGC ``.plan`` JSON document for one vehicle of a planned mission."""
-    mission, origin = plan.mission, plan.mission.origin
+def plan_document(mission: Mission, vehicle: VehicleSpec, waypoints: Sequence[GeoWaypoint],
+                  zones: Sequence[GeoFenceZone]) -> dict[str, Any]:
+    """The QGC ``.plan`` JSON document for one vehicle of a planned mission: the ``waypoints`` the
+    companion uploads (``FlightPlan.waypoints``) and the fence ``zones`` (inclusion first, then one
+    exclusion per static obstacle: :func:`companion.app.fence.mission_fence`)."""
+    origin = mission.origin
     w = mission.world
     sw, ne = _latlon(origin, w.x_min_m, w.y_min_m), _latlon(origin, w.x_max_m, w.y_max_m)
     area = {"area": {"south_west": {"lat_deg": sw[0], "lon_deg": sw[1]},
                      "north_east": {"lat_deg": ne[0], "lon_deg": ne[1]}, "geofence_margin_m": w.geofence_margin_m},
             "origin": {"lat_deg": origin.lat_deg, "lon_deg": origin.lon_deg, "alt_m": origin.alt_m},
             "stations": {"start": vehicle.start, "goal": vehicle.goal}}
-    inclusion, *exclusions = mission_fence(mission)  # exactly what the companion uploads before arming
+    inclusion, *exclusions = zones  # exactly what the companion uploads before arming
     fence = {"circles": [], "polygons": [{"inclusion": True, "polygon": [_deg(v) for v in inclusion.vertices_deg],
                                           "version": 1, EXTRA_KEY: area}], "version": 2}
     for o, zone in zip(mission.world.static_obstacles, exclusions, strict=True):
@@ -112,7 +115,7 @@ def plan_document(plan: FlightPlan, vehicle: VehicleSpec) -> dict[str, Any]:
         "groundStation": "QGroundControl",
         "mission": {
             "cruiseSpeed": vehicle.speed_m_s, "firmwareType": QGC_FIRMWARE_PX4, "globalPlanAltitudeMode": 1,
-            "hoverSpeed": vehicle.speed_m_s, "items": _mission_items(plan, vehicle),
+            "hoverSpeed": vehicle.speed_m_s, "items": _mission_items(origin, vehicle, waypoints),
             "plannedHomePosition": [*_latlon(origin, *vehicle.start_enu_m), origin.alt_m],
             "vehicleType": QGC_VEHICLE_MULTIROTOR, "version": 2,
         },

@@ -31,7 +31,7 @@ from uav_model.plant import TRACKING_LAG_S, Plant
 if TYPE_CHECKING:
     from uav_model.mission import Mission, VehicleSpec
     from companion.planning.routes import Route
-    from companion.planning.timed import TimedRoute
+    from companion.planning.timed_route import TimedRoute
 
 
 class GoalSource(Enum):
@@ -187,7 +187,7 @@ class VehiclePlanner:
         # out it pulled b hundreds of metres off its timed path to hide from a distant a, and the
         # plan's timing was lost where it mattered.
         self.sight_near_m = sight_near_m
-        self._along_m: float | None = None  # how far along its timed path it is (windowed: timed.progress_window)
+        self._along_m: float | None = None  # how far along its timed path it is (windowed: timed_route.progress_window)
         # Local goals are the timed path's nodes: they advance with the progress along it (below).
         self._goals_on_path = timed_route is not None and np.array_equal(tracker.nodes, timed_route.path_xy)
         self.lead_m = 0.0  # how far ahead of its timed plan it is (negative: it lags)

@@ -37,11 +37,11 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.frames import enu_heading_to_ned_yaw
 from uav_model.mission import Mission, VehicleSpec
 from uav_model.plant import KinematicState, Plant, PlantLimits, step_for
-from sim_bridge.energy import EnergyModel
-from sim_bridge.mission_protocol import MissionProtocol
-from sim_bridge.px4 import FlightMode, default_params
-from sim_bridge.streams import API_PROFILE, StreamProfile
-from sim_bridge.truth import CollisionEvent
+from sim_bridge.vehicle.energy import EnergyModel
+from sim_bridge.vehicle.mission_protocol import MissionProtocol
+from sim_bridge.vehicle.px4 import FlightMode, default_params
+from sim_bridge.vehicle.streams import API_PROFILE, StreamProfile
+from sim_bridge.vehicle.collisions import CollisionEvent
 from sim_bridge.vehicle.commands import Commands
 from sim_bridge.vehicle.control import Controller
 from sim_bridge.vehicle.geofence import Geofence

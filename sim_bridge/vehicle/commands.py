@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING, Any, Callable, Hashable
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import geodetic_to_local
-from sim_bridge.mission_protocol import MISSION, RELATIVE_ALT_FRAMES
-from sim_bridge.px4 import FlightMode, decode_custom_mode
+from sim_bridge.vehicle.mission_protocol import MISSION, RELATIVE_ALT_FRAMES
+from sim_bridge.vehicle.px4 import FlightMode, decode_custom_mode
 from sim_bridge.vehicle.orbit import make_orbit
 from sim_bridge.vehicle.types import FORCE_ARM_MAGIC, Command, Emit, Result
 

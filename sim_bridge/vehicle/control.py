@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 from uav_model.frames import wrap_pi
 from uav_model.plant import HOVER, VelocityCommand, VelocityFrame
-from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.px4 import FlightMode
 from sim_bridge.vehicle.orbit import orbit_command
 from sim_bridge.vehicle.types import (
     KP_ALTITUDE_1_S, KP_POSITION_1_S, TAKEOFF_APPROACH_KP_1_S, TAKEOFF_FAST_FRACTION, TAKEOFF_RAMP, TAKEOFF_SPOOLUP_S,

@@ -29,8 +29,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from shapely.geometry import Polygon
 
 from uav_model import frames
-from sim_bridge.mission_protocol import FENCE, MissionItem
-from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.mission_protocol import FENCE, MissionItem
+from sim_bridge.vehicle.px4 import FlightMode
 from sim_bridge.vehicle.types import Emit
 
 if TYPE_CHECKING:

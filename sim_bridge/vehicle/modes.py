@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING, Any, Hashable
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sim_bridge.mission_protocol import MISSION
-from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.mission_protocol import MISSION
+from sim_bridge.vehicle.px4 import FlightMode
 from sim_bridge.vehicle.types import (
     BOOT_HEALTHY_S, BOOT_PREFLIGHT_FAIL_S, PRFLT_DISARM_LAG_S, TAKEOFF_SPOOLUP_S, Emit, OffboardLoss, Result,
     RtlPhase, Setpoint,

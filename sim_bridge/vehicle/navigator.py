@@ -9,8 +9,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import geodetic_to_local
 from uav_model.plant import VelocityCommand
-from sim_bridge.mission_protocol import MISSION, NOOP_COMMANDS, RELATIVE_ALT_FRAMES, MissionItem, ProtocolEvent
-from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.mission_protocol import MISSION, NOOP_COMMANDS, RELATIVE_ALT_FRAMES, MissionItem, ProtocolEvent
+from sim_bridge.vehicle.px4 import FlightMode
 from sim_bridge.vehicle.types import (
     LAND_POSITION_ACCEPT_M, MISSION_ALT_ACCEPT_M, Emit, MissionPhase, RtlPhase, clip,
 )

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Hashable
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.plant import Plant, PlantLimits, limits_for
-from sim_bridge.px4 import ParamDef, ParamType
+from sim_bridge.vehicle.px4 import ParamDef, ParamType
 from sim_bridge.vehicle.types import Emit, float_bits_to_int32, int32_to_float_bits
 
 if TYPE_CHECKING:

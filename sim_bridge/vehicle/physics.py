@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.plant import KinematicState
-from sim_bridge.energy import px4_sim_battery_pct
-from sim_bridge.truth import CollisionChecker, CollisionEvent
+from sim_bridge.vehicle.energy import px4_sim_battery_pct
+from sim_bridge.vehicle.collisions import CollisionChecker, CollisionEvent
 from sim_bridge.vehicle.types import IN_AIR_ALT_M, LAND_DETECT_S, TAKEOFF_DETECT_S, TOUCHDOWN_ALT_M, Emit
 
 if TYPE_CHECKING:

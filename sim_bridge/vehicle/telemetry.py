@@ -10,10 +10,10 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.frames import local_to_geodetic
 from uav_model.plant import Plant
 from uav_model.plant.multicopter import attitude
-from sim_bridge.health import sensor_bits
-from sim_bridge.mission_protocol import MISSION
-from sim_bridge.px4 import PX4_FLIGHT_SW_VERSION, FlightMode
-from sim_bridge.streams import API_PROFILE, StreamProfile, StreamScheduler
+from sim_bridge.vehicle.health import sensor_bits
+from sim_bridge.vehicle.mission_protocol import MISSION
+from sim_bridge.vehicle.px4 import PX4_FLIGHT_SW_VERSION, FlightMode
+from sim_bridge.vehicle.streams import API_PROFILE, StreamProfile, StreamScheduler
 from sim_bridge.vehicle.types import Emit, clip
 
 if TYPE_CHECKING:

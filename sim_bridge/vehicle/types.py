@@ -9,7 +9,7 @@ from typing import Any, Hashable, NamedTuple
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sim_bridge.health import HEALTH_SETTLED_S
+from sim_bridge.vehicle.health import HEALTH_SETTLED_S
 
 AUTOPILOT_COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1
 FORCE_ARM_MAGIC = 21196  # COMPONENT_ARM_DISARM param2 that overrides the checks (MAVLink spec)
@@ -23,7 +23,7 @@ LAND_POSITION_ACCEPT_M = 1.0
 
 # Timings measured on PX4 SITL with SIH (../shared/px4-sih/README.md), in sim seconds.
 BOOT_PREFLIGHT_FAIL_S = 2.56  # "Preflight Fail: heading estimate not stable"
-BOOT_HEALTHY_S = HEALTH_SETTLED_S  # arming TEMPORARILY_REJECTED before this (sim_bridge.health: the boot timeline)
+BOOT_HEALTHY_S = HEALTH_SETTLED_S  # arming TEMPORARILY_REJECTED before this (sim_bridge.vehicle.health: the boot timeline)
 PRFLT_DISARM_LAG_S = 1.0  # "Disarmed by auto preflight disarming" comes COM_DISARM_PRFLT + 1 s after arming
 TAKEOFF_DETECT_S = 1.6  # "Takeoff detected" after the take-off command, still on the ground
 TAKEOFF_SPOOLUP_S = 3.9  # on the ground this long after the take-off command before it lifts

@@ -12,6 +12,7 @@ from shapely.geometry import Polygon
 
 from companion.app.flight_plan import prepare
 from companion.formats.importer import ImportError_, import_mission
+from companion.app.fence import mission_fence
 from companion.formats.qgc_plan import plan_document
 from companion.scenarios import ScenarioConfig, generate_scenario
 from uav_model.fence_margin import fence_standoff_m
@@ -21,6 +22,11 @@ from uav_model.mission import load_mission, mission_from_data
 ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "missions" / "paper_reference.yaml"
 TOLERANCE_M = 0.1
+
+
+def _document(plan, vehicle):
+    """The .plan document of ``vehicle``, from what the app uploads."""
+    return plan_document(plan.mission, vehicle, plan.waypoints(vehicle), mission_fence(plan.mission))
 
 
 def _same_geometry(a, b) -> None:
@@ -41,7 +47,7 @@ def _round_trip(mission_path: Path, tmp_path: Path):
     mission = load_mission(mission_path)
     plan = prepare(mission)
     plan_file = tmp_path / "a.plan"
-    plan_file.write_text(json.dumps(plan_document(plan, mission.vehicles[0])))
+    plan_file.write_text(json.dumps(_document(plan, mission.vehicles[0])))
     _, again = import_mission(plan_file, base=mission_path)
     return mission, again
 
@@ -65,7 +71,7 @@ def test_random_scenarios_round_trip_through_plan(tmp_path, index):
 
 def test_plan_fences_lie_the_standoff_inside_the_inflated_obstacles_and_are_the_geofence(tmp_path):
     mission = load_mission(REFERENCE)
-    doc = plan_document(prepare(mission), mission.vehicles[0])
+    doc = _document(prepare(mission), mission.vehicles[0])
     assert doc["version"] == 1 and doc["mission"]["version"] == 2
     assert doc["geoFence"]["version"] == 2 and doc["rallyPoints"]["version"] == 2
     (circle,) = doc["geoFence"]["circles"]
@@ -100,7 +106,7 @@ def test_our_plan_imports_without_a_base_with_its_start_and_goal(tmp_path):
     plan = prepare(mission)
     b = mission.vehicles[1]
     path = tmp_path / "b.plan"
-    path.write_text(json.dumps(plan_document(plan, b)))
+    path.write_text(json.dumps(_document(plan, b)))
     _, again = import_mission(path)
     _same_geometry(mission, again)
     assert again.origin == mission.origin

@@ -18,7 +18,7 @@ from companion.app.context import FlightContext, RunSettings
 from companion.app.flight_log import FlightLog
 from companion.app.flight_plan import prepare
 from companion.app.pilot import Pilot
-from companion.planning.timed import sight_near_m
+from companion.planning.coordination.clocks import sight_near_m
 from companion.vehicle.board import BoardReaders, VehicleBoard
 from uav_model.mission import load_mission
 

@@ -26,7 +26,7 @@ SCRIPT = textwrap.dedent("""
     from companion.app.warmup import warm_up_planners
     from companion.planning.dwa import kernels
     from companion.planning.obstacle_field import ObstacleField
-    from companion.planning.runner import simulate
+    from companion.planning.flight.headless import simulate
 
     mission = load_mission(sys.argv[1]).with_variant(sys.argv[2])
     warm_up_planners(prepare(mission))

@@ -1,6 +1,6 @@
 """The occlusion certificate, decided the slow and obvious way (for tests only).
 
-Same discrete model as companion.planning.coordination (mission grid cells, the lower vehicle's
+Same discrete model as companion.planning.coordination.search (mission grid cells, the lower vehicle's
 step from ``step_model``, the higher vehicle forecast along its route after a hold), but none of
 its machinery: Python sets of (cell, step) states, neighbours found by walking the sub-steps cell
 by cell, the sight line tested with plain shapely per state, every hold tried in turn, and for
@@ -24,8 +24,8 @@ from shapely.geometry import LineString, Point
 
 from uav_model.mission import Mission
 from companion.planning.grid import rasterise
-from companion.planning.spacetime import step_model
-from companion.planning.timed import forecast
+from companion.planning.coordination.spacetime import step_model
+from companion.planning.coordination.timed import forecast
 
 _STEPS_4 = ((1, 0), (-1, 0), (0, 1), (0, -1))
 _STEPS_8 = _STEPS_4 + ((1, 1), (1, -1), (-1, 1), (-1, -1))
@@ -131,7 +131,7 @@ class BruteForce:
     def earliest_near(self, hold_s: float, near_m: float, margin_m: float) -> int | None:
         """The earliest step at which a path reaches the goal (and may park there to the
         horizon) with no open state within ``near_m + margin_m`` and a blocked one within
-        ``near_m`` (:func:`companion.planning.nearpath.earliest_near`); None: no such path."""
+        ``near_m`` (:func:`companion.planning.coordination.nearpath.earliest_near`); None: no such path."""
         near2 = near_m ** 2  # the thresholds squared as the model squares them
         far2 = (math.sqrt(near2) + margin_m) ** 2 if margin_m else near2
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from companion.planning import bitgrid
+from companion.planning.coordination import bitgrid
 
 
 def _bool_dilate(mask: np.ndarray, kind: int) -> np.ndarray:

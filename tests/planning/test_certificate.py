@@ -11,7 +11,8 @@ from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
 from uav_model.mission import MissionError, load_mission, mission_from_data
-from companion.planning.certificate import certify
+from companion.planning.coordination.certificate import certify
+from companion.planning.flight.forecast import first_forecast, mission_certificate
 from companion.planning.errors import NoPath
 from companion.planning.routes import plan_routes
 from spacetime_bruteforce import BruteForce
@@ -62,7 +63,7 @@ def small_missions(draw):
 def test_certificate_agrees_with_brute_force(case):
     mission, routes = case
     max_hold = 6.0
-    cert = certify(mission, routes, max_hold_s=max_hold)
+    cert = certify(mission, first_forecast(mission, routes), max_hold_s=max_hold)
     brute = BruteForce(mission, routes)
     assert cert.step_s == pytest.approx(brute.model.step_s)
     event(f"whole flight: hold {cert.whole_flight_min_hold_s}, closest approach: hold "
@@ -87,7 +88,7 @@ def test_an_open_instant_as_near_as_the_blocked_one_is_not_a_blocked_closest_app
     mission = mission_from_data(data)
     routes = plan_routes(mission)
     brute = BruteForce(mission, routes)
-    cert = certify(mission, routes, max_hold_s=6.0)
+    cert = certify(mission, first_forecast(mission, routes), max_hold_s=6.0)
     assert cert.closest_approach_min_hold_s == brute.least_hold(brute.closest_approach, 6.0) is None
 
 
@@ -107,7 +108,7 @@ def test_the_brute_force_reads_the_forecast_as_the_model_does():
     routes = plan_routes(mission)
     brute = BruteForce(mission, routes)
     assert brute.higher_at(3, 2.0) == (13.0, 40.0) and brute.higher_at(6, 2.0) == (43.0, 40.0)
-    cert = certify(mission, routes, max_hold_s=6.0)
+    cert = certify(mission, first_forecast(mission, routes), max_hold_s=6.0)
     assert cert.closest_approach_min_hold_s == brute.least_hold(brute.closest_approach, 6.0) is None
 
 
@@ -116,7 +117,7 @@ def test_reference_certificate_agrees_with_the_issues_independent_analysis():
     cannot be blocked at closest approach; a hold of about 75 s makes that feasible, about 150 s
     the whole flight. Ours steps 5.39 s and keeps 70.7 m between steps, so the holds differ a little."""
     mission = load_mission(REFERENCE)
-    cert = certify(mission, plan_routes(mission))
+    cert = certify(mission, first_forecast(mission, plan_routes(mission)))
     assert (cert.higher, cert.lower, cert.hold_s_max) == ("a", "b", 0.0)
     assert not cert.whole_flight and not cert.closest_approach and cert.verdict == "needs-hold"
     assert 30.0 <= cert.closest_approach_min_hold_s <= 90.0
@@ -130,14 +131,15 @@ def test_the_certificate_judges_the_flight_the_coordinated_plan_forecasts():
     the hold the coordinated plan takes, under either forecast (with the route forecast the
     certificate judged a's route at cruise while the plan flew the flown forecast: 161.6 s
     against the plan's 156.2 s)."""
-    from companion.planning.coordination import plan_coordinated
+    from companion.planning.coordination.plan import plan_coordinated
     for forecast in ("flown", "route"):
         base = load_mission(REFERENCE)
         mission = dataclasses.replace(base, coordination=dataclasses.replace(
             base.coordination, hold_s_max=200.0, forecast=type(base.coordination.forecast)(forecast)))
         routes = plan_routes(mission)
-        cert = certify(mission, routes)
-        assert cert.whole_flight and cert.whole_flight_min_hold_s == plan_coordinated(mission, routes).hold_s
+        first = first_forecast(mission, routes)
+        cert = certify(mission, first)
+        assert cert.whole_flight and cert.whole_flight_min_hold_s == plan_coordinated(mission, routes, first).hold_s
 
 
 @pytest.mark.parametrize("units, decided", [(50, 0), (10**9, 2)])
@@ -146,7 +148,7 @@ def test_a_budget_that_runs_out_leaves_the_certificate_undecided_and_says_so(uni
     mission = load_mission(REFERENCE)
     routes = plan_routes(mission)
     budget = WorkBudget(units)
-    cert = certify(mission, routes, budget=budget)
+    cert = mission_certificate(mission, routes, budget)
     assert (cert.whole_flight_decided, cert.closest_approach_decided) == (decided >= 1, decided >= 2)
     if decided == 0:
         assert budget.spent == units + 1  # it stopped at the first unit over the budget
@@ -154,7 +156,7 @@ def test_a_budget_that_runs_out_leaves_the_certificate_undecided_and_says_so(uni
         assert cert.describe().count("undecided within budget") == 2
         assert cert.advice("astar-bdwa", ("astar-bdwa-timed",)) is None
     else:  # within the budget: the same answers as without one
-        assert cert == certify(mission, routes)
+        assert cert == mission_certificate(mission, routes)
         assert cert.advice("astar-bdwa", ("astar-bdwa-timed",)) == (
             "variant astar-bdwa does not plan the sight line; astar-bdwa-timed keeps a-b blocked at closest "
             "approach with a 59 s departure hold of a: --variant astar-bdwa-timed and coordination.hold_s_max: 60")

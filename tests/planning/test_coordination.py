@@ -13,15 +13,18 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from uav_model.mission import Forecast, load_mission, mission_from_data
-from companion.planning.coordination import Blocking, plan_coordinated, plan_vehicle
+from companion.planning.coordination.plan import plan_coordinated
+from companion.planning.coordination.search import Blocking, plan_vehicle
 from companion.planning.errors import NoPath
+from companion.planning.flight.forecast import first_forecast
 from companion.planning.grid import rasterise
 from companion.planning.metrics import TruthGeometry, pair_min_distance
 from companion.planning.routes import detour_route, plan_routes
-from companion.planning import shadow as shadow_module
-from companion.planning.shadow import SightShadows
-from companion.planning.spacetime import step_model
-from companion.planning.timed import TimedRoute, forecast, forecast_along, forecast_from, held
+from companion.planning.coordination import shadow as shadow_module
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.spacetime import step_model
+from companion.planning.coordination.timed import forecast, forecast_along, forecast_from, held
+from companion.planning.timed_route import TimedRoute
 from world_strategies import worlds
 
 REFERENCE = Path(__file__).resolve().parents[2] / "missions" / "paper_reference.yaml"
@@ -196,7 +199,7 @@ def reference():
 def test_reference_plan_with_a_hold_keeps_the_line_blocked_the_whole_flight(reference):
     mission, routes = reference
     mission = replace(mission, coordination=replace(mission.coordination, hold_s_max=200.0))
-    plan = plan_coordinated(mission, routes)
+    plan = plan_coordinated(mission, routes, first_forecast(mission, routes))
     assert plan.blocking["b"] is Blocking.WHOLE_FLIGHT and 100.0 < plan.hold_s <= 200.0
     xy = _check_plan(mission, plan)
     t = np.arange(0.0, len(xy["a"])) * 0.5
@@ -210,7 +213,7 @@ def test_reference_plan_with_a_hold_keeps_the_line_blocked_the_whole_flight(refe
 def test_reference_replan_mid_flight_from_where_the_vehicle_strayed(reference):
     mission, routes = reference  # a forecast on its route: the geometry this re-plan was checked on
     mission = replace(mission, coordination=replace(mission.coordination, hold_s_max=200.0, forecast=Forecast.ROUTE))
-    plan = plan_coordinated(mission, routes)
+    plan = plan_coordinated(mission, routes, first_forecast(mission, routes))
     grid = rasterise(mission.world, mission.planner.grid_resolution_m)
     strayed = tuple(plan.timed["b"].planned_position_at(120.0) + np.array([40.0, -30.0]))
     found = plan_vehicle(mission, "b", (plan.timed["a"],), grid, SightShadows(mission.world, grid),
@@ -226,7 +229,7 @@ def test_reference_replan_mid_flight_from_where_the_vehicle_strayed(reference):
 
 def test_reference_plan_under_the_papers_rule_says_what_it_could_not_do(reference):
     mission, routes = reference  # a never waits: the certificate says the line cannot be kept blocked
-    plan = plan_coordinated(mission, routes)
+    plan = plan_coordinated(mission, routes, first_forecast(mission, routes))
     assert plan.hold_s == 0.0 and plan.blocking["b"] is Blocking.NONE and plan.planned["b"]
     _check_plan(mission, plan)
 
@@ -254,7 +257,7 @@ def test_four_vehicles_every_pair_keeps_its_separation(seed):
         routes = plan_routes(mission)
     except NoPath:
         pytest.skip("the generated world walls a station in")
-    plan = plan_coordinated(mission, routes)
+    plan = plan_coordinated(mission, routes, first_forecast(mission, routes))
     assert set(plan.timed) == {"v0", "v1", "v2", "v3"} and all(plan.planned.values())
     _check_plan(mission, plan)
     for name, route in plan.timed.items():
@@ -302,7 +305,7 @@ def test_the_first_vehicle_is_forecast_where_it_flies_not_on_its_route():
     """Tuning seed 13 i042: on the multicopter a flew 80-110 m off its route at cruise, so b,
     planned against that, met the real a elsewhere with the line open. Flown alone first, a's
     forecast is where it flies beside b too."""
-    from companion.planning.runner import simulate
+    from companion.planning.flight.headless import simulate
     from companion.scenarios import generate_scenario
     scenario = generate_scenario(13, 42)
     mission = scenario.mission.with_variant("astar-bdwa-timed")
@@ -311,5 +314,5 @@ def test_the_first_vehicle_is_forecast_where_it_flies_not_on_its_route():
     off = {}
     for kind in Forecast:
         m = replace(mission, coordination=replace(mission.coordination, forecast=kind))
-        off[kind] = float(np.max(plan_coordinated(m, scenario.routes).timed["a"].progress_at(xy)[1]))
+        off[kind] = float(np.max(plan_coordinated(m, scenario.routes, first_forecast(m, scenario.routes)).timed["a"].progress_at(xy)[1]))
     assert off[Forecast.FLOWN] < 40.0 < 80.0 < off[Forecast.ROUTE], off

@@ -18,7 +18,7 @@ from companion.planning.dwa import (Command, DwaConfig, LocalGoals, NoLegalRollo
                                     Pose, heading_scores, inflated_clearance, plan_step, rollouts,
                                     sightline_scores)
 from companion.planning.obstacle_field import ObstacleField, ObstacleTrack
-from companion.planning.runner import body_command
+from companion.planning.flight.loop import body_command
 from uav_model.world import World, make_obstacle
 from uav_model.plant import KinematicState, VehicleLimits, step
 

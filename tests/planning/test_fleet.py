@@ -10,7 +10,7 @@ import pytest
 from companion.planning.dwa import NO_OBSTACLES, Command, DwaConfig, OtherUav, Pose, plan_step
 from companion.planning.fleet import Neighbour, Reaction, react_to, sightline_partner
 from companion.planning.metrics import pair_name
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 from companion.scenarios import ScenarioConfig, fleet_layout, generate_scenario
 from uav_model.mission import MissionError, mission_from_data
 

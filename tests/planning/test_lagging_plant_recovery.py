@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from companion.planning.dwa import DwaConfig, NoLegalRollout, ObstacleSnapshot, Pose, plan_step
-from companion.planning.runner import body_command
+from companion.planning.flight.loop import body_command
 from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, ned_to_enu, ned_yaw_to_enu_heading
 from uav_model.plant import HOVER, TRACKING_LAG_S, KinematicState, Plant, initial_state, limits_for, step_for
 

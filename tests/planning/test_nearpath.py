@@ -1,5 +1,5 @@
 """The earliest path whose closest approach is blocked, for one D and over the ladder of D
-(:mod:`companion.planning.nearpath`): it agrees with a brute-force search on small worlds, its
+(:mod:`companion.planning.coordination.nearpath`): it agrees with a brute-force search on small worlds, its
 paths keep the rule they were planned under, and the ladder never arrives later than D* alone."""
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from uav_model.mission import load_mission
-from companion.planning.coordination import Blocking, _near_witness, near_margin_m, plan_vehicle, problem_for
+from companion.planning.coordination.search import Blocking, _near_witness, near_margin_m, plan_vehicle, problem_for
 from companion.planning.grid import rasterise
-from companion.planning.nearpath import best_near, earliest_near, ladder_m2
+from companion.planning.coordination.nearpath import best_near, earliest_near, ladder_m2
 from companion.planning.routes import plan_routes
-from companion.planning.shadow import SightShadows
-from companion.planning.timed import forecast
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.timed import forecast
 from spacetime_bruteforce import BruteForce
 from test_certificate import small_missions
 

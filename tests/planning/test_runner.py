@@ -11,7 +11,7 @@ import pytest
 from shapely.geometry import LineString, Point
 
 from uav_model.mission import load_mission, parse_mission
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 
 REFERENCE_BOUND_S = 473.8  # SPEC §1: tangent + arc + tangent around the 600 m disk, at 10 m/s
 

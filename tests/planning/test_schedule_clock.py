@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from companion.planning.timed import ScheduleClock, forecast
+from companion.planning.coordination.clocks import ScheduleClock
+from companion.planning.coordination.timed import forecast
 
 EAST = np.array([[0.0, 0.0], [1000.0, 0.0]])
 NORTH = np.array([[0.0, 100.0], [0.0, 1100.0]])

@@ -17,8 +17,8 @@ from companion.planning.dwa import NO_OBSTACLES, Command, DwaConfig, NoLegalRoll
 from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.routes import plan_routes
-from companion.planning.runner import body_command
-from companion.planning.timed import forecast
+from companion.planning.flight.loop import body_command
+from companion.planning.coordination.timed import forecast
 from companion.planning.vehicle_planner import Replanning, VehiclePlanner
 from tests.planning.world_strategies import worlds
 from uav_model.frames import enu_heading_to_ned_yaw, ned_yaw_to_enu_heading
@@ -139,7 +139,7 @@ SMALL = Path(__file__).resolve().parents[2] / "missions" / "small_reference.yaml
 def test_on_the_multicopter_plant_the_timed_variant_arrives_instead_of_circling_its_station():
     # small_reference (PX4 circled station B there): the gentlest rollout grazing the 20 m circle
     # missed it by 2.7 m on the lagging plant, and a circled B at 22.7 m until the time limit.
-    from companion.planning.runner import simulate
+    from companion.planning.flight.headless import simulate
     mission = load_mission(SMALL)
     run = simulate(mission, "astar-bdwa-timed")
     assert run.success, run.summary.reason

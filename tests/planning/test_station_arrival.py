@@ -18,7 +18,7 @@ import pytest
 
 from companion.planning.dwa import NO_OBSTACLES, DwaConfig, Pose
 from companion.planning.local_goals import LocalGoalTracker
-from companion.planning.runner import body_command
+from companion.planning.flight.loop import body_command
 from companion.planning.vehicle_planner import VehiclePlanner, approach_config
 from uav_model.mission import load_mission
 from tests.planning.test_speed_window import V, timed_config

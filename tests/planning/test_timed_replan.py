@@ -10,12 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.planning.coordination import Blocking, plan_coordinated
+from companion.planning.coordination.plan import plan_coordinated
+from companion.planning.coordination.search import Blocking
+from companion.planning.flight.forecast import first_forecast
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.replan import ReplanRule, TimedFleet, closest_approach_s
+from companion.planning.coordination.replan import ReplanRule, TimedFleet, closest_approach_s
 from companion.planning.routes import plan_routes
-from companion.planning.timed import PriorityClocks, ScheduleClock, TimedRoute, forecast, sight_near_m
+from companion.planning.coordination.clocks import PriorityClocks, ScheduleClock, sight_near_m
+from companion.planning.coordination.timed import forecast
+from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import SIGHT_LAG_M, VehiclePlanner
 from uav_model.mission import load_mission
 
@@ -81,7 +85,7 @@ def held_reference():
     mission = load_mission(REFERENCE)
     mission = replace(mission, coordination=replace(mission.coordination, hold_s_max=200.0))
     routes = plan_routes(mission)
-    return mission, plan_coordinated(mission, routes)
+    return mission, plan_coordinated(mission, routes, first_forecast(mission, routes))
 
 
 def test_a_vehicle_lagging_before_the_closest_approach_is_replanned_from_where_it_is(held_reference):

@@ -12,7 +12,9 @@ import pytest
 from companion.planning.dwa import NO_OBSTACLES, OtherUav, Pose
 from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.routes import plan_routes
-from companion.planning.timed import PriorityClocks, TimedRoute, closest_approach_m, forecast, sight_near_m
+from companion.planning.coordination.clocks import PriorityClocks, sight_near_m
+from companion.planning.coordination.timed import closest_approach_m, forecast
+from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import VehiclePlanner
 from tests.planning.test_speed_window import V, _fly, timed_config
 from uav_model.mission import load_mission

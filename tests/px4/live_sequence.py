@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as L
 
-from sim_bridge.px4 import FlightMode, decode_custom_mode
+from sim_bridge.vehicle.px4 import FlightMode, decode_custom_mode
 
 SETPOINT_WALL_S = 0.05  # 20 Hz of wall time, as characterise.py streams
 GCS_HEARTBEAT_WALL_S = 1.0

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from companion.cli_common import with_plant
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 from uav_model.mission import load_mission
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from sim_bridge.streams import API_PROFILE
+from sim_bridge.vehicle.streams import API_PROFILE
 from sim_bridge.testing import GcsCodec, boot
 from sim_bridge.vehicle import SimVehicle
 

@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.mission import parse_mission
 from sim_bridge.bridge import SimOptions
 from sim_bridge.faults import Blackout, FaultConfig
-from sim_bridge.px4 import FlightMode as StubMode
+from sim_bridge.vehicle.px4 import FlightMode as StubMode
 from sim_bridge.testing import sim_connection_url, stub_on_free_ports
 
 MISSION_YAML = """

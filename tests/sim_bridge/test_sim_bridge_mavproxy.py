@@ -22,7 +22,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.frames import local_to_geodetic
 from uav_model.mission import parse_mission
 from sim_bridge.bridge import SimOptions
-from sim_bridge.px4 import FlightMode, Px4AutoSubMode, Px4MainMode
+from sim_bridge.vehicle.px4 import FlightMode, Px4AutoSubMode, Px4MainMode
 from sim_bridge.testing import stub_on_free_ports
 
 MISSION_YAML = """

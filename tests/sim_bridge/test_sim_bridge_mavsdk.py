@@ -21,7 +21,7 @@ from mavsdk.asyncio.plugins.telemetry import FixType, FlightMode, LandedState, T
 from uav_model.frames import local_to_geodetic
 from uav_model.mission import Mission, parse_mission
 from sim_bridge.bridge import SimOptions
-from sim_bridge.px4 import FlightMode as StubMode
+from sim_bridge.vehicle.px4 import FlightMode as StubMode
 from sim_bridge.testing import sim_connection_url, stub_on_free_ports
 
 from mavsdk_helpers import arm_and_take_off, first, mavsdk_client, quantize, wait_until

@@ -26,8 +26,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.frames import geodetic_to_local, local_to_geodetic
 from uav_model.mission import Mission, parse_mission
 from sim_bridge.bridge import SimOptions
-from sim_bridge.mission_protocol import FENCE
-from sim_bridge.px4 import FlightMode as StubMode
+from sim_bridge.vehicle.mission_protocol import FENCE
+from sim_bridge.vehicle.px4 import FlightMode as StubMode
 from sim_bridge.testing import sim_connection_url, stub_on_free_ports
 
 from mavsdk_helpers import arm_and_take_off, first, mavsdk_client, wait_until

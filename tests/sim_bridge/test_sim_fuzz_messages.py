@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import parse_mission
-from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.px4 import FlightMode
 from sim_bridge.testing import GcsCodec, random_message
 
 pytestmark = pytest.mark.timeout(120)

@@ -21,8 +21,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import local_to_geodetic
 from uav_model.mission import parse_mission
-from sim_bridge.mission_protocol import FENCE, MissionItem
-from sim_bridge.px4 import FlightMode, decode_custom_mode
+from sim_bridge.vehicle.mission_protocol import FENCE, MissionItem
+from sim_bridge.vehicle.px4 import FlightMode, decode_custom_mode
 from sim_bridge.testing import free_udp_port_block, send_command, step_for
 from sim_bridge.vehicle.geofence import BREACH_TEXT, DISTANCE_TEXT, fence_from_items
 

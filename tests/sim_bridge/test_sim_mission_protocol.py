@@ -9,8 +9,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import local_to_geodetic
 from uav_model.mission import parse_mission
-from sim_bridge.mission_protocol import MAX_ITEMS, MissionProtocol
-from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.mission_protocol import MAX_ITEMS, MissionProtocol
+from sim_bridge.vehicle.px4 import FlightMode
 
 from sim_bridge.testing import GcsCodec as Gcs, send_command, step_for
 

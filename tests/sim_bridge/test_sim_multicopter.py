@@ -16,7 +16,7 @@ from test_sim_vehicle import (MISSION_YAML, enter_offboard, fly_offboard, run, s
 
 from uav_model.mission import parse_mission
 from uav_model.plant import MulticopterLimits, Plant
-from sim_bridge.px4 import FlightMode
+from sim_bridge.vehicle.px4 import FlightMode
 
 pytestmark = pytest.mark.timeout(60)
 

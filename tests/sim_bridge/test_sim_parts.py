@@ -10,8 +10,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.mission import parse_mission
 from sim_bridge.clock import ClockError, SimClock
 from sim_bridge.faults import Blackout, FaultConfig, FaultSpecError, LinkFaults
-from sim_bridge.streams import API_PROFILE, StreamProfile, StreamScheduler
-from sim_bridge.truth import CollisionChecker
+from sim_bridge.vehicle.streams import API_PROFILE, StreamProfile, StreamScheduler
+from sim_bridge.vehicle.collisions import CollisionChecker
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -224,7 +224,7 @@ def test_statustext_is_split_as_px4_splits_it():
 
 
 def test_px4_sim_battery_drains_to_its_floor_when_armed_and_refills_when_disarmed():
-    from sim_bridge.energy import px4_sim_battery_pct
+    from sim_bridge.vehicle.energy import px4_sim_battery_pct
 
     pct, t = 100.0, 0.0
     while t < 20.0:
@@ -237,7 +237,7 @@ def test_px4_sim_battery_drains_to_its_floor_when_armed_and_refills_when_disarme
 
 
 def test_sys_status_reports_no_sensors_then_no_gps_then_healthy_at_boot():
-    from sim_bridge.health import HEALTH_SETTLED_S, PREARM_CHECK, SENSORS_PRESENT_S, sensor_bits
+    from sim_bridge.vehicle.health import HEALTH_SETTLED_S, PREARM_CHECK, SENSORS_PRESENT_S, sensor_bits
 
     gps = mavlink.MAV_SYS_STATUS_SENSOR_GPS
     assert sensor_bits(0.0, True)[0] == 0

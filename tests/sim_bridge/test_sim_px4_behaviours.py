@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from uav_model.frames import local_to_geodetic, wrap_pi
 from uav_model.mission import parse_mission
 from uav_model.plant import Plant
-from sim_bridge.px4 import FlightMode, ParamType, Px4MainMode, Px4PosctlSubMode, decode_custom_mode
+from sim_bridge.vehicle.px4 import FlightMode, ParamType, Px4MainMode, Px4PosctlSubMode, decode_custom_mode
 from sim_bridge.testing import send_command, step_for
 
 pytestmark = pytest.mark.timeout(60)
@@ -200,7 +200,7 @@ def test_issue_11_parameters_read_with_px4_names_types_and_defaults_and_set(vehi
 
 
 def test_the_multicopter_plant_gets_px4s_limits_and_the_unicycle_the_missions():
-    from sim_bridge.px4 import default_params
+    from sim_bridge.vehicle.px4 import default_params
 
     def table(tuned: bool) -> dict[str, float]:
         return {d.name: d.default for d in default_params(1, 10.0, 10.0 / 30.0, 8.0, 30.0, mission_tuned=tuned)}

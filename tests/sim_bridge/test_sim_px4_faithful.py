@@ -13,7 +13,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import MissionError, parse_mission
-from sim_bridge.px4 import FlightMode, Px4MainMode
+from sim_bridge.vehicle.px4 import FlightMode, Px4MainMode
 from sim_bridge.testing import send_command, step_for, upload_waypoints
 from sim_bridge.vehicle import LandedState
 

@@ -15,8 +15,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import enu_heading_to_ned_yaw, geodetic_to_local, local_to_geodetic
 from uav_model.mission import parse_mission
-from sim_bridge.px4 import FlightMode, Px4AutoSubMode, Px4MainMode, decode_custom_mode, encode_custom_mode
-from sim_bridge.streams import API_PROFILE
+from sim_bridge.vehicle.px4 import FlightMode, Px4AutoSubMode, Px4MainMode, decode_custom_mode, encode_custom_mode
+from sim_bridge.vehicle.streams import API_PROFILE
 from sim_bridge.testing import GcsCodec, ack_of, send_command, step_for
 from sim_bridge.vehicle import ADSB_ICAO_BASE, LandedState
 

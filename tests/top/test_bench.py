@@ -26,7 +26,7 @@ from companion.bench.weights import Weights
 from companion.cli import main as cli_main
 from uav_model.mission import load_mission, parse_mission
 from companion.planning.metrics import Track
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 from companion.scenarios import ScenarioConfig
 
 try:

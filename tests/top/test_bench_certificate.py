@@ -8,7 +8,8 @@ import pytest
 from companion.bench import aggregate, read_runs_csv
 from companion.bench.execute import ScenarioTask, run_scenario
 from companion.bench.table import certificate_columns, format_table, markdown_table, write_runs_csv
-from companion.planning.certificate import OcclusionCertificate, certify
+from companion.planning.coordination.certificate import OcclusionCertificate, certify
+from companion.planning.flight.forecast import first_forecast
 from companion.scenarios import ScenarioConfig, generate_scenario
 
 SMALL = {"side_m": 1000.0, "static_count": 2, "static_circumradius_m": [40.0, 90.0],
@@ -60,14 +61,22 @@ def test_the_summary_counts_verdicts_and_judges_only_feasible_scenarios(tmp_path
     assert "closest approach 3 / 1 / 0" in format_table(aggregate(rows))
 
 
-def test_every_run_of_a_scenario_carries_its_certificate():
+def test_every_run_carries_the_certificate_of_the_forecast_its_own_variant_flies():
     config = ScenarioConfig.from_mapping(SMALL)
-    rows = run_scenario(ScenarioTask(7, 0, ("astar-bdwa", "bdwa"), config)).rows
+    variants = ("astar-bdwa", "bdwa", "astar-bdwa-timed")
+    rows = run_scenario(ScenarioTask(7, 0, variants, config)).rows
     scenario = generate_scenario(7, 0, config)
-    expected = certificate_columns(certify(scenario.mission, scenario.routes))
-    assert expected["cert_closest_approach"] in ("feasible", "needs-hold", "infeasible")
-    for row in rows:
-        assert {k: row[k] for k in expected} == expected
+    forecasts = {}
+    for variant, row in zip(variants, rows):
+        mission = scenario.mission.with_variant(variant)
+        forecasts[variant] = first = first_forecast(mission, scenario.routes)
+        expected = certificate_columns(certify(mission, first))
+        assert expected["cert_closest_approach"] in ("feasible", "needs-hold", "infeasible")
+        assert row["variant"] == variant and {k: row[k] for k in expected} == expected
+    # Each variant flies the first vehicle its own way: one certificate for all would judge
+    # a flight the other rows do not fly.
+    ends = {v: float(f.t_s[-1]) for v, f in forecasts.items()}
+    assert len(set(ends.values())) > 1, ends
 
 
 def test_without_the_certificate_the_runs_are_the_same_and_its_columns_empty():

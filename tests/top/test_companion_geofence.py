@@ -29,7 +29,7 @@ from companion.vehicle.port import GeoFenceZone
 from uav_model.fence_margin import exclusion_margin_m, fence_standoff_m, fence_warnings
 from uav_model.mission import parse_mission
 from sim_bridge.bridge import SimOptions
-from sim_bridge.mission_protocol import FENCE
+from sim_bridge.vehicle.mission_protocol import FENCE
 from sim_bridge.testing import sim_connection_url, stub_on_free_ports
 
 pytestmark = pytest.mark.timeout(120)

@@ -11,6 +11,7 @@ from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
 
 from companion.app.flight_plan import prepare
+from companion.app.fence import mission_fence
 from companion.formats.qgc_plan import plan_document
 from sim_bridge.testing import sim_connection_url, stub_on_free_ports
 from uav_model.mission import load_mission
@@ -20,12 +21,17 @@ ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow
 
 
+def _document(plan, vehicle):
+    """The .plan document of ``vehicle``, from what the app uploads."""
+    return plan_document(plan.mission, vehicle, plan.waypoints(vehicle), mission_fence(plan.mission))
+
+
 def test_mavsdk_imports_our_plan_with_route_and_fences(tmp_path):
     mission = load_mission(ROOT / "missions" / "moving_obstacles.yaml")
     plan = prepare(mission)
     vehicle = mission.vehicles[0]
     path = tmp_path / f"{vehicle.name}.plan"
-    doc = plan_document(plan, vehicle)
+    doc = _document(plan, vehicle)
     path.write_text(json.dumps(doc, indent=2))
 
     async def scenario():

@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 
 from uav_model.mission import load_mission
-from companion.planning.runner import simulate
+from companion.planning.flight.headless import simulate
 from companion.scenarios import generate_scenario, with_variant, write_mission_yaml
 
 

@@ -1,5 +1,5 @@
 """Fused compiled (numba) tick kernels, re-exported by :mod:`.kernels` (listed in its ``_NAMES``,
-swapped out in ``numpy_only``): each is several kernels of :mod:`.kernels` and :mod:`.kernels_tick`
+swapped out in ``numpy_only``): each is several kernels of :mod:`.kernels_point` and :mod:`.kernels_tick`
 called in one compiled pass, so that a tick crosses from Python into compiled code fewer times.
 On this machine a compiled call costs a few microseconds before it does anything (numba types
 every argument), and the paper window's tick made about a dozen of them.
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from companion.planning.dwa import kernels, kernels_tick  # kernels: imported at its end, its kernels defined
+from companion.planning.dwa import kernels_point, kernels_tick
 
 try:
     import numba
@@ -30,10 +30,10 @@ except ImportError:  # the numpy code runs instead
 
 obstacle_pass = pick = None
 
-if numba is not None and kernels.circle_clearance is not None:
+if numba is not None and kernels_point.circle_clearance is not None:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-    _polygon_point = kernels._polygon_point
-    _heading_toward, _choose, _obstacle_terms = kernels.heading_toward, kernels.choose, kernels_tick.obstacle_terms
+    _polygon_point = kernels_point._polygon_point
+    _heading_toward, _choose, _obstacle_terms = kernels_point.heading_toward, kernels_point.choose, kernels_tick.obstacle_terms
 
     @_jit
     def obstacle_pass(px, py, t_s, c_xy, c_vel, c_r, c_m, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy, p_vel,  # noqa: F811
@@ -68,7 +68,7 @@ if numba is not None and kernels.circle_clearance is not None:
             lim2 = lim * lim
             row = clear[k]
             k += 1
-            for n in range(len(px)):  # kernels.circle_clearance's operations, where needed
+            for n in range(len(px)):  # kernels_point.circle_clearance's operations, where needed
                 dx = px[n] - cx
                 dy = py[n] - cy
                 if moves:
@@ -87,7 +87,7 @@ if numba is not None and kernels.circle_clearance is not None:
             lim2 = lim * lim
             row = clear[k]
             k += 1
-            for n in range(len(px)):  # kernels.polygon_clearance's operations, where needed
+            for n in range(len(px)):  # kernels_point.polygon_clearance's operations, where needed
                 qx = px[n] - vx * t_s[n]
                 qy = py[n] - vy * t_s[n]
                 dx = qx - p_centre[p, 0]

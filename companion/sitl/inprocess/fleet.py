@@ -12,7 +12,7 @@ from companion.sitl.inprocess.link import INPROCESS_PROFILE, LINK
 from companion.sitl.inprocess.vehicle import InProcessVehicle
 from companion.vehicle.port import Vehicle
 from sim_bridge.clock import SimClock
-from sim_bridge.energy import EnergyModel
+from sim_bridge.vehicle.energy import EnergyModel
 from sim_bridge.vehicle import SimVehicle
 
 

@@ -10,8 +10,8 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.vehicle.port import FlightMode
-from sim_bridge.px4 import Px4AutoSubMode, Px4MainMode
-from sim_bridge.streams import API_RATES_HZ, StreamProfile
+from sim_bridge.vehicle.px4 import Px4AutoSubMode, Px4MainMode
+from sim_bridge.vehicle.streams import API_RATES_HZ, StreamProfile
 
 LINK = "api"  # the one link each in-process vehicle has: the companion's
 PEER = "companion"

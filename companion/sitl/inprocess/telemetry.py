@@ -20,7 +20,7 @@ from companion.sitl.inprocess.link import MODES, text_field
 from companion.vehicle.board import VehicleBoard
 from companion.vehicle.convert import traffic_velocity_enu
 from companion.vehicle.port import FlightMode, LandedState, TrafficReport
-from sim_bridge.px4 import Px4MainMode, decode_custom_mode
+from sim_bridge.vehicle.px4 import Px4MainMode, decode_custom_mode
 
 log = logging.getLogger(__name__)
 

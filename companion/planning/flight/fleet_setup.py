@@ -1,11 +1,11 @@
 """One mission's planners and schedule clocks, built in one place for every caller that flies it.
 
-The headless runner (:func:`companion.planning.runner.simulate`), the live companion
+The headless runner (:func:`companion.planning.flight.headless.simulate`), the live companion
 (``companion.app``: its flight context, and the warm-up before it) and anything else that flies a
 mission call :func:`build_fleet`, so that what a vehicle's planner is made of (its route, the
 routes above it for a detour, its timed route, where its sightline term acts) and how the timed
-routes are read in flight (:class:`companion.planning.replan.TimedFleet`: the per-priority clocks of
-:class:`companion.planning.timed.PriorityClocks`, and the in-flight re-plan) cannot differ
+routes are read in flight (:class:`companion.planning.coordination.replan.TimedFleet`: the per-priority clocks of
+:class:`companion.planning.coordination.clocks.PriorityClocks`, and the in-flight re-plan) cannot differ
 between them:
 
     fleet = build_fleet(mission, routes, variant)
@@ -25,10 +25,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from companion.planning.coordination import Blocking, plan_coordinated
+from companion.planning.coordination.plan import plan_coordinated
+from companion.planning.coordination.search import Blocking
 from companion.planning.routes import higher_routes
-from companion.planning.replan import TimedFleet
-from companion.planning.timed import sight_near_m
+from companion.planning.coordination.replan import TimedFleet
+from companion.planning.coordination.clocks import sight_near_m
 from companion.planning.vehicle_planner import VARIANTS, VehiclePlanner
 
 if TYPE_CHECKING:
@@ -36,7 +37,7 @@ if TYPE_CHECKING:
 
     from uav_model.mission import Mission
     from companion.planning.routes import Route
-    from companion.planning.timed import TimedRoute
+    from companion.planning.timed_route import TimedRoute
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,16 +51,21 @@ class Fleet:
 
 def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | None = None,
                 timed_routes: Mapping[str, TimedRoute] | None = None,
-                blocking: Mapping[str, Blocking] | None = None) -> Fleet:
+                blocking: Mapping[str, Blocking] | None = None, *, first: TimedRoute | None = None) -> Fleet:
     """The planners and schedule clocks that fly ``mission`` with ``variant`` (default: the
     mission's). ``timed_routes`` (timed variants): the routes with arrival times to fly; by default
-    the coordinated space-time plan (:func:`coordination.plan_coordinated`, seconds of numpy: a
-    caller that already has it passes it in, with its ``blocking``: what each plan keeps, which an
-    in-flight re-plan must keep at least as well; unknown, any re-plan is adopted)."""
+    the coordinated space-time plan (:func:`coordination.plan.plan_coordinated`, seconds of numpy)
+    against ``first``, the first vehicle's forecast (:func:`forecast.first_forecast`), which the
+    caller then passes in. A caller that already has the plan passes its routes in, with its
+    ``blocking``: what each plan keeps, which an in-flight re-plan must keep at least as well;
+    unknown, any re-plan is adopted."""
     variant = variant or mission.planner.variant
     timed_variant = VARIANTS[variant].timed
     if timed_routes is None and timed_variant and routes:
-        plan = plan_coordinated(mission, routes)  # the space-time plan (docs/design.md)
+        if first is None:
+            raise ValueError(f"build_fleet: variant {variant!r} plans against the first vehicle's forecast: "
+                             f"pass first (forecast.first_forecast)")
+        plan = plan_coordinated(mission, routes, first)  # the space-time plan (docs/design.md)
         timed_routes, blocking = plan.timed, plan.blocking
     timed = dict(timed_routes or {})
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,

@@ -42,10 +42,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from uav_model.mission import Forecast
-from companion.planning.coordination import Blocking, plan_vehicle
+from companion.planning.coordination.search import Blocking, plan_vehicle
 from companion.planning.grid import rasterise
-from companion.planning.shadow import SightShadows
-from companion.planning.timed import PriorityClocks, TimedRoute, forecast_along, forecast_from, sight_near_m
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.clocks import PriorityClocks, sight_near_m
+from companion.planning.coordination.timed import forecast_along, forecast_from
+from companion.planning.timed_route import TimedRoute
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission

@@ -1,9 +1,7 @@
-"""Coordinated timing: prioritised space-time planning that keeps the sight lines blocked.
+"""The space-time search of one lower vehicle against the forecasts of the vehicles above it.
 
-Vehicles are planned in ``mission.by_priority`` order (the paper's rule, section III.A). The
-first flies its A* route at cruise speed, after a departure hold when the mission allows one
-(``coordination.hold_s_max``). Every later vehicle is planned on the space-time graph of
-:mod:`spacetime` against the forecasts of all vehicles above it, the strictest rule first:
+Every vehicle but the first in priority is planned on the space-time graph of :mod:`spacetime`
+against the forecasts of all vehicles above it (:mod:`plan`), the strictest rule first:
 
     Blocking.WHOLE_FLIGHT       the sight line to every higher vehicle crosses a true obstacle at
                                 every step instant, from departure until everyone has arrived
@@ -12,8 +10,8 @@ first flies its A* route at cruise speed, after a departure hold when the missio
                                 for two vehicles; with more it holds for one pair)
     Blocking.NONE               separation only (the line is not kept blocked)
 
-and, when even separation cannot be planned, its route at cruise speed (``timed=False``). The
-result records which held. A* cells of the inflated obstacles keep static clearance throughout.
+and, when even separation cannot be planned, None (the caller flies its route at cruise). A*
+cells of the inflated obstacles keep static clearance throughout.
 
 Closest approach: a path has its closest approach blocked iff some D has every open instant
 farther than D and some blocked instant within D. Forbidding open instants within D shrinks the
@@ -32,19 +30,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from uav_model.mission import Forecast
 from companion.planning.budget import Budget
-from companion.planning.flown_forecast import flown_forecast
-from companion.planning.grid import OccupancyGrid, rasterise
-from companion.planning.nearpath import best_near
-from companion.planning.shadow import SightShadows
-from companion.planning.spacetime import (AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, backward,
-                                          earliest_arrival, forward, stay_from, step_model)
-from companion.planning.timed import TimedRoute, forecast, held
+from companion.planning.grid import OccupancyGrid
+from companion.planning.coordination.nearpath import best_near
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.spacetime import (AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table,
+                                                       backtrack, backward, earliest_arrival, forward, stay_from,
+                                                       step_model)
+from companion.planning.timed_route import TimedRoute
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
-    from companion.planning.routes import Route
 
 _MAX_NEAR_ROUNDS = 200  # D <- g(D) rounds; each raises D to a new state distance
 NEAR_RUNGS = 6  # distances D tried from D* on (nearpath.ladder_m2: up to D* + 16 margins); 4 and 6 compared on tuning seeds
@@ -66,17 +62,6 @@ class Solution:
     step_s: float
     blocking: Blocking
     t0_s: float = 0.0  # mission time of step 0
-
-
-@dataclass(frozen=True, eq=False)
-class CoordinatedPlan:
-    """Timed routes for every vehicle, the departure hold of the first, and what each achieved."""
-
-    hold_s: float
-    step_s: dict[str, float]
-    timed: dict[str, TimedRoute]
-    blocking: dict[str, Blocking]
-    planned: dict[str, bool]  # False: no space-time plan at all, the route at cruise speed
 
 
 def solve(problem: SpaceTimeProblem, blocking: Blocking, margin_m: float = 0.0) -> Solution | None:
@@ -233,53 +218,3 @@ def near_margin_m(mission: "Mission", name: str, fastest_other_m_s: float) -> fl
     model = step_model(mission.planner.grid_resolution_m, v.speed_m_s, mission.coordination.step_s,
                        mission.safety.min_separation_m, fastest_other_m_s)
     return (v.speed_m_s + fastest_other_m_s) * model.step_s
-
-
-def first_forecast(mission: "Mission", routes: dict[str, "Route"], budget: Budget | None = None) -> TimedRoute:
-    """Where the first vehicle in priority will be, and when, departing at t = 0: what the
-    lower vehicles are planned against, and what the occlusion certificate judges
-    (``coordination.forecast``: flown alone headless, or its sparse route at cruise). A vehicle
-    alone is planned against nobody: its route at cruise (and the flown forecast, which flies
-    the vehicle alone, does not fly it again). ``budget``: charged a unit per tick flown."""
-    top = mission.by_priority[0]
-    if len(mission.vehicles) > 1 and mission.coordination.forecast is Forecast.FLOWN:
-        return flown_forecast(mission, routes[top.name], top.name, budget)
-    return forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s)
-
-
-def plan_coordinated(mission: "Mission", routes: dict[str, "Route"], *, hold_s: float | None = None,
-                     grid: OccupancyGrid | None = None, shadows: SightShadows | None = None) -> CoordinatedPlan:
-    """Timed routes for every vehicle (see the module doc). ``hold_s``: the first vehicle's
-    departure hold; by default the least hold within ``coordination.hold_s_max`` that lets the
-    second vehicle keep the line blocked the whole flight, else at closest approach, else 0."""
-    grid = grid or rasterise(mission.world, mission.planner.grid_resolution_m)
-    shadows = shadows or SightShadows(mission.world, grid)
-    order = mission.by_priority
-    top = order[0]
-    memo: dict = {}
-    first = first_forecast(mission, routes)
-    if hold_s is None:
-        hold_s = 0.0
-        if len(order) > 1 and mission.coordination.hold_s_max > 0:
-            from companion.planning.certificate import least_hold
-            margin = near_margin_m(mission, order[1].name, top.speed_m_s)
-            for blocking, margin_m in ((Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
-                                       (Blocking.CLOSEST_APPROACH, 0.0)):
-                found = least_hold(mission, first, blocking, mission.coordination.hold_s_max, grid, shadows,
-                                   memo, margin_m)
-                if found is not None:
-                    hold_s = found
-                    break
-    timed = {top.name: held(first, hold_s)}
-    blocking = {top.name: Blocking.WHOLE_FLIGHT}
-    planned = {top.name: True}
-    steps = {top.name: 0.0}
-    for v in order[1:]:
-        found = plan_vehicle(mission, v.name, tuple(timed.values()), grid, shadows, memo)
-        if found is not None:
-            timed[v.name], blocking[v.name], steps[v.name] = found
-            planned[v.name] = True
-        else:
-            timed[v.name] = forecast(v.name, routes[v.name].sparse_enu_m, v.speed_m_s)
-            blocking[v.name], planned[v.name], steps[v.name] = Blocking.NONE, False, 0.0
-    return CoordinatedPlan(hold_s, steps, timed, blocking, planned)

@@ -1,4 +1,4 @@
-"""Headless in-process runner: every vehicle flown by its VehiclePlanner on the shared plant.
+"""The headless flight loop: every vehicle flown by its VehiclePlanner on the shared plant.
 
 No sockets and no clocks: the same per-tick planner code the live companion runs
 (:class:`VehiclePlanner.tick` on an :class:`ObstacleSnapshot` of the obstacles' state *now*),
@@ -31,16 +31,15 @@ from companion.planning.budget import Budget, spend
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.fleet import Neighbour, react_to
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.fleet_setup import build_fleet
-from companion.planning.vehicle_planner import TickResult, variant_needs_route
+from companion.planning.vehicle_planner import TickResult
 from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
                                         pair_min_distance, summarize)
-from companion.planning.routes import Route, plan_routes
+from companion.planning.routes import Route
 from uav_model.plant import (HOVER, KinematicState, PlantLimits, VelocityCommand, VelocityFrame, initial_state,
                              limits_for, step_for)
 
 if TYPE_CHECKING:
-    from companion.planning.timed import TimedRoute
+    from companion.planning.flight.fleet_setup import Fleet
 
 
 @dataclass(frozen=True)
@@ -103,29 +102,17 @@ def start_states(mission: Mission) -> tuple[dict[str, PlantLimits], dict[str, Ki
     return limits, states
 
 
-def simulate(mission: Mission, variant: str | None = None, *,
-             routes: dict[str, Route] | None = None,
-             lower_bounds_s: dict[str, float | None] | None = None,
-             timed_routes: "dict[str, TimedRoute] | None" = None,
-             budget: Budget | None = None) -> RunResult:
-    """Fly ``mission`` headless with ``variant`` (default: the mission's) and score it.
-    ``timed_routes``: routes with arrival times per vehicle, tracked by the timed variant; by
-    default it flies the coordinated space-time plan (:func:`coordination.plan_coordinated`).
-
-    ``routes`` and ``lower_bounds_s`` (see :func:`metrics.vehicle_lower_bound_s`) do not depend
-    on the variant: a caller flying several variants of one mission may pass them in once.
-
-    Raises :class:`companion.planning.errors.NoPath` when an A* variant finds no route, and
-    :class:`companion.planning.budget.BudgetSpent` when ``budget`` (a unit per tick) runs out.
-    """
-    started = time.perf_counter()
-    if variant is not None:
-        mission = mission.with_variant(variant)
+def fly(mission: Mission, fleet: Fleet, routes: dict[str, Route], *,
+        lower_bounds_s: dict[str, float | None] | None = None, budget: Budget | None = None,
+        started: float | None = None) -> RunResult:
+    """Fly ``mission`` (its variant set) headless with ``fleet`` (:func:`fleet_setup.build_fleet`)
+    and score it; ``routes`` are reported with the result, ``lower_bounds_s`` as for
+    :func:`metrics.summarize`; ``started``: the ``time.perf_counter()`` the run's wall time counts
+    from (default: now). Raises :class:`companion.planning.budget.BudgetSpent` when ``budget``
+    (a unit per tick) runs out."""
+    started = time.perf_counter() if started is None else started
     variant = mission.planner.variant
-    if routes is None:
-        routes = plan_routes(mission) if variant_needs_route(variant) else {}
     vehicles = mission.by_priority
-    fleet = build_fleet(mission, routes, variant, timed_routes)  # the live companion builds the same
     planners, clocks = fleet.planners, fleet.clocks
     step = step_for(mission.plant)
     limits, states = start_states(mission)

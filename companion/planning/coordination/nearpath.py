@@ -22,8 +22,8 @@ import math
 
 import numpy as np
 
-from companion.planning import bitgrid
-from companion.planning.spacetime import AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, stay_from
+from companion.planning.coordination import bitgrid
+from companion.planning.coordination.spacetime import AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, stay_from
 
 
 class _Witness:

@@ -3,9 +3,10 @@ kept blocked, for the whole flight and at closest approach, and if not, after wh
 
 Both questions are decided exactly on the space-time graph of :mod:`spacetime` (the mission
 grid, the second vehicle's step, waits allowed for it), against the first vehicle after a hold at
-its station, forecast as the coordinated plan forecasts it (:func:`coordination.first_forecast`:
-by default flown alone headless, ``coordination.forecast: route`` its A* route at cruise), so
-that the certificate and the plan judge the same flight. A longer hold never hurts: the second vehicle
+its station, forecast as the coordinated plan forecasts it (the caller's forecast, from
+:func:`companion.planning.flight.forecast.first_forecast`: by default flown alone headless with the
+variant that flies, ``coordination.forecast: route`` its A* route at cruise), so that the
+certificate and the plan judge the same flight. A longer hold never hurts: the second vehicle
 can spend it waiting where it is (its start is as blocked as at time 0), so the least hold is
 found by bisection over multiples of the step, up to the longest hold that still lets the first
 vehicle arrive within the time limit.
@@ -21,14 +22,14 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 from companion.planning.budget import Budget, BudgetSpent
-from companion.planning.coordination import Blocking, feasible, first_forecast, problem_for
+from companion.planning.coordination.search import Blocking, feasible, problem_for
 from companion.planning.grid import OccupancyGrid, rasterise
-from companion.planning.shadow import SightShadows
-from companion.planning.timed import TimedRoute, held
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.timed import held
+from companion.planning.timed_route import TimedRoute
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
-    from companion.planning.routes import Route
 
 
 @dataclass(frozen=True)
@@ -104,8 +105,8 @@ def least_hold(mission: "Mission", top: TimedRoute, blocking: Blocking, max_hold
                margin_m: float = 0.0, known_at_max: bool = False, budget: Budget | None = None) -> float | None:
     """The least hold (a multiple of the lower vehicle's step, <= ``max_hold_s``) of the first
     vehicle that makes ``blocking`` feasible for the second, or None. ``margin_m``: see
-    :func:`coordination.solve`; ``known_at_max``: the caller knows ``max_hold_s`` suffices.
-    ``top``: the first vehicle's forecast without a hold (:func:`coordination.first_forecast`),
+    :func:`search.solve`; ``known_at_max``: the caller knows ``max_hold_s`` suffices.
+    ``top``: the first vehicle's forecast without a hold,
     held back by each hold tried (:func:`timed.held`). ``budget``: charged by every search;
     raises :class:`budget.BudgetSpent` when it runs out."""
     higher, lower = mission.by_priority[0], mission.by_priority[1]
@@ -132,13 +133,14 @@ def least_hold(mission: "Mission", top: TimedRoute, blocking: Blocking, max_hold
     return hi * step
 
 
-def certify(mission: "Mission", routes: dict[str, "Route"], *, grid: OccupancyGrid | None = None,
+def certify(mission: "Mission", top: TimedRoute | None, *, grid: OccupancyGrid | None = None,
             shadows: SightShadows | None = None, max_hold_s: float | None = None,
             budget: Budget | None = None) -> OcclusionCertificate | None:
-    """The certificate of the two vehicles first in priority (None with a single vehicle).
-    Holds are searched up to ``max_hold_s`` (default: the longest that lets the first vehicle
-    still arrive within the time limit). The first vehicle is forecast as the coordinated plan
-    forecasts it (:func:`coordination.first_forecast`). ``budget``: the work allowed
+    """The certificate of the two vehicles first in priority (None with a single vehicle), the
+    first flying ``top``: its forecast without a hold, as the coordinated plan of the variant
+    that flies forecasts it; None when the forecast itself ran out of budget (both questions
+    are then undecided). Holds are searched up to ``max_hold_s`` (default: the longest that lets
+    the first vehicle still arrive within the time limit). ``budget``: the work allowed
     (:mod:`budget`); what is not settled within it is undecided."""
     if len(mission.vehicles) < 2:
         return None
@@ -151,16 +153,16 @@ def certify(mission: "Mission", routes: dict[str, "Route"], *, grid: OccupancyGr
     searched = float("nan")
     decided = 0  # questions settled: 0, 1 (whole flight) or 2
     try:
-        top = first_forecast(mission, routes, budget)
-        flight_s = float(top.t_s[-1] - top.t_s[0])
-        searched = max(0.0, mission.safety.time_limit_s - flight_s) if max_hold_s is None else max_hold_s
-        memo: dict = {}
-        whole = least_hold(mission, top, Blocking.WHOLE_FLIGHT, searched, grid, shadows, memo, budget=budget)
-        decided = 1
-        near = whole if whole == 0.0 else least_hold(  # whole-flight blocking is blocked at closest approach
-            mission, top, Blocking.CLOSEST_APPROACH, searched if whole is None else whole, grid, shadows, memo,
-            known_at_max=whole is not None, budget=budget)
-        decided = 2
+        if top is not None:  # None: the forecast ran out of budget, nothing is decided
+            flight_s = float(top.t_s[-1] - top.t_s[0])
+            searched = max(0.0, mission.safety.time_limit_s - flight_s) if max_hold_s is None else max_hold_s
+            memo: dict = {}
+            whole = least_hold(mission, top, Blocking.WHOLE_FLIGHT, searched, grid, shadows, memo, budget=budget)
+            decided = 1
+            near = whole if whole == 0.0 else least_hold(  # whole-flight blocking is blocked at closest approach
+                mission, top, Blocking.CLOSEST_APPROACH, searched if whole is None else whole, grid, shadows, memo,
+                known_at_max=whole is not None, budget=budget)
+            decided = 2
     except BudgetSpent:
         pass
     return OcclusionCertificate(
@@ -170,19 +172,3 @@ def certify(mission: "Mission", routes: dict[str, "Route"], *, grid: OccupancyGr
         closest_approach=near is not None and near <= limit + 1e-9,
         whole_flight_min_hold_s=whole, closest_approach_min_hold_s=near, searched_hold_s=searched,
         whole_flight_decided=decided >= 1, closest_approach_decided=decided >= 2)
-
-
-def mission_certificate(mission: "Mission", routes: dict[str, "Route"] | None = None,
-                        budget: Budget | None = None) -> OcclusionCertificate | None:
-    """:func:`certify` for a mission whose routes may not be planned yet (station-goal
-    variants plan none); None with a single vehicle or when the first vehicle has no route."""
-    from companion.planning.errors import NoPath
-    from companion.planning.routes import plan_routes
-    if len(mission.vehicles) < 2:
-        return None
-    if not routes or mission.by_priority[0].name not in routes:
-        try:
-            routes = plan_routes(mission)
-        except NoPath:
-            return None
-    return certify(mission, routes, budget=budget)

@@ -25,11 +25,11 @@ from enum import Enum
 
 import numpy as np
 
-from companion.planning import bitgrid
+from companion.planning.coordination import bitgrid
 from companion.planning.budget import Budget, spend
 from companion.planning.grid import OccupancyGrid
-from companion.planning.shadow import SightShadows
-from companion.planning.timed import TimedRoute
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.timed_route import TimedRoute
 
 
 class SightRule(Enum):

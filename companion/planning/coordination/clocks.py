@@ -1,0 +1,124 @@
+"""The schedule clocks: the time at which each vehicle reads its timed route in flight, held back
+while the vehicles above it lag their plans, and where a lower vehicle's sightline term acts."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from companion.planning.coordination.timed import closest_approach_m
+
+if TYPE_CHECKING:
+    from uav_model.mission import Mission
+    from companion.planning.timed_route import TimedRoute
+
+
+class ScheduleClock:
+    """The schedule's time for a fleet flying timed routes together: time since the common
+    departure, held back while a vehicle lags its plan, so that the others wait for it.
+
+    The plans keep the vehicles apart and their sight lines blocked at every planned instant
+    (static obstacles only). Re-timing every plan by one common, monotone clock keeps every
+    vehicle where the plan had it relative to the others; a vehicle that lost time (a telemetry
+    gap it hovered through, ticks the companion could not keep up with) would otherwise arrive
+    late at the place the plan timed against the others. Each vehicle's *reach* is the latest
+    plan time its position is consistent with (the end of a wait it sits in, its closest planned
+    point along the route); the clock runs at most ``slack_s`` ahead of the least reach of the
+    vehicles still flying, and never more than ``max_lag_s`` behind sim time (a vehicle that far
+    off its plan has left it: waiting for it would stop everybody).
+
+        clock = ScheduleClock(plan.timed)
+        clock.observe("b", (x, y), t)   # each tick, before asking the time
+        tau = clock.now(t)              # the time to track the plans at
+    """
+
+    def __init__(self, routes: "dict[str, TimedRoute]", *, slack_s: float = 2.0, max_lag_s: float = 120.0,
+                 window_s: float = 60.0, step_s: float = 0.5, tolerance_m: float = 1.0, start_s: float = 0.0):
+        self.routes = dict(routes)
+        self.slack_s, self.max_lag_s, self.tolerance_m = slack_s, max_lag_s, tolerance_m
+        self._offsets = np.arange(0.0, window_s + step_s / 2, step_s)
+        self._reach = {name: start_s for name in self.routes}  # start_s: a clock started mid-flight
+        self._done: set[str] = set()
+        self._tau = start_s
+        self.worst_lag_s = 0.0  # how far behind sim time the schedule fell, at most
+
+    def observe(self, name: str, xy_enu_m, t_s: float) -> None:
+        """Vehicle ``name`` is at ``xy_enu_m`` at sim time ``t_s`` (since the common departure)."""
+        route = self.routes.get(name)
+        if route is None:
+            return
+        times = self._reach[name] + self._offsets
+        d = np.hypot(*(route.planned_position_at(times) - np.asarray(xy_enu_m, dtype=float)).T)
+        latest = times[np.flatnonzero(d <= d.min() + self.tolerance_m)[-1]]
+        self._reach[name] = max(self._reach[name], float(latest))
+
+    def done(self, name: str) -> None:
+        """The vehicle has arrived: it no longer holds the clock back."""
+        self._done.add(name)
+
+    def lag_s(self, t_s: float) -> float:
+        """How far the schedule is behind sim time now."""
+        return t_s - self.now(t_s)
+
+    def now(self, t_s: float) -> float:
+        flying = [r for n, r in self._reach.items() if n not in self._done]
+        limit = min(flying, default=np.inf) + self.slack_s
+        self._tau = max(self._tau, min(t_s, max(limit, t_s - self.max_lag_s)))
+        self.worst_lag_s = max(self.worst_lag_s, t_s - self._tau)
+        return self._tau
+
+
+class PriorityClocks:
+    """Each vehicle's schedule time when the vehicles above it are not where their plans have
+    them: sim time for the first in priority (it waits for nobody, the paper's rule); for every
+    other, a :class:`ScheduleClock` over the vehicles above it only. A lower vehicle's plan keeps
+    its sight line blocked against the *forecasts* of the higher ones; on the multicopter the
+    first lags its forecast by ~10-150 m (slower turns), and tracking the plan by sim time put
+    the lower one at the planned place with the higher one elsewhere. Read at the clock, the
+    lower vehicle keeps its planned place relative to where the higher ones really are.
+
+        clocks = PriorityClocks(plan.timed, ["a", "b"])
+        clocks.observe("a", (x, y), t)   # every flying vehicle, each tick
+        clocks.done("a")                 # arrived
+        tau = clocks.now("b", t)         # the time to track b's timed route at
+    """
+
+    def __init__(self, routes: "dict[str, TimedRoute]", order: "list[str]", **clock_options: float):
+        self._options = clock_options
+        self._clocks = {name: ScheduleClock({m: routes[m] for m in order[:i] if m in routes}, **clock_options)
+                        for i, name in enumerate(order) if i > 0 and name in routes}
+        self._done: set[str] = set()
+
+    def retime(self, name: str, above: "dict[str, TimedRoute]", start_s: float) -> None:
+        """``name`` was re-planned at ``start_s`` against ``above`` (the vehicles above it,
+        re-forecast from where they were then): its clock is now theirs, from ``start_s`` on."""
+        clock = ScheduleClock(above, **{**self._options, "start_s": start_s})
+        for gone in self._done:
+            clock.done(gone)
+        self._clocks[name] = clock
+
+    def observe(self, name: str, xy_enu_m, t_s: float) -> None:
+        for clock in self._clocks.values():
+            clock.observe(name, xy_enu_m, t_s)
+
+    def done(self, name: str) -> None:
+        self._done.add(name)
+        for clock in self._clocks.values():
+            clock.done(name)
+
+    def now(self, name: str, t_s: float) -> float:
+        clock = self._clocks.get(name)
+        return t_s if clock is None else clock.now(t_s)
+
+
+SIGHT_NEAR_MARGIN_M = 200.0  # see VehiclePlanner.sight_near_m; chosen on a tuning seed
+
+
+def sight_near_m(mission: "Mission", timed_routes: dict[str, TimedRoute], name: str) -> float | None:
+    """Where a lower vehicle's sightline term acts when it tracks a timed route: within the
+    planned closest approach to the first vehicle plus a margin (None: everywhere)."""
+    first = mission.by_priority[0].name
+    if name == first or name not in timed_routes or first not in timed_routes:
+        return None
+    return closest_approach_m(timed_routes[first], timed_routes[name]) + SIGHT_NEAR_MARGIN_M

@@ -1,0 +1,95 @@
+"""Coordinated timing: prioritised space-time planning that keeps the sight lines blocked.
+
+Vehicles are planned in ``mission.by_priority`` order (the paper's rule, section III.A). The
+first flies as its forecast has it (the caller's: :func:`companion.planning.flight.forecast.first_forecast`),
+after a departure hold when the mission allows one (``coordination.hold_s_max``; the least that
+keeps the line blocked, found as the occlusion certificate finds it: :func:`certificate.least_hold`).
+Every later vehicle is planned against the forecasts of all vehicles above it, the strictest
+rule first (:func:`search.plan_vehicle`), or flies its route at cruise speed when not even
+separation can be planned (``planned`` False). The result records which rule held.
+
+    first = first_forecast(mission, routes)            # flown once, by the caller
+    plan = plan_coordinated(mission, routes, first)
+    plan.timed["b"], plan.blocking["b"], plan.hold_s
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from companion.planning.coordination.certificate import least_hold
+from companion.planning.coordination.search import Blocking, near_margin_m, plan_vehicle
+from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.timed import forecast, held
+from companion.planning.grid import OccupancyGrid, rasterise
+from companion.planning.timed_route import TimedRoute
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from uav_model.mission import Mission
+    from companion.planning.routes import Route
+
+
+@dataclass(frozen=True, eq=False)
+class CoordinatedPlan:
+    """Timed routes for every vehicle, the departure hold of the first, and what each achieved."""
+
+    hold_s: float
+    step_s: dict[str, float]
+    timed: dict[str, TimedRoute]
+    blocking: dict[str, Blocking]
+    planned: dict[str, bool]  # False: no space-time plan at all, the route at cruise speed
+
+
+def departure_hold(mission: "Mission", first: TimedRoute, grid: OccupancyGrid, shadows: SightShadows,
+                   memo: dict | None = None) -> float:
+    """The least hold of the first vehicle within ``coordination.hold_s_max`` that lets the
+    second keep the line blocked the whole flight, else at closest approach (with the margin of
+    :func:`search.near_margin_m`, then without), else 0."""
+    order = mission.by_priority
+    if len(order) < 2 or not mission.coordination.hold_s_max > 0:
+        return 0.0
+    margin = near_margin_m(mission, order[1].name, order[0].speed_m_s)
+    for blocking, margin_m in ((Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
+                               (Blocking.CLOSEST_APPROACH, 0.0)):
+        found = least_hold(mission, first, blocking, mission.coordination.hold_s_max, grid, shadows, memo, margin_m)
+        if found is not None:
+            return found
+    return 0.0
+
+
+def plan_coordinated(mission: "Mission", routes: "Mapping[str, Route]", first: TimedRoute, *,
+                     hold_s: float | None = None, grid: OccupancyGrid | None = None,
+                     shadows: SightShadows | None = None) -> CoordinatedPlan:
+    """Timed routes for every vehicle (see the module doc) against ``first``, the first
+    vehicle's forecast without a hold. ``hold_s``: its departure hold; by default
+    :func:`departure_hold`."""
+    grid = grid or rasterise(mission.world, mission.planner.grid_resolution_m)
+    shadows = shadows or SightShadows(mission.world, grid)
+    order = mission.by_priority
+    top = order[0]
+    memo: dict = {}
+    if hold_s is None:
+        hold_s = departure_hold(mission, first, grid, shadows, memo)
+    timed = {top.name: held(first, hold_s)}
+    blocking = {top.name: Blocking.WHOLE_FLIGHT}
+    planned = {top.name: True}
+    steps = {top.name: 0.0}
+    for v in order[1:]:
+        found = plan_vehicle(mission, v.name, tuple(timed.values()), grid, shadows, memo)
+        if found is not None:
+            timed[v.name], blocking[v.name], steps[v.name] = found
+            planned[v.name] = True
+        else:
+            timed[v.name] = forecast(v.name, routes[v.name].sparse_enu_m, v.speed_m_s)
+            blocking[v.name], planned[v.name], steps[v.name] = Blocking.NONE, False, 0.0
+    return CoordinatedPlan(hold_s, steps, timed, blocking, planned)
+
+
+def route_forecast(mission: "Mission", routes: "Mapping[str, Route]") -> TimedRoute:
+    """The first vehicle in priority along its sparse A* route at cruise, departing at t = 0
+    (``coordination.forecast: route``, and any vehicle flown alone)."""
+    top = mission.by_priority[0]
+    return forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s)

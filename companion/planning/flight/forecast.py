@@ -1,0 +1,100 @@
+"""The first vehicle's forecast as it will fly: its own planner on the mission's plant, alone.
+
+    first = first_forecast(mission, routes)               # flown once per mission and variant
+    plan = plan_coordinated(mission, routes, first)       # what the lower vehicles plan against
+    certificate = mission_certificate(mission, routes, first=first)   # and what the certificate judges
+
+The lower vehicles are planned in (position, time) against a forecast of the first
+(:mod:`coordination`). A forecast along its sparse route at cruise can be 80-110 m off where the
+multicopter really flies (it rounds the route's corners and keeps its distance from the
+obstacles), so b, planned to hide behind an obstacle from that forecast, meets the real one
+elsewhere with the line open. Flown alone headless first, with the runner that flies the
+mission (:mod:`loop`), the forecast is 5-25 m off. The lower vehicles change the
+first one's flight only through the separation rule, which binds only when they meet.
+
+The default (``coordination.forecast: flown``). Pure and deterministic: no I/O. It costs one headless
+flight of one vehicle.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from uav_model.mission import Forecast
+from companion.planning.budget import BudgetSpent
+from companion.planning.coordination.certificate import OcclusionCertificate, certify
+from companion.planning.coordination.plan import route_forecast
+from companion.planning.errors import NoPath
+from companion.planning.flight.fleet_setup import build_fleet
+from companion.planning.flight.loop import fly
+from companion.planning.routes import plan_routes
+from companion.planning.timed_route import TimedRoute
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from companion.planning.budget import Budget
+    from uav_model.mission import Mission
+    from companion.planning.routes import Route
+
+_EVERY = 2  # keep every second sample of the track (1 s at the runner's 0.5 s step)
+
+
+def flown_forecast(mission: "Mission", route: "Route", name: str, budget: "Budget | None" = None) -> TimedRoute:
+    """Where ``name`` flies, and when, flying ``route`` alone from t = 0: its headless track,
+    then straight on to its goal at cruise if it stopped short (it arrives within the arrival
+    radius, or the time limit ended the flight). A departure hold delays it as a whole
+    (:func:`timed.held`): the moving obstacles it meets then are elsewhere, which the flight
+    itself absorbs as it absorbs any other difference from its forecast. ``budget``: charged a
+    unit per tick (:mod:`budget`)."""
+    vehicle = mission.vehicle(name)
+    alone = dataclasses.replace(mission, vehicles=(vehicle,))
+    routes = {name: route}
+    # Alone, it is planned against nobody: a timed variant tracks its route at cruise.
+    fleet = build_fleet(alone, routes, first=route_forecast(alone, routes))
+    track = fly(alone, fleet, routes, budget=budget).tracks[name]
+    t, xy = np.asarray(track.t_s, dtype=float), np.column_stack([track.x_m, track.y_m])
+    keep = np.zeros(len(t), dtype=bool)
+    keep[::_EVERY] = True
+    keep[-1] = True
+    t, xy = t[keep], xy[keep]
+    goal = np.asarray(vehicle.goal_enu_m, dtype=float)
+    t = np.append(t, t[-1] + float(np.hypot(*(goal - xy[-1]))) / vehicle.speed_m_s)
+    return TimedRoute(name, t, np.vstack([xy, goal]))
+
+
+def first_forecast(mission: "Mission", routes: "Mapping[str, Route]", budget: "Budget | None" = None) -> TimedRoute:
+    """Where the first vehicle in priority will be, and when, departing at t = 0, flown by the
+    mission's variant: what the lower vehicles are planned against, and what the occlusion
+    certificate judges (``coordination.forecast``: flown alone headless, or its sparse route at
+    cruise). A vehicle alone is planned against nobody: its route at cruise. ``budget``: charged
+    a unit per tick flown."""
+    top = mission.by_priority[0]
+    if len(mission.vehicles) > 1 and mission.coordination.forecast is Forecast.FLOWN:
+        return flown_forecast(mission, routes[top.name], top.name, budget)
+    return route_forecast(mission, routes)
+
+
+def mission_certificate(mission: "Mission", routes: "Mapping[str, Route] | None" = None,
+                        budget: "Budget | None" = None, *, first: TimedRoute | None = None
+                        ) -> OcclusionCertificate | None:
+    """:func:`certify` of the forecast the mission's variant flies: ``first`` when the caller
+    has it already (:func:`first_forecast` of these routes), else flown here within ``budget``.
+    The routes are planned when there are none (station-goal variants plan none). None with a
+    single vehicle or when the first vehicle has no route."""
+    if len(mission.vehicles) < 2:
+        return None
+    if first is None and (not routes or mission.by_priority[0].name not in routes):
+        try:
+            routes = plan_routes(mission)
+        except NoPath:
+            return None
+    if first is None:
+        try:
+            first = first_forecast(mission, routes, budget)
+        except BudgetSpent:
+            pass  # nothing is decided within the budget
+    return certify(mission, first, budget=budget)

@@ -1,0 +1,164 @@
+"""Routes with arrival times: where a vehicle is planned to be, and how fast it should go, at t.
+
+A :class:`TimedRoute` is a polyline whose vertices carry sim times (s, from the common mission
+start). Position is linear in time between vertices and held before the first and after the last,
+so a vertex repeated at two times is a wait. Every query is vectorised over arrays of times (and
+positions), so a dynamic window can score a whole batch of rollouts against the plan at once:
+
+    route = forecast("a", sparse_xy, speed_m_s=10.0, hold_s=75.0)   # cruise after a hold
+    route.planned_position_at(t)           # (..., 2) ENU metres
+    route.planned_speed_at(t)              # (...,) m/s of the plan itself (0 while waiting)
+    route.target_speed_at(xy, t, v_max)    # (...,) m/s that brings a vehicle at xy back onto it
+    route.is_waiting_at(t)                 # (...,) bool: the plan holds here (a scheduled wait)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.planning.errors import PlanningError
+
+_WAIT_SPEED_M_S = 1e-6  # slower than this, a planned segment is a wait
+
+
+@dataclass(frozen=True, eq=False)
+class TimedRoute:
+    """One vehicle's planned motion: ``xy_enu_m`` (N, 2) reached at ``t_s`` (N,), non-decreasing."""
+
+    vehicle: str
+    t_s: np.ndarray
+    xy_enu_m: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.array(self.t_s, dtype=float).ravel()
+        xy = np.array(self.xy_enu_m, dtype=float).reshape(-1, 2)
+        if len(t) != len(xy) or len(t) == 0:
+            raise PlanningError(f"timed route of {self.vehicle!r}: {len(t)} times for {len(xy)} points")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(xy))) or np.any(np.diff(t) < 0):
+            raise PlanningError(f"timed route of {self.vehicle!r}: times must be finite and non-decreasing")
+        along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+        for name, a in (("t_s", t), ("xy_enu_m", xy), ("_along_m", along)):
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+    @property
+    def path_xy(self) -> np.ndarray:
+        """The route's geometry (K, 2): its points without the repeats of a wait."""
+        moved = np.concatenate([[True], np.any(np.diff(self.xy_enu_m, axis=0) != 0, axis=1)])
+        return self.xy_enu_m[moved]
+
+    @property
+    def departure_s(self) -> float:
+        """When the vehicle first leaves its start point (after any hold)."""
+        moved = np.flatnonzero(np.any(self.xy_enu_m != self.xy_enu_m[0], axis=1))
+        return float(self.t_s[moved[0] - 1]) if moved.size else float(self.t_s[-1])
+
+    @property
+    def arrival_s(self) -> float:
+        """When the vehicle reaches its last point."""
+        last = np.flatnonzero(np.any(self.xy_enu_m != self.xy_enu_m[-1], axis=1))
+        return float(self.t_s[last[-1] + 1]) if last.size else float(self.t_s[0])
+
+    @property
+    def length_m(self) -> float:
+        return float(np.hypot(*np.diff(self.xy_enu_m, axis=0).T).sum()) if len(self.t_s) > 1 else 0.0
+
+    @property
+    def wait_s(self) -> float:
+        """Total planned waiting between departure and arrival (holds before departure excluded)."""
+        dt, v = self._segments()
+        t0, t1 = self.t_s[:-1], self.t_s[1:]
+        inside = (t0 >= self.departure_s) & (t1 <= self.arrival_s)
+        return float(dt[inside & (v < _WAIT_SPEED_M_S)].sum())
+
+    def _segments(self) -> tuple[np.ndarray, np.ndarray]:
+        dt = np.diff(self.t_s)
+        d = np.hypot(*np.diff(self.xy_enu_m, axis=0).T)
+        return dt, np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
+
+    def _segment_index(self, t: np.ndarray) -> np.ndarray:
+        """Index i of the segment [t_i, t_i+1] holding each t (clipped to the ends)."""
+        if len(self.t_s) < 2:
+            return np.zeros(t.shape, dtype=int)
+        return np.clip(np.searchsorted(self.t_s, t, side="right") - 1, 0, len(self.t_s) - 2)
+
+    def planned_position_at(self, t_s: np.ndarray | float) -> np.ndarray:
+        """Planned positions (..., 2) at times ``t_s`` (...,)."""
+        t = np.asarray(t_s, dtype=float)
+        if len(self.t_s) == 1:
+            return np.broadcast_to(self.xy_enu_m[0], t.shape + (2,)).copy()
+        i = self._segment_index(t)
+        t0, t1 = self.t_s[i], self.t_s[i + 1]
+        span = t1 - t0
+        u = np.clip(np.where(span > 0, (t - t0) / np.where(span > 0, span, 1.0), 1.0), 0.0, 1.0)
+        p0, p1 = self.xy_enu_m[i], self.xy_enu_m[i + 1]
+        return p0 + (p1 - p0) * u[..., None]
+
+    def planned_speed_at(self, t_s: np.ndarray | float) -> np.ndarray:
+        """Speed (...,) of the plan itself at ``t_s``: 0 while waiting and outside the route."""
+        t = np.asarray(t_s, dtype=float)
+        if len(self.t_s) == 1:
+            return np.zeros(t.shape)
+        _, v = self._segments()
+        inside = (t >= self.t_s[0]) & (t < self.t_s[-1])
+        return np.where(inside, v[self._segment_index(t)], 0.0)
+
+    def is_waiting_at(self, t_s: np.ndarray | float) -> np.ndarray:
+        """Whether the plan holds the vehicle still at ``t_s`` (before departure included, after
+        arrival excluded: an arrived vehicle is done, not waiting)."""
+        t = np.asarray(t_s, dtype=float)
+        return (self.planned_speed_at(t) < _WAIT_SPEED_M_S) & (t < self.arrival_s)
+
+    def planned_along_at(self, t_s: np.ndarray | float) -> np.ndarray:
+        """How far along the route (m, ...) the plan is at ``t_s``."""
+        return np.interp(np.asarray(t_s, dtype=float), self.t_s, self._along_m)
+
+    def progress_at(self, xy_enu_m: np.ndarray, near_along_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(along, off) (...,) m: how far along the route the nearest route point to each of
+        ``xy_enu_m`` (..., 2) is, and how far the position is from it. ``near_along_m``: where
+        along the route the vehicle was last (see :func:`progress_window`): only the route within
+        that window counts, so a path that passes near itself (out and back round a shadow, a wait
+        beside a later leg) cannot throw the vehicle hundreds of metres ahead or behind."""
+        xy = np.asarray(xy_enu_m, dtype=float)[..., None, :]
+        if len(self.t_s) == 1:
+            return np.zeros(xy.shape[:-2]), np.hypot(*np.moveaxis(xy[..., 0, :] - self.xy_enu_m[0], -1, 0))
+        a, d = self.xy_enu_m[:-1], np.diff(self.xy_enu_m, axis=0)
+        len2 = np.einsum("ij,ij->i", d, d)
+        u = np.clip(np.einsum("...ij,ij->...i", xy - a, d) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
+        dist = np.hypot(*np.moveaxis(a + d * u[..., None] - xy, -1, 0))
+        if near_along_m is not None:
+            lo, hi = progress_window(near_along_m)
+            inside = (self._along_m[1:] >= lo) & (self._along_m[:-1] <= hi)
+            if inside.any():
+                dist = np.where(inside, dist, np.inf)
+        i = np.argmin(dist, axis=-1)[..., None]
+        along = self._along_m[:-1] + u * np.sqrt(len2)
+        return np.take_along_axis(along, i, -1)[..., 0], np.take_along_axis(dist, i, -1)[..., 0]
+
+    def lead_m(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, near_along_m: float | None = None) -> np.ndarray:
+        """How far (m, ...) a vehicle at ``xy_enu_m`` is ahead of the plan at ``t_s`` along the
+        route (negative: it lags); ``near_along_m`` as for :meth:`progress_at`."""
+        along, _ = self.progress_at(xy_enu_m, near_along_m)
+        return along - self.planned_along_at(t_s)
+
+    def target_speed_at(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, max_speed_m_s: float,
+                        lookahead_s: float = 5.0, near_along_m: float | None = None) -> np.ndarray:
+        """The speed (...,) that takes a vehicle at ``xy_enu_m`` (..., 2) to where the plan will be
+        ``lookahead_s`` later, measured along the route (plus its distance off it), capped at
+        ``max_speed_m_s``: cruise when it lags, slower when it is ahead, 0 when it is as far along
+        as the plan will be ``lookahead_s`` later (a scheduled wait, or running early: it waits
+        for the plan, however far ahead it is). ``near_along_m`` as for :meth:`progress_at`."""
+        along, off = self.progress_at(xy_enu_m, near_along_m)
+        gap = self.planned_along_at(np.asarray(t_s, dtype=float) + lookahead_s) - along
+        return np.where(gap > 0, np.minimum(np.hypot(gap, off) / lookahead_s, max_speed_m_s), 0.0)
+
+
+PROGRESS_BACK_M, PROGRESS_AHEAD_M = 30.0, 60.0  # a vehicle flies ~5 m a tick; see progress_window
+
+
+def progress_window(near_along_m: float) -> tuple[float, float]:
+    """The stretch of a route (m along it) a vehicle last seen ``near_along_m`` along can be on
+    a tick later: a little behind (it drifts back while it waits, or turns), more ahead."""
+    return near_along_m - PROGRESS_BACK_M, near_along_m + PROGRESS_AHEAD_M

@@ -1,0 +1,52 @@
+"""The first vehicle's forecast is flown once, and what plans and certifies is given it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uav_model.mission import load_mission
+from companion.planning.coordination.plan import route_forecast
+from companion.planning.flight import forecast as forecast_module
+from companion.planning.flight.fleet_setup import build_fleet
+from companion.planning.flight.headless import simulate_certified
+from companion.planning.routes import plan_routes
+
+SMALL = Path(__file__).resolve().parents[2] / "missions" / "small_reference.yaml"
+
+
+@pytest.fixture(scope="module")
+def timed():
+    mission = load_mission(SMALL).with_variant("astar-bdwa-timed")
+    return mission, plan_routes(mission)
+
+
+def test_the_plan_flies_against_the_forecast_it_is_given(timed):
+    mission, routes = timed
+    first = route_forecast(mission, routes)  # not the flown one the mission asks for
+    fleet = build_fleet(mission, routes, first=first)
+    top = mission.by_priority[0].name
+    assert np.array_equal(fleet.timed[top].path_xy, first.path_xy)
+
+
+def test_a_timed_fleet_without_the_forecast_says_what_it_needs(timed):
+    mission, routes = timed
+    with pytest.raises(ValueError, match="pass first"):
+        build_fleet(mission, routes)
+
+
+def test_a_timed_run_and_its_certificate_fly_the_first_vehicle_once(timed, monkeypatch):
+    mission, _ = timed
+    flights = []
+    real = forecast_module.flown_forecast
+
+    def counted(*args, **kwargs):
+        flights.append(args[2])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(forecast_module, "flown_forecast", counted)
+    run, certificate = simulate_certified(mission)
+    assert flights == [mission.by_priority[0].name]
+    assert certificate is not None and run.summary.duration_s > 0
