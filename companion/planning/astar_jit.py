@@ -32,7 +32,6 @@ POLL_EVERY = 64  # expansions between two polls of the cancel callback (both sea
 SIZE, EXPANSIONS, NEXT_POLL, RESUME = range(4)
 
 
-
 def jump_points(free_grid: np.ndarray, start: int, goal: int, octile: bool, budget: int,
                 cancel: Callable[[], bool] | None) -> tuple[int, list[int] | None, int]:
     """(status, the jump points from start to goal when FOUND, expansions) of the search on the
