@@ -26,6 +26,8 @@ of scattered blocked cells nearly every cell is a jump point (~160 000 expansion
 memoryviews (no per-cell Python objects are built), keeps g, parent, entry direction and the closed
 flags in preallocated flat lists / bytearrays, and pushes (f, h, index) tuples on heapq, merging
 each expansion's last push into the next pop (heappushpop: the same pop order, one sift less).
+With numba installed (the ``fast`` extra) :mod:`.astar_jit` runs the same search compiled, about
+ten times faster, and returns the same jump points.
 The path between consecutive jump points is a straight or diagonal run of cells and is filled
 back in, so the result is the full cell path.
 """
@@ -39,13 +41,14 @@ from typing import Literal
 
 import numpy as np
 
+from companion.planning import astar_jit
 from companion.planning.errors import BudgetExceeded, NoPath
 from companion.planning.grid import OccupancyGrid
 
 Heuristic = Literal["octile", "euclidean"]
 
 _SQRT2 = math.sqrt(2.0)
-_CANCEL_EVERY = 64  # expansions between two polls of the cancel callback
+_CANCEL_EVERY = astar_jit.POLL_EVERY  # expansions between two polls of the cancel callback
 
 # Directions: the four straight ones index the stop tables; a diagonal is a pair of them. All the
 # tables below are tuples indexed by direction code (constants, read in the hot loop).
@@ -96,7 +99,8 @@ def astar(grid: OccupancyGrid, start_xy: tuple[float, float], goal_xy: tuple[flo
     free[1:-1, 1:-1] = ~grid.occupied
     s_idx = (s_cell[1] + 1) * width + s_cell[0] + 1
     g_idx = (g_cell[1] + 1) * width + g_cell[0] + 1
-    corners = _jump_point_search(free, s_idx, g_idx, heuristic, max_expansions, cancel)
+    search = _jump_point_search if astar_jit.search is None else _compiled_jump_point_search
+    corners = search(free, s_idx, g_idx, heuristic, max_expansions, cancel)
     if corners is None:
         raise NoPath(f"goal ({goal[0]:.1f}, {goal[1]:.1f}) unreachable from start "
                      f"({start[0]:.1f}, {start[1]:.1f}): walled in")
@@ -268,11 +272,11 @@ def _jump_point_search(free_grid: np.ndarray, start: int, goal: int, heuristic: 
         closed[i] = 1
         expansions += 1
         if expansions > budget:
-            raise BudgetExceeded(f"expansion budget of {max_expansions} jump points spent before reaching the goal")
+            raise _budget_spent(max_expansions)
         if expansions == next_poll:
             next_poll += _CANCEL_EVERY
             if cancel():  # type: ignore[misc]
-                raise BudgetExceeded(f"search cancelled after {expansions} expansions")
+                raise _cancelled(expansions)
         c = came[i]
         if c > 4:
             moves = diagonal_moves[c]
@@ -307,6 +311,28 @@ def _jump_point_search(free_grid: np.ndarray, start: int, goal: int, heuristic: 
                     heappush(heap, pending)
                 pending = (ng + hj, hj, j)
     return None
+
+
+def _compiled_jump_point_search(free_grid: np.ndarray, start: int, goal: int, heuristic: Heuristic,
+                                max_expansions: int | None,
+                                cancel: Callable[[], bool] | None) -> list[int] | None:
+    """:func:`_jump_point_search` run by the compiled search: the same jump points, errors and polls."""
+    budget = free_grid.size if max_expansions is None else max_expansions
+    status, corners, expansions = astar_jit.jump_points(free_grid, start, goal, heuristic == "octile", budget,
+                                                        cancel)
+    if status == astar_jit.BUDGET:
+        raise _budget_spent(max_expansions)
+    if status == astar_jit.CANCELLED:
+        raise _cancelled(expansions)
+    return corners
+
+
+def _budget_spent(max_expansions: int | None) -> BudgetExceeded:
+    return BudgetExceeded(f"expansion budget of {max_expansions} jump points spent before reaching the goal")
+
+
+def _cancelled(expansions: int) -> BudgetExceeded:
+    return BudgetExceeded(f"search cancelled after {expansions} expansions")
 
 
 def _behind_blocked(free_grid: np.ndarray, step: tuple[int, ...]) -> tuple[memoryview, ...]:

@@ -50,3 +50,37 @@ def test_the_flight_needs_no_kernel_signature_the_warm_up_did_not_load(mission, 
                           text=True, cwd=ROOT, timeout=240)
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.strip() == "{}", f"signatures first needed in flight: {done.stdout}"
+
+
+HEADLESS = textwrap.dedent("""
+    import sys
+    from numba.core.dispatcher import Dispatcher
+    from uav_model.mission import load_mission
+    from companion.app.warmup import warm_up_headless
+    from companion.planning.flight.headless import simulate
+
+    def loaded():
+        return {f"{name}.{key}": len(value.signatures) for name, module in list(sys.modules.items())
+                if name.startswith(("companion", "uav_model"))
+                for key, value in vars(module).items() if isinstance(value, Dispatcher)}
+
+    mission = load_mission(sys.argv[1]).with_variant(sys.argv[2])
+    warm_up_headless(mission)  # the mission's variant, as simulate flies it
+    warm = loaded()
+    assert sum(warm.values()) >= 5, warm
+    simulate(mission)
+    later = loaded()
+    print({k: later[k] - warm.get(k, 0) for k in later if later[k] != warm.get(k, 0)})
+""")
+
+
+@pytest.mark.parametrize("mission, variant", [("missions/paper_reference.yaml", "astar-bdwa"),
+                                              ("missions/moving_obstacles.yaml", "astar-bdwa"),
+                                              ("missions/small_reference.yaml", "astar-bdwa-timed")])
+def test_a_timed_headless_flight_loads_no_compiled_code_after_the_warm_up(mission, variant):
+    """``companion simulate`` starts its clock after :func:`warm_up_headless`: the speed it prints
+    is the flight's, with no kernel loaded (let alone compiled) inside it."""
+    done = subprocess.run([sys.executable, "-c", HEADLESS, str(ROOT / mission), variant], capture_output=True,
+                          text=True, cwd=ROOT, timeout=240)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.strip() == "{}", f"compiled code first loaded in the timed flight: {done.stdout}"

@@ -1,4 +1,5 @@
-"""The optimised A* returns exactly the oracle's paths (same cells, same order) and the same refusals.
+"""The optimised A*, compiled or Python, returns exactly the oracle's paths (same cells, same order)
+and the same refusals.
 
 Every published result (ablation tables, reference mission) rests on these paths, so a speed-up
 may not change one cell of one path. The oracle is the implementation at b4afd9b, frozen in
@@ -20,6 +21,9 @@ import astar_reference
 from companion.planning.astar import astar
 from companion.planning.errors import NoPath
 from companion.planning.grid import OccupancyGrid
+
+
+pytestmark = pytest.mark.usefixtures("astar_search")  # every test on both searches
 
 
 def outcome(fn, *args, **kwargs):

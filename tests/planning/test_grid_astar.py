@@ -95,7 +95,7 @@ def small_grids(draw):
 
 @settings(max_examples=300, deadline=None)
 @given(small_grids(), st.sampled_from(["octile", "euclidean"]))
-def test_astar_is_optimal_and_legal_against_brute_dijkstra(case, heuristic):
+def test_astar_is_optimal_and_legal_against_brute_dijkstra(astar_search, case, heuristic):
     occ, s, g = case
     grid = OccupancyGrid((-3.0, 7.0), 2.5, occ)
     start, goal = grid.cell_to_world(*s), grid.cell_to_world(*g)
@@ -175,7 +175,7 @@ def test_reference_route_goes_around_the_fire_zone():
     assert 4737.7 <= path_length_m(path) <= 4737.7 * 1.083
 
 
-def test_walled_in_goal_raises_no_path():
+def test_walled_in_goal_raises_no_path(astar_search):
     world = World(0.0, 0.0, 1000.0, 1000.0, 0.0, ())
     ring = Point(700.0, 700.0).buffer(200.0).difference(Point(700.0, 700.0).buffer(120.0))
     grid = rasterise(world, 10.0, extra=[ring])
@@ -204,7 +204,7 @@ def test_bad_endpoints_are_refused(point, match):
         astar(grid, point, (50.0, 50.0))
 
 
-def test_budget_and_cancel_stop_the_search():
+def test_budget_and_cancel_stop_the_search(astar_search):
     mission = load_mission(REFERENCE)
     grid = rasterise(mission.world, 10.0)
     a, b = mission.stations["A"], mission.stations["B"]
