@@ -97,7 +97,7 @@ def add_common_arguments(parser: argparse.ArgumentParser, *, scenarios: int, why
                         help="vehicles per scenario, 2 to 8 (default: the scenario config's, 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--no-certificate", action="store_true",
-                        help="skip each scenario's occlusion certificate (its cert_* columns stay empty; "
+                        help="skip each run's occlusion certificate (its cert_* columns stay empty; "
                              "it costs about as much CPU as flying the four variants)")
 
 

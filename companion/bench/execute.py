@@ -54,7 +54,7 @@ class ScenarioTask:
     artefacts: bool = False  # return the failure gallery's files (and the example) with the rows
     example: bool = False  # also draw this scenario's first run as the example trajectory
     weight_sets: tuple[Weights | None, ...] = (None,)  # None: the mission's weights
-    certificate: bool = True  # work out the scenario's occlusion certificate (its cert_* columns)
+    certificate: bool = True  # work out each run's occlusion certificate (its cert_* columns)
 
     def runs(self) -> Iterator[tuple[str, Weights | None]]:
         for variant in self.variants:

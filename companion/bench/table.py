@@ -29,7 +29,7 @@ RUN_COLUMNS: tuple[tuple[str, type], ...] = (
     ("crossing_occluded", bool), ("planner_ms_per_tick", float), ("wall_s", float), ("error", str),
     ("hold_ticks", int), ("escape_ticks", int), ("replans", int), ("failed_vehicles", str), ("hit_obstacle", str), ("hit_moving", bool),
     ("hit_from_behind", bool),
-    # The scenario's occlusion certificate under its mission's rule (the same in every run of it):
+    # The occlusion certificate under the mission's rule, of the forecast the run's variant flies:
     # feasible / needs-hold / infeasible, and the least departure hold of the first vehicle.
     ("cert_whole_flight", str), ("cert_whole_flight_hold_s", float),
     ("cert_closest_approach", str), ("cert_closest_approach_hold_s", float),
