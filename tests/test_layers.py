@@ -25,8 +25,6 @@ ROOMS: tuple[tuple[str, int, str], ...] = (
     ("sim_bridge", 2, "stub"),
     ("companion", 3, "app"),
     ("companion.cli", 4, "top"),
-    ("companion.commands", 4, "top"),
-    ("companion.cli_common", 4, "top"),
     ("companion.__main__", 4, "top"),
     ("companion.sitl", 4, "top"),
     ("companion.testing", 4, "top"),

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from companion.planning.certificate import OcclusionCertificate
 
 UNSAFE_REASONS = ("collision", "separation", "geofence")
+DEFAULT_VARIANTS = ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa")  # the paper's Table IV ablation
 
 RUN_COLUMNS: tuple[tuple[str, type], ...] = (
     ("seed", int), ("index", int), ("scenario", str), ("variant", str),

@@ -193,7 +193,7 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, text, needle):
 
 
 def test_sweep_rows_vary_the_reference_as_the_paper_does():
-    from companion.cli import table_missions
+    from companion.bench.paper_tables import table_missions
     base = load_mission("missions/paper_reference.yaml")
     t1 = table_missions("table1", base)
     assert [(m.vehicle("a").initial_heading_deg, m.vehicle("b").initial_heading_deg) for _, m in t1] == \
