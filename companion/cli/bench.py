@@ -195,9 +195,9 @@ def fly(args: argparse.Namespace, out: Path, variants: Sequence[str], weight_set
 def finish(prog: str, flown: Flown) -> int:
     """Write the failure index; exit 1 when a run was unsafe or crashed, else 0."""
     from companion.bench.execute import write_failure_index
-    from companion.bench.table import UNSAFE_REASONS
+    from companion.planning.metrics import UNSAFE_REASONS, FailureReason
     write_failure_index(flown.rows, flown.out)
-    bad = sum(1 for r in flown.rows if r["reason"] in (*UNSAFE_REASONS, "error"))
+    bad = sum(1 for r in flown.rows if r["reason"] in (*UNSAFE_REASONS, FailureReason.ERROR))
     if bad:
         print(f"{prog}: {bad} run(s) unsafe or errored; see {flown.out}/failures/index.md", file=sys.stderr)
     return 1 if bad else 0

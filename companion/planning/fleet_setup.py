@@ -46,6 +46,7 @@ class Fleet:
     planners: dict[str, VehiclePlanner]
     clocks: TimedFleet | None  # None: the variant flies no timed route
     timed: dict[str, TimedRoute]  # the timed routes flown (empty for the other variants)
+    departure_hold_s: float | None = None  # the first vehicle's hold in the plan built here; None: none built
 
 
 def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | None = None,
@@ -58,13 +59,14 @@ def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | No
     in-flight re-plan must keep at least as well; unknown, any re-plan is adopted)."""
     variant = variant or mission.planner.variant
     timed_variant = VARIANTS[variant].timed
+    hold_s = None
     if timed_routes is None and timed_variant and routes:
         plan = plan_coordinated(mission, routes)  # the space-time plan (docs/design.md)
-        timed_routes, blocking = plan.timed, plan.blocking
+        timed_routes, blocking, hold_s = plan.timed, plan.blocking, plan.hold_s
     timed = dict(timed_routes or {})
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
                                              earlier=higher_routes(mission, routes, v.name),
                                              timed_route=timed.get(v.name),
                                              sight_near_m=sight_near_m(mission, timed, v.name))
                 for v in mission.by_priority}
-    return Fleet(planners, TimedFleet(mission, timed, blocking=blocking) if timed_variant else None, timed)
+    return Fleet(planners, TimedFleet(mission, timed, blocking=blocking) if timed_variant else None, timed, hold_s)
