@@ -54,7 +54,7 @@ class Pilot(Departure, Steering):
         self.spec = spec
         self.name = spec.name
         self.vehicle = ctx.vehicles[spec.name]
-        self.planner = ctx.fleet.planners[spec.name]  # built with the others (FlightPlan.fleet)
+        self.planner = ctx.setup.planners[spec.name]  # built with the others (FlightPlan.fleet_setup)
         self.outcome = PilotOutcome(spec.name)
         self.setpoint: VelocityYawRateSetpoint = HOVER
         self._offboard_live = False  # the keep-alive resends only while this is set

@@ -266,7 +266,7 @@ class VehiclePlanner:
         return adopted
 
     def adopt_timed(self, route: "TimedRoute", sight_near_m: float | None) -> None:
-        """Track ``route`` from now on (an in-flight re-plan, :class:`replan.TimedFleet`): its
+        """Track ``route`` from now on (an in-flight re-plan, :class:`replan.ScheduleClocks`): its
         path's nodes as local goals, its times for the speed, its closest approach for where the
         sightline term acts. A planner that tracks no timed route (another variant) ignores it."""
         if self.timed_route is None or len(route.path_xy) < 2:
