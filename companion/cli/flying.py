@@ -21,7 +21,7 @@ from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
 from companion.app.results import release_reserve
-from companion.app.runner import RunResult, run_mission, save_run, summary_table
+from companion.app.live_run import RunResult, run_mission, save_run, summary_table
 from companion.cli.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput
 from companion.cli.options import (add_certificate_options, add_no_fence_option, add_variant_option, connect_pair,
                                    connections, output_dir, planned, positive, printer, quiet_mavsdk)
