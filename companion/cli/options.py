@@ -153,6 +153,7 @@ class SecondsBudget:
 
 
 def connect_pair(text: str) -> tuple[str, str]:
+    """``--connect NAME=URL`` as (name, MAVSDK URL)."""
     name, sep, url = text.partition("=")
     if not sep or not name or not url:
         raise argparse.ArgumentTypeError(f"--connect {text!r}: expected NAME=URL, e.g. a=udpin://0.0.0.0:14540")
@@ -163,6 +164,7 @@ def connect_pair(text: str) -> tuple[str, str]:
 
 
 def positive(text: str) -> float:
+    """A finite number above zero (an argparse type)."""
     value = float(text)
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text}: must be a positive number")
