@@ -46,7 +46,10 @@ if numpy_only:
     shadow._blocked_jit = None
     multicopter._substep_loop = multicopter.substep_loop_python
 import resource, time
-from companion.bench.cli import DEFAULT_VARIANTS
+try:
+    from companion.bench.table import DEFAULT_VARIANTS
+except ImportError:  # a --baseline tree from before the CLI package
+    from companion.bench.table import DEFAULT_VARIANTS
 from companion.bench.execute import run_bench
 def cpu():
     own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)

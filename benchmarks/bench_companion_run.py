@@ -44,7 +44,7 @@ def main() -> None:
     walls, per_vehicle, reentries, ok = [], {v.name: [] for v in mission.vehicles}, [], 0
     for i in range(args.repeats):
         with tempfile.TemporaryDirectory() as tmp:
-            cmd = [sys.executable, "-m", "companion.cli", "run", str(args.mission), "--speedup", f"{args.speedup:g}",
+            cmd = [sys.executable, "-m", "companion", "run", str(args.mission), "--speedup", f"{args.speedup:g}",
                    "--out", tmp, "--port-base", str(free_udp_port_block(len(mission.vehicles))),
                    "--gcs-port", str(free_udp_ports(1)[0]), "--seed", str(i)]
             if args.loss:

@@ -43,7 +43,7 @@ def _cpu_s(proc: psutil.Process) -> float:
 def run_once(mission: Path, speedup: float, count: int, seed: int) -> dict[str, float]:
     """One ``companion run``; CPU seconds of the companion and the stub, wall and sim seconds."""
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "companion.cli", "run", str(mission), "--speedup", f"{speedup:g}",
+        cmd = [sys.executable, "-m", "companion", "run", str(mission), "--speedup", f"{speedup:g}",
                "--out", tmp, "--port-base", str(free_udp_port_block(count)), "--gcs-port", str(free_udp_ports(1)[0]),
                "--seed", str(seed), "--progress-every", "1000"]
         started = time.perf_counter()

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from companion.app.flight_plan import prepare
 from companion.app.pilot import RunSettings
-from companion.app.runner import run_mission
+from companion.app.live_run import run_mission
 from uav_model.mission import load_mission
 from companion.planning.flight.headless import simulate
 from companion.sitl.inprocess import InProcessOptions, open_inprocess_fleet

@@ -25,7 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from companion.cli_common import BadInput, with_plant
+from companion.cli.errors import BadInput
+from companion.cli.options import with_plant
 from companion.planning.flight.headless import simulate
 from companion.sitl.px4 import PX4_DIR_ENV, find_px4
 from uav_model.mission import load_mission

@@ -13,6 +13,7 @@ from dataclasses import replace
 
 from uav_model.mission import Mission
 from sim_bridge.bridge import SimBridge, SimOptions
+from sim_bridge.px4 import COMPANION_SYSTEM_ID, GCS_COMPONENT_ID
 
 
 def free_udp_ports(n: int) -> tuple[int, ...]:
@@ -88,7 +89,7 @@ class GcsCodec:
     arrived on a link.
     """
 
-    def __init__(self, system_id: int = 245, component_id: int = 190):
+    def __init__(self, system_id: int = COMPANION_SYSTEM_ID, component_id: int = GCS_COMPONENT_ID):
         from pymavlink.dialects.v20 import common as mavlink
 
         self.enc = mavlink.MAVLink(None, system_id, component_id)

@@ -15,11 +15,9 @@ Numbers are finite everywhere: NaN and infinity fail the schema's ``number`` typ
 from __future__ import annotations
 
 import copy
-import json
 import re
 from dataclasses import dataclass, fields
 from functools import lru_cache
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +30,7 @@ from uav_model.mission_errors import MissionError, dotted, fail, innermost, line
 from uav_model.mission_limits import MAX_GRID_CELLS, grid_shape
 from uav_model.mission_points import latlon_slips, localise
 from uav_model.mission_read import load_yaml, mission_error, read_text
+from uav_model.mission_schema import mission_schema, schema_default
 from uav_model.mission_validator import mission_validator
 from uav_model.mission_types import (VARIANTS, CoordinationSettings, Forecast, Mission, Normalisation, PlannerSettings,
                                      SafetySettings, SightlineCritic, SpawnHeading, Variant, VehicleSpec, shared_goals)
@@ -45,13 +44,6 @@ __all__ = ["API_PORT_BASE", "CoordinationSettings", "DEFAULT_ORIGIN", "Forecast"
 
 DEFAULT_ORIGIN = GeoOrigin(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)  # PX4 SITL home
 API_PORT_BASE = 14540  # PX4 SITL: vehicle i talks to the companion on 14540 + i
-
-
-@lru_cache(maxsize=1)
-def mission_schema() -> dict[str, Any]:
-    """The published JSON Schema for mission files (``companion schema`` prints it)."""
-    text = resources.files("uav_model").joinpath("schema/mission.schema.json").read_text(encoding="utf-8")
-    return json.loads(text)
 
 
 @lru_cache(maxsize=1)
@@ -180,7 +172,7 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
     return Mission(name=data.get("name", Path(source).stem), source=source,
                    description=data.get("description", ""), origin=origin, world=world,
                    stations=stations, vehicles=tuple(vehicles), planner=planner, safety=safety,
-                   plant=Plant(data.get("plant", mission_schema()["properties"]["plant"]["default"])),
+                   plant=Plant(data.get("plant", schema_default("plant"))),
                    coordination=coordination)
 
 

@@ -9,6 +9,7 @@ from typing import Literal, get_args
 
 from uav_model.frames import GeoOrigin
 from uav_model.mission_errors import MissionError
+from uav_model.mission_schema import schema_default
 from uav_model.plant import Plant
 from uav_model.world import World
 
@@ -86,8 +87,8 @@ class PlannerSettings:
     # The speed window and critics; None: the variant's choice (the paper's four: constant speed,
     # the paper's sightline critic, sum normalisation).
     speed_samples: int | None = None
-    min_speed_m_s: float = 0.0
-    weight_speed: float = 0.5
+    min_speed_m_s: float = float(schema_default("planner", "min_speed_m_s"))
+    weight_speed: float = float(schema_default("planner", "weights", "speed"))
     sightline_critic: SightlineCritic | None = None
     normalisation: Normalisation | None = None
     # A speed window near the station for the constant-speed variants; None: the plant's choice.
@@ -117,12 +118,14 @@ class Forecast(Enum):
 
 @dataclass(frozen=True, slots=True)
 class CoordinationSettings:
-    """Coordinated timing (docs/design.md): who may wait, and the space-time plan's step."""
+    """Coordinated timing (docs/design.md): who may wait, and the space-time plan's step.
+    The defaults are the schema's (``uav_model.mission_schema``)."""
 
-    hold_s_max: float = 0.0  # the first vehicle in priority may hold at its station this long (paper: 0)
-    step_s: float = 5.0      # nominal time step of the space-time plan
-    replan: bool = True      # re-plan in flight a lower vehicle that lags its timed plan
-    forecast: Forecast = Forecast.FLOWN  # the first vehicle's forecast
+    # the first vehicle in priority may hold at its station this long (paper: 0)
+    hold_s_max: float = float(schema_default("coordination", "hold_s_max"))
+    step_s: float = float(schema_default("coordination", "step_s"))  # nominal time step of the space-time plan
+    replan: bool = bool(schema_default("coordination", "replan"))  # re-plan a lower vehicle that lags its timed plan
+    forecast: Forecast = Forecast(schema_default("coordination", "forecast"))  # the first vehicle's forecast
 
 
 @dataclass(frozen=True)
@@ -136,7 +139,7 @@ class Mission:
     vehicles: tuple[VehicleSpec, ...]  # in file order
     planner: PlannerSettings
     safety: SafetySettings
-    plant: Plant = Plant.MULTICOPTER  # the dynamics the stub and the headless runner fly
+    plant: Plant = Plant(schema_default("plant"))  # the dynamics the stub and the headless runner fly
     coordination: CoordinationSettings = CoordinationSettings()
 
     @property

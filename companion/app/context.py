@@ -1,4 +1,4 @@
-"""What every pilot of one mission shares: the settings, the plan, the log, the fleet, a barrier.
+"""What every pilot of one mission shares: the settings, the plan, the log, the planners and schedule clocks, a barrier.
 
 Split from :mod:`companion.app.pilot` so that its phases (take-off, steering) can live in their
 own modules and read the same context.
@@ -68,7 +68,7 @@ class PilotOutcome:
 
 
 class FlightContext:
-    """What the pilots share: the plan, the settings, the log, the fleet, one barrier."""
+    """What the pilots share: the plan, the settings, the log, the planners and schedule clocks, one barrier."""
 
     def __init__(self, plan: FlightPlan, settings: RunSettings, log: FlightLog,
                  vehicles: Mapping[str, Vehicle], report: Callable[[str], None], shared_clock: bool = True):
@@ -84,8 +84,8 @@ class FlightContext:
         self.arrived: set[str] = set()  # vehicles parked at their station: others drop the sightline term
         self.departure_sim_s: float | None = None  # the common departure (t = 0 of the schedule), set by the first pilot
         # Every vehicle's planner and the timed routes' clocks, built as the headless runner builds them.
-        self.fleet = plan.fleet()
-        self.clocks = self.fleet.clocks if shared_clock else None  # unrelated clocks: no common schedule
+        self.setup = plan.fleet_setup()
+        self.clocks = self.setup.clocks if shared_clock else None  # unrelated clocks: no common schedule
         self.off_schedule: set[str] = set()  # no longer flying its plan (failed, stood down): holds nobody back
         self.worst_lag_s = 0.0  # how far behind sim time a schedule clock fell, at most
         self._observed: dict[str, float] = {}  # per vehicle: the sim time of its last sample given to the clocks
@@ -114,7 +114,7 @@ class FlightContext:
         """The time ``pilot`` reads its timed route at. On the shared sim clock (the one the
         obstacles and the other vehicles live in): seconds since the common departure, as the
         timed routes are planned, read at the clocks the headless runner reads them at
-        (``fleet.clocks``: for a lower vehicle, held back while the vehicles above it lag their
+        (``setup.clocks``: for a lower vehicle, held back while the vehicles above it lag their
         plans), after every vehicle's latest sample has been given to them. Per vehicle since its
         own departure when the vehicles' clocks are unrelated."""
         if not (self.shared_clock and self.departure_sim_s is not None):
@@ -144,7 +144,7 @@ class FlightContext:
             self.clocks.observe(name, (pose.x_east_m, pose.y_north_m), pose.t_sim_s - self.departure_sim_s)
 
     def _start_replan(self, t_s: float) -> None:
-        """Re-plan a lower vehicle that lags its plan (:class:`companion.planning.coordination.replan.TimedFleet`,
+        """Re-plan a lower vehicle that lags its plan (:class:`companion.planning.coordination.replan.ScheduleClocks`,
         as the headless runner does each tick): the cheap check here, the planning (seconds of
         CPU) in a worker thread, the new routes adopted back on the loop when it is done. At most
         one in flight; none outside a running loop (a pilot ticked by hand)."""
@@ -181,7 +181,7 @@ class FlightContext:
         assert self.clocks is not None
         flying = [p for p in planned if p.name not in self.arrived and p.name not in self.off_schedule]
         for name, route in self.clocks.adopt(job, flying).items():
-            self.fleet.planners[name].adopt_timed(route, self.clocks.sight_near_m(name))
+            self.setup.planners[name].adopt_timed(route, self.clocks.sight_near_m(name))
             self.report(f"{name}: behind its plan: re-planned from t = {job.t_s:.1f} s, "
                         f"arrives at {route.t_s[-1]:.1f} s")
 

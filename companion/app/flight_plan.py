@@ -20,7 +20,7 @@ from companion.planning.budget import Budget, BudgetSpent
 from companion.planning.coordination.certificate import OcclusionCertificate, certify
 from companion.planning.coordination.plan import CoordinatedPlan, plan_coordinated
 from companion.planning.errors import NoPath
-from companion.planning.flight.fleet_setup import Fleet, build_fleet
+from companion.planning.flight.fleet_setup import FleetSetup, build_fleet
 from companion.planning.flight.forecast import first_forecast, mission_certificate
 from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import VARIANTS, variant_needs_route, variant_nodes
@@ -88,7 +88,7 @@ class FlightPlan:
         """The vehicle's route with arrival times (timed variants only)."""
         return None if self.coordinated is None else self.coordinated.timed.get(name)
 
-    def fleet(self) -> Fleet:
+    def fleet_setup(self) -> FleetSetup:
         """Fresh planners for every vehicle and the timed routes' clocks, built as the headless
         runner builds them (:func:`companion.planning.flight.fleet_setup.build_fleet`), on the
         coordinated plan computed before (:attr:`coordinated`)."""

@@ -54,7 +54,7 @@ class Pilot(Departure, Steering):
         self.spec = spec
         self.name = spec.name
         self.vehicle = ctx.vehicles[spec.name]
-        self.planner = ctx.fleet.planners[spec.name]  # built with the others (FlightPlan.fleet)
+        self.planner = ctx.setup.planners[spec.name]  # built with the others (FlightPlan.fleet_setup)
         self.outcome = PilotOutcome(spec.name)
         self.setpoint: VelocityYawRateSetpoint = HOVER
         self._offboard_live = False  # the keep-alive resends only while this is set
@@ -222,10 +222,10 @@ class Pilot(Departure, Steering):
             except CommandRefused as exc:  # the keep-alive resends it; a dead link shows as stale telemetry
                 self.outcome.interventions[f"setpoint not sent: {exc.result}"] += 1
             self._log_tick(pose, t_mission, result, setpoint, action)
-            if self.planner.replan_due:
-                await self._replan(pose)
+            if self.planner.detour_due:
+                await self._detour(pose)
 
-    async def _replan(self, pose: PoseSample) -> None:
+    async def _detour(self, pose: PoseSample) -> None:
         """No progress for a while: plan a new route from here in a worker thread (A* must not
         stall the other vehicle's loop), flying the setpoint just sent meanwhile."""
         x, y = pose.x_east_m, pose.y_north_m
@@ -235,7 +235,7 @@ class Pilot(Departure, Steering):
             nodes = await asyncio.to_thread(self.planner.plan_detour, x, y)
         if self.planner.adopt_detour(nodes, x, y, self._mission_time(pose)):
             self.outcome.interventions["planner: re-planned"] += 1
-            self.ctx.report(f"{self.name}: no progress for {self.planner.replanning.after_s:g} s: "
+            self.ctx.report(f"{self.name}: no progress for {self.planner.detour_policy.after_s:g} s: "
                             f"new route from ({x:.0f}, {y:.0f}), {len(nodes)} nodes")
         else:
             self.outcome.interventions["planner: no new route"] += 1

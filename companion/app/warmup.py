@@ -60,7 +60,7 @@ def warm_up_planners(plan: FlightPlan) -> float:
     field = ObstacleField.from_world(mission.world)
     snapshot = field.from_tracks(field.tracks_at(0.0))
     order = mission.by_priority
-    planners = plan.fleet().planners  # throwaway: the flight builds its own
+    planners = plan.fleet_setup().planners  # throwaway: the flight builds its own
     for rank, spec in enumerate(order):
         planner = planners[spec.name]
         if planner.sight_near_m is not None:  # the term acts only near the others in flight, but

@@ -7,7 +7,10 @@ x planner variants (x score weights), on a local process pool or a Dask cluster.
     weights.py    the score weights (w_h, w_d, w_s) as one value, and their grids
     sweep.py      pure: a weight sweep's rows -> per-set summary, paired comparison, verdict
     figures.py    violin (Fig. 13b), per-scenario lines (Fig. 13a), the weight sweep
-    cli.py        ``companion bench``; sweep_cli.py ``companion sweep weights``
+    paper_tables.py  pure: the paper's Tables I-III and the reference mission varied as each does
+
+``companion bench`` and ``companion sweep`` are in :mod:`companion.cli` (bench.py, sweep.py,
+sweep_weights.py).
 """
 
 from companion.bench.table import aggregate, read_runs_csv, write_runs_csv

@@ -2,6 +2,6 @@
 
 import sys
 
-from companion.bench.cli import run
+from companion.cli.bench import run
 
 sys.exit(run())

@@ -6,7 +6,8 @@
   true footprint is nearest the vehicle at the failure instant, whether it moves, and whether it
   came from behind (its centre behind the vehicle's heading) - the tell-tale of a moving
   obstacle that the constant-speed vehicle could not outrun or turn away from.
-- ``hold_ticks``: ticks in which a vehicle found no legal rollout and held (SPEC §1).
+- ``no_rollout_ticks``: ticks in which a vehicle found no legal rollout, so it hovered or yawed
+  in place (SPEC §1).
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ from shapely.geometry import Point
 from uav_model.mission import Mission
 
 
-def hold_ticks(ticks: Mapping[str, Sequence[Any]]) -> int:
-    """Ticks (summed over vehicles) in which a not-yet-arrived vehicle held (no command)."""
+def no_rollout_ticks(ticks: Mapping[str, Sequence[Any]]) -> int:
+    """Ticks (summed over vehicles) in which a not-yet-arrived vehicle had no legal rollout (no command)."""
     return sum(1 for rs in ticks.values() for r in rs if r.command is None and not r.arrived)
 
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from companion.bench.diagnose import diagnose, hold_ticks
+from companion.bench.diagnose import diagnose, no_rollout_ticks
 from companion.bench.orca import BASELINES, ROUTE_VARIANT, simulate_orca
 from companion.bench.executors import ExecutorError, ExecutorSpec, Pool, open_pool
 from companion.bench.table import certificate_columns, run_row
@@ -34,7 +34,7 @@ from companion.bench.weights import Weights
 from companion.planning.errors import NoPath
 from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import variant_needs_route
-from companion.planning.metrics import vehicle_lower_bound_s
+from companion.planning.metrics import FailureReason, vehicle_lower_bound_s
 from companion.planning.flight.forecast import first_forecast, mission_certificate
 from companion.planning.flight.headless import simulate
 from companion.scenarios import (ScenarioConfig, ScenarioError, generate_scenario, mission_yaml_text,
@@ -81,7 +81,7 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
         scenario = generate_scenario(task.seed, task.index, task.config)
     except ScenarioError as exc:
         return ScenarioOutcome([_weighted(run_row(task.seed, task.index, f"random_s{task.seed}_i{task.index}", v,
-                                                  None, wall_s=0.0, reason="no_scenario", error=str(exc)), w)
+                                                  None, wall_s=0.0, reason=FailureReason.NO_SCENARIO, error=str(exc)), w)
                                 for v, w in task.runs()])
     rows, files = [], []
     judged = _Certificates(scenario, task.certificate)
@@ -162,15 +162,15 @@ def _fly(task: ScenarioTask, name: str, mission: Any, variant: str, routes: dict
         else:
             result = simulate(mission, variant, routes=routes, lower_bounds_s=bounds, first=first)
         summary = result.summary.summary_dict()
-        facts = {"hold_ticks": hold_ticks(result.ticks), **diagnose(result.mission, result.tracks, summary)}
+        facts = {"no_rollout_ticks": no_rollout_ticks(result.ticks), **diagnose(result.mission, result.tracks, summary)}
         return run_row(task.seed, task.index, name, variant, summary,
                        wall_s=time.perf_counter() - started, facts=facts), result
     except NoPath as exc:
         return run_row(task.seed, task.index, name, variant, None, wall_s=time.perf_counter() - started,
-                       reason="no_path", error=str(exc)), None
+                       reason=FailureReason.NO_PATH, error=str(exc)), None
     except Exception as exc:  # a bug in one run must not sink the other 479; it is reported
         return run_row(task.seed, task.index, name, variant, None, wall_s=time.perf_counter() - started,
-                       reason="error", error=f"{type(exc).__name__}: {exc}".splitlines()[0]), None
+                       reason=FailureReason.ERROR, error=f"{type(exc).__name__}: {exc}".splitlines()[0]), None
 
 
 def _png(result: Any, title: str) -> bytes:
@@ -321,7 +321,7 @@ def write_failure_index(rows: Sequence[dict[str, Any]], out_dir: Path) -> Path:
              f"{len(failed)} of {len(rows)} runs failed. Replay one with "
              "`companion simulate failures/<run>/scenario.yaml`.", "",
              "| run | seed | index | variant | reason | who | obstacle hit | at (s) | min clearance (m) "
-             "| min separation (m) | hold / escape ticks |",
+             "| min separation (m) | no-rollout / escape ticks |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     names = sorted({k[:-len("_min_obstacle_clearance_m")] for r in rows for k in r
                     if k.endswith("_min_obstacle_clearance_m")})
@@ -340,7 +340,7 @@ def write_failure_index(rows: Sequence[dict[str, Any]], out_dir: Path) -> Path:
                      f"{r.get('failed_vehicles') or '-'} | {hit} | "
                      f"{'-' if fail_t is None else f'{fail_t:.1f}'} | "
                      f"{'-' if not clear else f'{min(clear):.1f}'} | {'-' if sep is None else f'{sep:.1f}'} | "
-                     f"{_dash(r.get('hold_ticks'))} / {_dash(r.get('escape_ticks'))} |")
+                     f"{_dash(r.get('no_rollout_ticks'))} / {_dash(r.get('escape_ticks'))} |")
     path = gallery / "index.md"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

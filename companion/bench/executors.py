@@ -23,6 +23,8 @@ from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
+from companion.cli.errors import BadInput
+
 CONNECT_TIMEOUT_S = 10.0  # to reach a scheduler, and then to see its first worker
 _ADDRESS = re.compile(r"^(tcp|tls)://[^\s/:]+:\d{1,5}$")
 
@@ -32,8 +34,8 @@ class ExecutorKind(enum.Enum):
     DASK = "dask"
 
 
-class ExecutorError(Exception):
-    """The executor cannot be set up or lost its workers; ``str()`` is one line for the user."""
+class ExecutorError(BadInput):
+    """The executor cannot be set up or lost its workers; ``str()`` is one line for the user (exit 2)."""
 
 
 @dataclass(frozen=True)

@@ -16,19 +16,26 @@ from enum import Enum
 from typing import TYPE_CHECKING, Any
 
 from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
+from companion.planning.metrics import UNSAFE_REASONS, FailureReason
 
 if TYPE_CHECKING:
     from companion.planning.coordination.certificate import OcclusionCertificate
 
-UNSAFE_REASONS = ("collision", "separation", "geofence")
+# PlannerCounts summed over the vehicles from the summary (no_rollout_ticks comes from the ticks,
+# companion.bench.diagnose, so that a baseline without rollouts reports 0 as well)
+PLANNER_SUMS = ("escape_ticks", "stall_detours", "timed_replans")
+DEFAULT_VARIANTS = ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa")  # the paper's Table IV ablation
 
 RUN_COLUMNS: tuple[tuple[str, type], ...] = (
     ("seed", int), ("index", int), ("scenario", str), ("variant", str),
     ("success", bool), ("success_strict", bool), ("reason", str), ("failure_t_s", float),
     ("duration_s", float), ("min_separation_m", float), ("los_blocked_fraction", float),
     ("crossing_occluded", bool), ("planner_ms_per_tick", float), ("wall_s", float), ("error", str),
-    ("hold_ticks", int), ("escape_ticks", int), ("replans", int), ("failed_vehicles", str), ("hit_obstacle", str), ("hit_moving", bool),
-    ("hit_from_behind", bool),
+    # How often the planners left plain tracking, summed over the vehicles (PlannerCounts):
+    ("no_rollout_ticks", int), ("escape_ticks", int), ("stall_detours", int), ("timed_replans", int),
+    # The coordination the run flew under (ScheduleRecord): the mission's settings and the plan's hold.
+    ("hold_s_max", float), ("forecast", str), ("departure_hold_s", float),
+    ("failed_vehicles", str), ("hit_obstacle", str), ("hit_moving", bool), ("hit_from_behind", bool),
     # The occlusion certificate under the mission's rule, of the forecast the run's variant flies:
     # feasible / needs-hold / infeasible, and the least departure hold of the first vehicle.
     ("cert_whole_flight", str), ("cert_whole_flight_hold_s", float),
@@ -41,22 +48,22 @@ VEHICLE_COLUMNS: tuple[tuple[str, type], ...] = (
 
 
 def run_row(seed: int, index: int, scenario: str, variant: str, summary: Mapping[str, Any] | None, *,
-            wall_s: float, reason: str | None = None, error: str | None = None,
+            wall_s: float, reason: FailureReason | None = None, error: str | None = None,
             facts: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """One CSV row from a run's ``summary_dict()`` (+ diagnose facts); without a summary
     (no_path, error) only the identity, the reason and the error message are filled."""
     row: dict[str, Any] = {"seed": seed, "index": index, "scenario": scenario, "variant": variant,
                            "wall_s": round(wall_s, 3), "error": error, **(facts or {})}
     if summary is None:
-        row.update(success=False, success_strict=False, reason=reason or "error")
+        row.update(success=False, success_strict=False, reason=FailureReason(reason or FailureReason.ERROR))
         return row
     for key, _ in RUN_COLUMNS:
         if key in summary:
             row[key] = summary[key]
-    if isinstance(summary.get("planner_escapes"), Mapping):  # ticks flown on the escape fallback
-        row["escape_ticks"] = int(sum(summary["planner_escapes"].values()))
-    if isinstance(summary.get("planner_replans"), Mapping):  # detours planned after a stall
-        row["replans"] = int(sum(summary["planner_replans"].values()))
+    for key in PLANNER_SUMS:
+        if isinstance(summary.get(f"planner_{key}"), Mapping):
+            row[key] = int(sum(summary[f"planner_{key}"].values()))
+    row.update(summary.get("schedule") or {})
     for name, metrics in summary.get("vehicles", {}).items():
         for key, _ in VEHICLE_COLUMNS:
             row[f"{name}_{key}"] = metrics.get(key)
@@ -187,10 +194,10 @@ def aggregate(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
             "success_rate": round(len(ok) / len(mine), 4) if mine else None,
             "strict_successes": sum(1 for r in mine if r["success_strict"]),
             "strict_rate": round(sum(1 for r in mine if r["success_strict"]) / len(mine), 4) if mine else None,
-            "collisions": sum(1 for r in mine if r["reason"] == "collision"),
+            "collisions": sum(1 for r in mine if r["reason"] == FailureReason.COLLISION),
             "unsafe": sum(1 for r in mine if r["reason"] in UNSAFE_REASONS),
-            "collisions_moving": sum(1 for r in mine if r["reason"] == "collision" and r.get("hit_moving")),
-            "runs_with_holds": sum(1 for r in mine if (r.get("hold_ticks") or 0) > 0),
+            "collisions_moving": sum(1 for r in mine if r["reason"] == FailureReason.COLLISION and r.get("hit_moving")),
+            "runs_with_holds": sum(1 for r in mine if (r.get("no_rollout_ticks") or 0) > 0),
             "runs_with_escapes": sum(1 for r in mine if (r.get("escape_ticks") or 0) > 0),
             "reasons": dict(sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0]))),
             "flight_time_s": {n: _stats([r[f"{n}_flight_time_s"] for r in ok]) for n in names},

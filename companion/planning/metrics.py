@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -33,7 +34,33 @@ from companion.planning.truth import TruthGeometry, inside_fence, pair_min_dista
 if TYPE_CHECKING:
     from uav_model.mission import Mission
 
-FAILURE_ORDER = ("collision", "separation", "geofence")  # ties at the same instant: worst first
+
+
+class FailureReason(StrEnum):
+    """Why a run failed (SPEC §2). The value is the string summary.json and runs.csv show."""
+
+    COLLISION = "collision"  # a vehicle touched a true obstacle footprint
+    SEPARATION = "separation"  # two vehicles came closer than the minimum separation
+    GEOFENCE = "geofence"  # a vehicle left the geofence (or the autopilot reported a breach)
+    TIMEOUT = "timeout"  # the time limit came before every vehicle arrived
+    INCOMPLETE = "incomplete"  # the flight ended before the time limit with a vehicle not arrived
+    NO_PATH = "no_path"  # an A* variant found no route
+    NO_SCENARIO = "no_scenario"  # the bench's generator could not make the scenario
+    ERROR = "error"  # the run raised (a bug, reported as a row)
+    LINK_LOST = "link_lost"  # live: telemetry or offboard control lost for too long
+    LINK_CONFLICT = "link_conflict"  # live: a second system commands the vehicle
+    LINK_IDENTITY = "link_identity"  # live: another system answers with the vehicle's id
+    COMMAND_REFUSED = "command_refused"  # live: the autopilot refused a command
+    UPLOAD_FAILED = "upload_failed"  # live: a mission or fence upload failed
+    NOT_READY = "not_ready"  # live: health checks did not pass in time
+    DISARMED = "disarmed"  # live: disarmed during take-off
+    ABORTED = "aborted"  # live: another vehicle failed first
+    OVERRIDE = "override"  # live: the pilot changed the mode; the companion stood down
+    FAILSAFE = "failsafe"  # live: an autopilot failsafe the flight did not recover from
+    INTERRUPTED = "interrupted"  # live: stopped by the operator
+
+
+UNSAFE_REASONS = (FailureReason.COLLISION, FailureReason.SEPARATION, FailureReason.GEOFENCE)  # worst first
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,11 +105,31 @@ class VehicleMetrics:
     arrival_t_s: float | None
 
 
+@dataclass(frozen=True, slots=True)
+class PlannerCounts:
+    """How often one vehicle's planner left plain tracking in a flight (headless runs)."""
+
+    no_rollout_ticks: int  # ticks with no legal rollout: the vehicle hovered or yawed in place
+    escape_ticks: int  # ticks flown on the escape fallback
+    recovery_ticks: int  # ticks flown on a recovery (spin, hover) after no legal rollout
+    stall_detours: int  # new routes planned after a stall (no progress for replan_after_s)
+    timed_replans: int  # in-flight re-plans of the vehicle's timed route (timed variants)
+
+
+@dataclass(frozen=True, slots=True)
+class ScheduleRecord:
+    """The coordination a flight ran under: the mission's settings and the plan's departure hold."""
+
+    hold_s_max: float  # coordination.hold_s_max: how long the first vehicle may hold at its station
+    forecast: str  # coordination.forecast: what the lower vehicles were planned against
+    departure_hold_s: float | None  # the first vehicle's hold in the flown plan; None: no timed plan
+
+
 @dataclass(frozen=True)
 class RunSummary:
     success: bool
     success_strict: bool
-    reason: str | None  # None on success
+    reason: FailureReason | None  # None on success
     failure_t_s: float | None
     vehicles: dict[str, VehicleMetrics]
     min_separation_m: float | None
@@ -90,8 +137,16 @@ class RunSummary:
     crossing_occluded: bool | None
     planner_ms_per_tick: float | None
     duration_s: float
-    extra: dict[str, Any] = field(default_factory=dict)
     pairs: dict[str, "PairMetrics"] = field(default_factory=dict)  # every pair, higher priority first
+    planner: dict[str, PlannerCounts] = field(default_factory=dict)  # per vehicle (headless runs)
+    schedule: ScheduleRecord | None = None  # headless runs
+
+    @property
+    def totals(self) -> PlannerCounts | None:
+        """The planner counts summed over the vehicles (None without any)."""
+        if not self.planner:
+            return None
+        return PlannerCounts(*(sum(getattr(c, k) for c in self.planner.values()) for k in PlannerCounts.__slots__))
 
     def summary_dict(self) -> dict[str, Any]:
         """The summary.json of ``companion simulate`` / ``run`` (JSON-ready)."""
@@ -109,7 +164,11 @@ class RunSummary:
             "planner_ms_per_tick": self.planner_ms_per_tick,
             "pairs": {name: {k: getattr(p, k) for k in PairMetrics.__slots__} for name, p in self.pairs.items()},
         }
-        out.update(self.extra)
+        if self.planner:
+            out.update({f"planner_{k}": {n: getattr(c, k) for n, c in self.planner.items()}
+                        for k in PlannerCounts.__slots__})
+        if self.schedule is not None:
+            out["schedule"] = {k: getattr(self.schedule, k) for k in ScheduleRecord.__slots__}
         return _json_ready(out)
 
 
@@ -161,7 +220,7 @@ def arrival(track: Track, goal_xy: tuple[float, float], radius_m: float) -> tupl
 def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
               routes: Mapping[str, Any] | None = None,
               planner_ms: Mapping[str, Sequence[float]] | None = None,
-              failure: str | None = None, failure_t_s: float | None = None,
+              failure: FailureReason | str | None = None, failure_t_s: float | None = None,
               lower_bounds_s: Mapping[str, float] | None = None,
               geometry: TruthGeometry | None = None) -> RunSummary:
     """Score a flight (SPEC §2).
@@ -174,7 +233,7 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
     geometry = geometry or TruthGeometry(world)
     safety = mission.safety
     names = [v.name for v in mission.by_priority if v.name in tracks]
-    events: list[tuple[float, int, str]] = []  # (time, severity, reason)
+    events: list[tuple[float, int, FailureReason]] = []  # (time, severity, reason)
 
     per_vehicle: dict[str, VehicleMetrics] = {}
     for name in names:
@@ -193,10 +252,10 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
             geometry.segment_clearance_m(tr.x_m, tr.y_m, tr.x_m, tr.y_m, tr.t_s, tr.t_s)
         hit = np.flatnonzero(clearance <= 0.0)
         if hit.size:
-            events.append((float(tr.t_s[min(hit[0] + 1, len(tr) - 1)]), 0, "collision"))
+            events.append((float(tr.t_s[min(hit[0] + 1, len(tr) - 1)]), 0, FailureReason.COLLISION))
         out = np.flatnonzero(~inside_fence(world, tr.x_m, tr.y_m))
         if out.size:
-            events.append((float(tr.t_s[out[0]]), 2, "geofence"))
+            events.append((float(tr.t_s[out[0]]), 2, FailureReason.GEOFENCE))
         flight = float((t_arrive if arrived else tr.t_s[-1]) - tr.t_s[0])
         if lower_bounds_s is not None and name in lower_bounds_s:
             bound = lower_bounds_s[name]
@@ -223,7 +282,7 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
         min_sep = float(sep.min())
         close = np.flatnonzero(sep < safety.min_separation_m)
         if close.size:
-            events.append((float(t_all[min(close[0] + 1, len(t_all) - 1)]), 1, "separation"))
+            events.append((float(t_all[min(close[0] + 1, len(t_all) - 1)]), 1, FailureReason.SEPARATION))
         # The headline sight metrics are the paper's pair: the two vehicles first in priority.
         headline = pairs[pair_name(names[0], names[1])]
         los_fraction, occluded = headline.los_blocked_fraction, headline.crossing_occluded
@@ -233,13 +292,14 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
     if events:
         fail_t, _, reason = min(events)
     elif failure is not None:
-        reason, fail_t = failure, failure_t_s
+        reason, fail_t = FailureReason(failure), failure_t_s
     elif not all(v.arrived for v in per_vehicle.values()):
-        reason = "timeout" if float(t_all[-1]) >= safety.time_limit_s - 1e-9 else "incomplete"
+        reason = (FailureReason.TIMEOUT if float(t_all[-1]) >= safety.time_limit_s - 1e-9
+                  else FailureReason.INCOMPLETE)
         fail_t = float(t_all[-1])
     success = reason is None and len(per_vehicle) == len(mission.vehicles)
     if reason is None and not success:
-        reason = "incomplete"
+        reason = FailureReason.INCOMPLETE
     all_ms = [m for n in names if planner_ms and len(planner_ms.get(n, ())) for m in planner_ms[n]]
     return RunSummary(
         success=success, success_strict=bool(success and (occluded is None or occluded)),

@@ -4,7 +4,7 @@
     result = planner.tick(own_pose, other_uav, snapshot, t_s)   # snapshot: see obstacle_field
 
 It holds the local-goal tracking along the route (:mod:`.local_goals`, paper section V), one BDWA
-step a tick (:mod:`.dwa`), and the re-plan after a stall.
+step a tick (:mod:`.dwa`), and the detour after a stall.
 """
 
 from __future__ import annotations
@@ -142,7 +142,7 @@ _PROGRESS_M = 20.0  # the remaining route must shorten by more than this to coun
 
 
 @dataclass(frozen=True)
-class Replanning:
+class DetourPolicy:
     """How an A*-guided vehicle gets out of a pocket (nav2 re-plans its global path for the same
     reason): when its remaining route has not shortened by more than 20 m for ``after_s`` sim
     seconds, a new route is planned from where it is (:func:`routes.detour_route`)."""
@@ -158,14 +158,14 @@ class Replanning:
 class VehiclePlanner:
     """One vehicle's A*-BDWA (or ablation variant): local-goal tracking + one BDWA step a tick.
 
-    Re-planning is split so that a live caller never blocks its event loop on A*: ``tick`` sets
-    ``replan_due``; the caller runs :meth:`plan_detour` (pure, a few tens of ms; in a worker
+    A stall detour is split so that a live caller never blocks its event loop on A*: ``tick`` sets
+    ``detour_due``; the caller runs :meth:`plan_detour` (pure, a few tens of ms; in a worker
     thread if it likes) and hands the result to :meth:`adopt_detour`. The headless runner does
     both at once, right after the tick that set the flag.
     """
 
     def __init__(self, name: str, config: DwaConfig, tracker: LocalGoalTracker, arrival_radius_m: float,
-                 replanning: Replanning | None = None, timed_route: "TimedRoute | None" = None,
+                 detour_policy: DetourPolicy | None = None, timed_route: "TimedRoute | None" = None,
                  approach: DwaConfig | None = None, sight_near_m: float | None = None):
         self.name = name
         self.timed_route = timed_route  # when given, flown on schedule (a speed window is needed)
@@ -193,9 +193,9 @@ class VehiclePlanner:
         self.lead_m = 0.0  # how far ahead of its timed plan it is (negative: it lags)
         self._unsighted = None if sight_near_m is None or config.w_s <= 0 else replace(config, w_s=0.0)
         self.arrived = False
-        self.replanning = replanning if replanning is not None and replanning.after_s > 0 else None
-        self.replan_due = False
-        self.replans = 0  # how many detours were planned (adopted or not)
+        self.detour_policy = detour_policy if detour_policy is not None and detour_policy.after_s > 0 else None
+        self.detour_due = False
+        self.detours = 0  # how many detours were planned after a stall (adopted or not)
         self._progress: tuple[float, float] | None = None  # (best remaining route m, sim time it was reached)
         self._grid = None  # the static grid, rasterised at the first detour
         self._station_xy = (float(tracker.nodes[-1][0]), float(tracker.nodes[-1][1]))
@@ -228,7 +228,7 @@ class VehiclePlanner:
         config = DwaConfig.from_settings(mission.planner, vehicle, mission.safety, sightline=sightline, fence_m=fence,
                                          tracking_lag_s=TRACKING_LAG_S[mission.plant], **window)
         tracker = LocalGoalTracker(nodes, mission.planner.acceptance_radius_m)
-        replanning = None if goals_from is GoalSource.STATION else Replanning(
+        detour_policy = None if goals_from is GoalSource.STATION else DetourPolicy(
             mission.planner.replan_after_s, mission.world, mission.planner.grid_resolution_m,
             goals_from is GoalSource.SPARSE, tuple(earlier), mission.safety.min_separation_m)
         timed = timed_route if spec.timed and config.count > config.samples else None
@@ -236,15 +236,15 @@ class VehiclePlanner:
             # Fly where the plan is timed: its space-time path may leave the A* route by a
             # kilometre (another side of an obstacle), and its times mean nothing elsewhere.
             tracker = LocalGoalTracker(timed.path_xy, mission.planner.acceptance_radius_m)
-        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, replanning, timed,
+        return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, detour_policy, timed,
                    approach_config(mission, config), sight_near_m if timed is not None else None)
 
     def plan_detour(self, x_m: float, y_m: float) -> np.ndarray | None:
         """A new route from (x, y) to the station, or None when there is none. Reads only what
         does not change while flying (and caches the grid), so it may run in a worker thread."""
-        if self.replanning is None:
+        if self.detour_policy is None:
             return None
-        r = self.replanning
+        r = self.detour_policy
         if self._grid is None:
             self._grid = rasterise(r.world, r.resolution_m)
         try:
@@ -256,8 +256,8 @@ class VehiclePlanner:
     def adopt_detour(self, nodes: np.ndarray | None, x_m: float, y_m: float, t_s: float) -> bool:
         """Fly ``nodes`` (from :meth:`plan_detour`) from now on; with None keep the route and
         wait another ``after_s`` before trying again. Returns whether the route changed."""
-        self.replan_due = False
-        self.replans += 1
+        self.detour_due = False
+        self.detours += 1
         adopted = nodes is not None and len(nodes) >= 2
         if adopted:
             self.tracker = LocalGoalTracker(nodes, self.tracker.acceptance_radius_m)
@@ -266,7 +266,7 @@ class VehiclePlanner:
         return adopted
 
     def adopt_timed(self, route: "TimedRoute", sight_near_m: float | None) -> None:
-        """Track ``route`` from now on (an in-flight re-plan, :class:`replan.TimedFleet`): its
+        """Track ``route`` from now on (an in-flight re-plan, :class:`replan.ScheduleClocks`): its
         path's nodes as local goals, its times for the speed, its closest approach for where the
         sightline term acts. A planner that tracks no timed route (another variant) ignores it."""
         if self.timed_route is None or len(route.path_xy) < 2:
@@ -280,18 +280,18 @@ class VehiclePlanner:
         self._progress = None
 
     def _watch_progress(self, x_m: float, y_m: float, t_s: float, on_schedule: bool) -> None:
-        """Flag a re-plan after ``after_s`` without progress. Time the schedule holds the vehicle
+        """Flag a detour after ``after_s`` without progress. Time the schedule holds the vehicle
         back (a scheduled wait, or the plan ahead of it) is not a stall: the clock restarts."""
         remaining = self.tracker.remaining_m(x_m, y_m)
         if self._progress is None or on_schedule or remaining < self._progress[0] - _PROGRESS_M:
             self._progress = (remaining, t_s)
-        elif t_s - self._progress[1] >= self.replanning.after_s:
-            self.replan_due = True
+        elif t_s - self._progress[1] >= self.detour_policy.after_s:
+            self.detour_due = True
 
     def _schedule(self, own: Pose, t_s: float) -> tuple[float | None, bool]:
         """The speed the timed route asks for now (None: no route, cruise) and whether the
         schedule holds the vehicle (a scheduled wait, or ahead of the plan along its path: only
-        then is standing still no stall; a vehicle that lags its plan still re-plans after a stall)."""
+        then is standing still no stall; a vehicle that lags its plan still detours after a stall)."""
         route = self.timed_route
         if route is None:
             return None, False
@@ -332,7 +332,7 @@ class VehiclePlanner:
         goal = self.tracker.update(own.x_m, own.y_m)
         scheduled, held = self._schedule(own, t_s if schedule_t_s is None else schedule_t_s)
         goal = self.tracker.goal_xy
-        if self.replanning is not None and not self.replan_due:
+        if self.detour_policy is not None and not self.detour_due:
             self._watch_progress(own.x_m, own.y_m, t_s, held)
         config, aim_m = self.config, self._aim_radius_m
         if self._unsighted is not None and self.timed_route is not None and other is not None and \

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from companion.cli_common import BadInput
+from companion.cli.errors import BadInput
 from companion.errors import LinkConflict, LinkError
 from companion.sitl.embedded import port_busy
 from uav_model.frames import local_to_geodetic

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.cli_common import BadInput
+from companion.cli.errors import BadInput
 from companion.planning.metrics import Track
 from companion.sitl.px4 import API_PORT_BASE, GCS_PORT, PX4_DIR_ENV, Px4Fleet, Px4Options, find_px4
 from companion.testing.telemetry import BackgroundRecorder, Telemetry

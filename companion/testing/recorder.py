@@ -25,22 +25,9 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import ned_to_enu
 from companion.planning.metrics import Track
+from sim_bridge.px4 import GCS_COMPONENT_ID, GCS_SYSTEM_ID, mode_name
 
-GCS_SYSTEM_ID = 255
-GCS_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER, what QGroundControl uses
-
-# PX4 custom_mode = main << 16 | sub << 24 (SPEC §4); names as the stub and MAVSDK use them.
-_PX4_MAIN = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 5: "ACRO", 6: "OFFBOARD", 7: "STABILIZED", 8: "RATTITUDE"}
-_PX4_AUTO = {1: "READY", 2: "TAKEOFF", 3: "HOLD", 4: "MISSION", 5: "RTL", 6: "LAND", 8: "FOLLOW_TARGET",
-             9: "PRECLAND"}
 _STAMPED = {"LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "ATTITUDE"}  # carry time_boot_ms
-
-
-def mode_name(custom_mode: int) -> str:
-    """PX4 custom_mode word -> ``"OFFBOARD"``, ``"HOLD"``, ``"TAKEOFF"``... (``PX4(main,sub)`` if unknown)."""
-    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-    name = _PX4_AUTO.get(sub) if main == 4 else _PX4_MAIN.get(main)
-    return name or f"PX4({main},{sub})"
 
 
 @dataclass(frozen=True)

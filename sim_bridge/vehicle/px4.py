@@ -1,8 +1,10 @@
-"""PX4 conventions the stub imitates: custom flight modes, and the parameters it owns.
+"""PX4 conventions the stub imitates: custom flight modes, the parameters it owns, and the
+MAVLink identities of the systems that talk to a vehicle.
 
 PX4 packs its flight mode into HEARTBEAT.custom_mode as ``main_mode << 16 | sub_mode << 24``
 (``px4_custom_mode.h``); a client such as MAVSDK decodes the main mode (and the AUTO sub mode)
-from there. Pure: constants and small value types only.
+from there. This is the one table of PX4's modes in the project. Pure: constants and small value
+types only.
 """
 
 from __future__ import annotations
@@ -10,6 +12,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from enum import Enum, IntEnum
+
+
+# Who sends to a vehicle: the companion speaks through MAVSDK, which always introduces itself as
+# system 245; a ground station (QGroundControl, MAVProxy) as 255. Both use component 190.
+COMPANION_SYSTEM_ID = 245
+GCS_SYSTEM_ID = 255
+GCS_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
 
 
 class Px4MainMode(IntEnum):
@@ -20,6 +29,7 @@ class Px4MainMode(IntEnum):
     ACRO = 5
     OFFBOARD = 6
     STABILIZED = 7
+    RATTITUDE = 8
 
 
 class Px4AutoSubMode(IntEnum):
@@ -30,6 +40,8 @@ class Px4AutoSubMode(IntEnum):
     MISSION = 4
     RTL = 5
     LAND = 6
+    FOLLOW_TARGET = 8
+    PRECLAND = 9
 
 
 class Px4PosctlSubMode(IntEnum):
@@ -45,6 +57,22 @@ def encode_custom_mode(main: int, sub: int = 0) -> int:
 def decode_custom_mode(custom_mode: int) -> tuple[int, int]:
     """(main, sub) from a PX4 custom_mode word."""
     return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+
+
+def mode_name(custom_mode: int) -> str:
+    """A PX4 custom_mode word as MAVSDK names it: ``"OFFBOARD"``, ``"HOLD"`` (AUTO.LOITER),
+    ``"TAKEOFF"``... (``PX4(main,sub)`` for a pair PX4 does not define)."""
+    main, sub = decode_custom_mode(custom_mode)
+    try:
+        if main == Px4MainMode.AUTO:
+            auto = Px4AutoSubMode(sub)
+            if auto is not Px4AutoSubMode.NONE:
+                return "HOLD" if auto is Px4AutoSubMode.LOITER else auto.name
+        else:
+            return Px4MainMode(main).name
+    except ValueError:
+        pass
+    return f"PX4({main},{sub})"
 
 
 class FlightMode(Enum):

@@ -1,5 +1,5 @@
 """The live companion reads the timed routes as the headless runner does: the same planners
-(``FlightPlan.fleet`` is ``fleet_setup.build_fleet``, sight_near_m included) and the per-priority
+(``FlightPlan.fleet_setup`` is ``fleet_setup.build_fleet``, sight_near_m included) and the per-priority
 clocks (``timed.PriorityClocks``), fed with each vehicle's own telemetry samples.
 
 The pilots here are the real ones on real vehicle boards (the adapters' telemetry store); only the
@@ -65,12 +65,12 @@ def test_the_live_planners_are_the_headless_ones(plan):
     ctx, pilots, _ = _flight(plan)
     timed = plan.coordinated.timed
     b = pilots["b"].planner
-    assert b is ctx.fleet.planners["b"] and ctx.fleet.clocks is not None
+    assert b is ctx.setup.planners["b"] and ctx.setup.clocks is not None
     assert b.timed_route is timed["b"]
     assert b.sight_near_m is not None and b.sight_near_m == pytest.approx(sight_near_m(plan.mission, timed, "b"))
     assert pilots["a"].planner.sight_near_m is None  # the first in priority carries no sightline term
     # What each plan keeps, as headless knows it: an in-flight re-plan must keep it at least as well.
-    assert ctx.fleet.clocks.blocking == plan.coordinated.blocking and plan.coordinated.blocking
+    assert ctx.setup.clocks.blocking == plan.coordinated.blocking and plan.coordinated.blocking
 
 
 def test_b_reads_its_plan_at_a_clock_held_back_by_a_lagging_a(plan):

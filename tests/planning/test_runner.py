@@ -153,7 +153,7 @@ def test_cli_simulate_writes_summary_and_plot(tmp_path, capsys):
     assert code == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["success"] is True and summary["vehicles"]["a"]["arrived"] is True
-    assert summary["planner_holds"] == {"a": 0, "b": 0}
+    assert summary["planner_no_rollout_ticks"] == {"a": 0, "b": 0}
     assert (tmp_path / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     out = capsys.readouterr().out
     assert "SUCCESS" in out and "ratio" in out
@@ -193,7 +193,7 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, text, needle):
 
 
 def test_sweep_rows_vary_the_reference_as_the_paper_does():
-    from companion.cli import table_missions
+    from companion.bench.paper_tables import table_missions
     base = load_mission("missions/paper_reference.yaml")
     t1 = table_missions("table1", base)
     assert [(m.vehicle("a").initial_heading_deg, m.vehicle("b").initial_heading_deg) for _, m in t1] == \
@@ -230,7 +230,7 @@ def test_a_vehicle_in_a_pocket_yaws_in_place_and_leaves():
     assert s.success, s.reason
     recovering = [r for r in run.ticks["a"] if r.recovery_reason is not None]
     assert recovering and all(r.speed_m_s == 0.0 and r.yaw_rate_rad_s != 0.0 for r in recovering)
-    assert s.extra["planner_recoveries"]["a"] == len(recovering)
+    assert s.planner["a"].recovery_ticks == len(recovering)
     assert s.vehicles["a"].min_obstacle_clearance_m > 0.0
 
 

@@ -19,7 +19,7 @@ from companion.planning.obstacle_field import ObstacleField
 from companion.planning.routes import plan_routes
 from companion.planning.flight.loop import body_command
 from companion.planning.coordination.timed import forecast
-from companion.planning.vehicle_planner import Replanning, VehiclePlanner
+from companion.planning.vehicle_planner import DetourPolicy, VehiclePlanner
 from tests.planning.world_strategies import worlds
 from uav_model.frames import enu_heading_to_ned_yaw, ned_yaw_to_enu_heading
 from uav_model.mission import load_mission
@@ -85,8 +85,8 @@ def _fly(cfg: DwaConfig, station: tuple[float, float], arrival_radius_m: float, 
          timed_route=None, replan_after_s: float = 0.0) -> tuple[float | None, list, VehiclePlanner]:
     """Fly from (0, 0) heading +x at cruise speed on the plant; (arrival time, commands, planner)."""
     tracker = LocalGoalTracker(np.array([[-200.0, station[1]], station]), 30.0)
-    replanning = Replanning(replan_after_s, World(-1e3, -1e3, 1e3, 1e3, 0.0, ()), 10.0, True)
-    planner = VehiclePlanner("x", cfg, tracker, arrival_radius_m, replanning, timed_route)
+    detour_policy = DetourPolicy(replan_after_s, World(-1e3, -1e3, 1e3, 1e3, 0.0, ()), 10.0, True)
+    planner = VehiclePlanner("x", cfg, tracker, arrival_radius_m, detour_policy, timed_route)
     state = KinematicState(north_m=0.0, east_m=0.0, down_m=-50.0, ve_m_s=V, yaw_rad=enu_heading_to_ned_yaw(0.0))
     limits = VehicleLimits(V, V / R, 8.0)
     commands = []
@@ -119,7 +119,7 @@ def test_a_scheduled_wait_is_flown_and_the_watchdog_does_not_fight_it():
     speeds = [0.0 if c is None else c.speed_m_s for c in commands]
     assert max(speeds[10:70]) < 0.5 * V  # waiting (after braking), 5-35 s
     assert arrived is not None and arrived > 40.0
-    assert planner.replans == 0 and not planner.replan_due
+    assert planner.detours == 0 and not planner.detour_due
 
 
 def test_the_timed_variant_wires_its_window_and_the_paper_variants_do_not():

@@ -15,7 +15,7 @@ from companion.planning.coordination.search import Blocking
 from companion.planning.flight.forecast import first_forecast
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.coordination.replan import ReplanRule, TimedFleet, closest_approach_s
+from companion.planning.coordination.replan import ReplanRule, ScheduleClocks, closest_approach_s
 from companion.planning.routes import plan_routes
 from companion.planning.coordination.clocks import PriorityClocks, ScheduleClock, sight_near_m
 from companion.planning.coordination.timed import forecast
@@ -90,7 +90,7 @@ def held_reference():
 
 def test_a_vehicle_lagging_before_the_closest_approach_is_replanned_from_where_it_is(held_reference):
     mission, plan = held_reference
-    fleet = TimedFleet(mission, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))  # adopts any re-plan
+    fleet = ScheduleClocks(mission, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))  # adopts any re-plan
     b0 = mission.vehicle("b").start_enu_m
     # b has not moved at all, its plan has it 150 m along; a still holds (161.6 s)
     t = next(float(t) for t in np.arange(0.0, 160.0, 0.5) if plan.timed["b"].planned_along_at(t) > 150.0)
@@ -116,7 +116,7 @@ def test_a_mission_that_turns_replans_off_flies_its_pre_flight_plan(held_referen
     assert off.coordination.replan is False and mission.coordination.replan is True
     off = replace(off, coordination=replace(off.coordination, hold_s_max=200.0))
     t = next(float(t) for t in np.arange(0.0, 160.0, 0.5) if plan.timed["b"].planned_along_at(t) > 150.0)
-    fleets = {m.coordination.replan: TimedFleet(m, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))
+    fleets = {m.coordination.replan: ScheduleClocks(m, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))
               for m in (mission, off)}
     for fleet in fleets.values():  # b has not moved, 150 m behind its plan, as above
         fleet.observe("a", mission.vehicle("a").start_enu_m, t)
@@ -128,7 +128,7 @@ def test_a_mission_that_turns_replans_off_flies_its_pre_flight_plan(held_referen
 
 def test_no_replan_on_plan_or_past_the_planned_closest_approach(held_reference):
     mission, plan = held_reference
-    fleet = TimedFleet(mission, plan.timed, blocking=plan.blocking)
+    fleet = ScheduleClocks(mission, plan.timed, blocking=plan.blocking)
     ca = closest_approach_s(plan.timed["a"], plan.timed["b"])
     for t in np.arange(0.0, ca + 1.0, 0.5):  # both on their plans, every tick
         fleet.observe("a", plan.timed["a"].planned_position_at(t), t)
@@ -144,7 +144,7 @@ def test_no_replan_on_plan_or_past_the_planned_closest_approach(held_reference):
 def test_a_replan_that_keeps_the_line_worse_is_not_adopted(held_reference):
     mission, plan = held_reference
     assert plan.blocking["b"] is Blocking.WHOLE_FLIGHT
-    fleet = TimedFleet(mission, plan.timed, blocking=plan.blocking)
+    fleet = ScheduleClocks(mission, plan.timed, blocking=plan.blocking)
     t = next(float(t) for t in np.arange(0.0, 160.0, 0.5) if plan.timed["b"].planned_along_at(t) > 150.0)
     fleet.observe("a", mission.vehicle("a").start_enu_m, t)
     fleet.observe("b", mission.vehicle("b").start_enu_m, t)  # 150 m late: the whole flight is lost
@@ -157,7 +157,7 @@ def test_no_replan_from_a_stale_position_and_none_counted_until_it_is_fresh(held
     # plan, but where it is now is unknown. A re-plan from where it was last seen, at the time it
     # is now, would be a plan from nowhere: it waits for b's next position, uncounted.
     mission, plan = held_reference
-    fleet = TimedFleet(mission, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))  # adopts any re-plan
+    fleet = ScheduleClocks(mission, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))  # adopts any re-plan
     b0 = mission.vehicle("b").start_enu_m
     t = next(float(t) for t in np.arange(0.0, 160.0, 0.5) if plan.timed["b"].planned_along_at(t) > 150.0)
     stale_s = t - mission.safety.telemetry_timeout_s - 0.5
@@ -182,7 +182,7 @@ def test_a_plan_just_adopted_is_not_judged_before_the_vehicle_is_seen_on_it(held
     # observed) checked b against its new plan before any position on it: a KeyError that ended
     # the flight. Now nothing is due until b is observed again.
     mission, plan = held_reference
-    fleet = TimedFleet(mission, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))  # adopts any re-plan
+    fleet = ScheduleClocks(mission, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))  # adopts any re-plan
     b0 = mission.vehicle("b").start_enu_m
     t = next(float(t) for t in np.arange(0.0, 160.0, 0.5) if plan.timed["b"].planned_along_at(t) > 150.0)
     fleet.observe("a", mission.vehicle("a").start_enu_m, t)

@@ -43,7 +43,7 @@ def test_a_vehicle_ahead_of_its_schedule_is_slowed_and_arrives_on_time():
     speeds = np.array([0.0 if c is None else c.speed_m_s for c in commands])
     assert arrived is not None and arrived >= 0.9 * 175.0, arrived  # not ~60 s at cruise
     assert speeds[20:].mean() < 0.6 * V
-    assert planner.replans == 0  # waiting for the plan is no stall
+    assert planner.detours == 0  # waiting for the plan is no stall
 
 
 def test_the_timed_variant_walks_its_timed_path_and_the_paper_variant_its_route():

@@ -97,17 +97,17 @@ def test_no_progress_for_replan_after_s_plans_a_detour_from_where_the_vehicle_is
     planner = VehiclePlanner.build(REF, REF.vehicle("a"), ROUTE, "astar-bdwa")
     stuck = Pose(2000.0, 400.0, 0.0)  # hovering in place: the remaining route never shortens
     t = 0.0
-    while not planner.replan_due:
+    while not planner.detour_due:
         planner.tick(stuck, None, ObstacleField.from_world(REF.world).static, t)
         t += 0.5
         assert t <= 60.5, "a vehicle stuck for replan_after_s must ask for a new route"
     assert t == pytest.approx(60.5)  # asked at t = 60 s exactly, 60 s after the first tick
     nodes = planner.plan_detour(stuck.x_m, stuck.y_m)
     assert tuple(nodes[0]) == (2000.0, 400.0) and nodes[-1] == pytest.approx(REF.vehicle("a").goal_enu_m)
-    assert planner.adopt_detour(nodes, stuck.x_m, stuck.y_m, t) and planner.replans == 1
-    assert not planner.replan_due and np.array_equal(planner.tracker.nodes, nodes)
+    assert planner.adopt_detour(nodes, stuck.x_m, stuck.y_m, t) and planner.detours == 1
+    assert not planner.detour_due and np.array_equal(planner.tracker.nodes, nodes)
     planner.tick(stuck, None, ObstacleField.from_world(REF.world).static, t + 30.0)
-    assert not planner.replan_due  # the clock restarted at the detour
+    assert not planner.detour_due  # the clock restarted at the detour
 
 
 def test_progress_or_a_variant_without_a_global_route_never_replans():
@@ -115,13 +115,13 @@ def test_progress_or_a_variant_without_a_global_route_never_replans():
     flying = VehiclePlanner.build(REF, REF.vehicle("a"), ROUTE, "astar-bdwa")
     for k in range(300):  # 150 s along the diagonal at 10 m/s
         flying.tick(Pose(20.0 + 5.0 * k * 0.7071, 20.0 + 5.0 * k * 0.7071, math.pi / 4), None, field, 0.5 * k)
-    assert not flying.replan_due
+    assert not flying.detour_due
     for variant in ("bdwa", "dwa"):
         station_only = VehiclePlanner.build(REF, REF.vehicle("a"), None, variant)
-        assert station_only.replanning is None and station_only.plan_detour(1000.0, 400.0) is None
+        assert station_only.detour_policy is None and station_only.plan_detour(1000.0, 400.0) is None
     never = VehiclePlanner.build(dataclasses.replace(REF, planner=dataclasses.replace(REF.planner, replan_after_s=0.0)),
                                  REF.vehicle("a"), ROUTE, "astar-bdwa")
-    assert never.replanning is None
+    assert never.detour_policy is None
 
 
 def test_config_comes_from_the_mission():

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from companion.cli_common import with_plant
+from companion.cli.options import with_plant
 from companion.planning.flight.headless import simulate
 from uav_model.mission import load_mission
 

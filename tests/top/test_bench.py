@@ -17,7 +17,7 @@ import yaml
 
 from companion.bench import aggregate, read_runs_csv
 from companion.bench import sweep
-from companion.bench.cli import run
+from companion.cli.bench import run
 from companion.bench.diagnose import diagnose
 from companion.bench.execute import failure_dir_name, run_bench
 from companion.bench.machine import cpu_model

@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from companion.app.fence import mission_fence, upload_and_verify_fence, verify_fence_readback
 from companion.app.flight_plan import prepare
 from companion.app.pilot import RunSettings
-from companion.app.runner import run_mission
+from companion.app.live_run import run_mission
 from companion.cli import main
 from companion.errors import GeofenceRefused
 from companion.sitl.inprocess import open_inprocess_fleet

@@ -16,7 +16,7 @@ import pytest
 
 from companion.app.context import RunSettings
 from companion.app.flight_plan import prepare
-from companion.app.runner import run_mission
+from companion.app.live_run import run_mission
 from companion.sitl.inprocess import InProcessFleet, InProcessOptions
 from uav_model.mission import load_mission
 

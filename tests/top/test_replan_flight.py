@@ -20,8 +20,8 @@ def stalling_mission(tmp_path_factory):
     doc = with_variant(generate_scenario(7, 0).doc, "astar-bdwa")
     path = write_mission_yaml(doc, tmp_path_factory.mktemp("replan") / "seed7_i0.yaml")
     headless = simulate(load_mission(path))
-    assert headless.success and headless.summary.extra["planner_replans"]["a"] >= 1, \
-        "the fixture needs a scenario the headless runner re-plans in"
+    assert headless.success and headless.summary.planner["a"].stall_detours >= 1, \
+        "the fixture needs a scenario the headless runner detours in"
     return path, headless
 
 

@@ -78,7 +78,7 @@ def test_b_held_back_by_a_position_freeze_is_replanned_in_flight_and_arrives(sit
     # of sim time (heartbeat and clock go on); the companion hovers b (it never flies on old data),
     # so b falls ~200 m behind its timed plan, before the plan's closest approach (~50 s). When b
     # reports again it is planned again in (position, time) from where it is, in a worker thread
-    # while both fly on (``FlightContext`` -> ``TimedFleet``), and both still arrive.
+    # while both fly on (``FlightContext`` -> ``ScheduleClocks``), and both still arrive.
     stub = sitl(SMALL, speedup=20)
     live = companion.start(stub, "--variant", "astar-bdwa-timed")
     for name in ("a", "b"):

@@ -1,4 +1,4 @@
-"""In-flight re-planning of the timed routes: :class:`TimedFleet`, the per-tick object a runner
+"""In-flight re-planning of the timed routes: :class:`ScheduleClocks`, the per-tick object a runner
 (headless or live) asks for each vehicle's schedule time, and which re-plans a lower-priority
 vehicle that has fallen behind its space-time plan.
 
@@ -8,14 +8,14 @@ while those vehicles lag their forecasts. What the clock cannot absorb is the lo
 lag: a vehicle 100-600 m behind its plan (the sightline term made it hide and hover, a long turn,
 a detour round a moving obstacle) is not where its plan keeps the sight line blocked, and the
 plan's times ask for cruise until the end, so it never gets back.
-Then, before the plan's closest approach, :meth:`TimedFleet.update` plans it again in (position,
+Then, before the plan's closest approach, :meth:`ScheduleClocks.update` plans it again in (position,
 time) from where it is, at the time it is, against the vehicles above it re-forecast from where
 they are (:func:`coordination.plan_vehicle` with ``from_xy`` / ``t0_s``), and every vehicle below
 it after it. The new plan is adopted only when it keeps the sight line at least as well as the
 old one did (a re-plan that can only keep separation would give up what the old plan might still
 catch), and its clock restarts at the re-plan's time.
 
-    fleet = TimedFleet(mission, plan.timed)
+    fleet = ScheduleClocks(mission, plan.timed)
     fleet.observe("a", (x, y), t); fleet.observe("b", (x, y), t)   # every flying vehicle
     for name, route in fleet.update(t).items():                    # re-planned this tick
         planners[name].adopt_timed(route, fleet.sight_near_m(name))
@@ -70,7 +70,7 @@ class ReplanRule:
 
 @dataclass(frozen=True)
 class ReplanJob:
-    """One re-plan's inputs, copied when it was found due (:meth:`TimedFleet.job`): the vehicles
+    """One re-plan's inputs, copied when it was found due (:meth:`ScheduleClocks.job`): the vehicles
     to plan (the one due first, then every flying one below it), where each was, and where every
     vehicle above the last of them will be, all at ``t_s``."""
 
@@ -83,7 +83,7 @@ class ReplanJob:
 
 @dataclass(frozen=True)
 class Replanned:
-    """One vehicle's new plan (:meth:`TimedFleet.plan`), not yet adopted: what it keeps, and the
+    """One vehicle's new plan (:meth:`ScheduleClocks.plan`), not yet adopted: what it keeps, and the
     forecasts above it that it was made against."""
 
     name: str
@@ -98,7 +98,7 @@ def closest_approach_s(first: TimedRoute, second: TimedRoute, step_s: float = 0.
     return float(t[np.argmin(np.hypot(*(first.planned_position_at(t) - second.planned_position_at(t)).T))])
 
 
-class TimedFleet:
+class ScheduleClocks:
     """:class:`PriorityClocks` (``observe`` / ``done`` / ``now``, the same calls) that also
     re-plans a lower vehicle gone astray of its plan (:meth:`update`; see the module doc)."""
 

@@ -4,7 +4,7 @@ The headless runner (:func:`companion.planning.flight.headless.simulate`), the l
 (``companion.app``: its flight context, and the warm-up before it) and anything else that flies a
 mission call :func:`build_fleet`, so that what a vehicle's planner is made of (its route, the
 routes above it for a detour, its timed route, where its sightline term acts) and how the timed
-routes are read in flight (:class:`companion.planning.coordination.replan.TimedFleet`: the per-priority clocks of
+routes are read in flight (:class:`companion.planning.coordination.replan.ScheduleClocks`: the per-priority clocks of
 :class:`companion.planning.coordination.clocks.PriorityClocks`, and the in-flight re-plan) cannot differ
 between them:
 
@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 from companion.planning.coordination.plan import plan_coordinated
 from companion.planning.coordination.search import Blocking
 from companion.planning.routes import higher_routes
-from companion.planning.coordination.replan import TimedFleet
+from companion.planning.coordination.replan import ScheduleClocks
 from companion.planning.coordination.clocks import sight_near_m
 from companion.planning.vehicle_planner import VARIANTS, VehiclePlanner
 
@@ -41,17 +41,18 @@ if TYPE_CHECKING:
 
 
 @dataclass(frozen=True, eq=False)
-class Fleet:
+class FleetSetup:
     """Every vehicle's planner (by name, in priority order) and the clocks its timed route is read at."""
 
     planners: dict[str, VehiclePlanner]
-    clocks: TimedFleet | None  # None: the variant flies no timed route
+    clocks: ScheduleClocks | None  # None: the variant flies no timed route
     timed: dict[str, TimedRoute]  # the timed routes flown (empty for the other variants)
+    departure_hold_s: float | None = None  # the first vehicle's hold in the plan built here; None: none built
 
 
 def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | None = None,
                 timed_routes: Mapping[str, TimedRoute] | None = None,
-                blocking: Mapping[str, Blocking] | None = None, *, first: TimedRoute | None = None) -> Fleet:
+                blocking: Mapping[str, Blocking] | None = None, *, first: TimedRoute | None = None) -> FleetSetup:
     """The planners and schedule clocks that fly ``mission`` with ``variant`` (default: the
     mission's). ``timed_routes`` (timed variants): the routes with arrival times to fly; by default
     the coordinated space-time plan (:func:`coordination.plan.plan_coordinated`, seconds of numpy)
@@ -61,16 +62,17 @@ def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | No
     unknown, any re-plan is adopted."""
     variant = variant or mission.planner.variant
     timed_variant = VARIANTS[variant].timed
+    hold_s = None
     if timed_routes is None and timed_variant and routes:
         if first is None:
             raise ValueError(f"build_fleet: variant {variant!r} plans against the first vehicle's forecast: "
                              f"pass first (forecast.first_forecast)")
         plan = plan_coordinated(mission, routes, first)  # the space-time plan (docs/design.md)
-        timed_routes, blocking = plan.timed, plan.blocking
+        timed_routes, blocking, hold_s = plan.timed, plan.blocking, plan.hold_s
     timed = dict(timed_routes or {})
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
                                              earlier=higher_routes(mission, routes, v.name),
                                              timed_route=timed.get(v.name),
                                              sight_near_m=sight_near_m(mission, timed, v.name))
                 for v in mission.by_priority}
-    return Fleet(planners, TimedFleet(mission, timed, blocking=blocking) if timed_variant else None, timed)
+    return FleetSetup(planners, ScheduleClocks(mission, timed, blocking=blocking) if timed_variant else None, timed, hold_s)

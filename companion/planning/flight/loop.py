@@ -18,6 +18,7 @@ limit.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -32,14 +33,14 @@ from companion.planning.dwa import OtherUav, Pose
 from companion.planning.fleet import Neighbour, react_to
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.vehicle_planner import TickResult
-from companion.planning.metrics import (RunSummary, Track, TruthGeometry, inside_fence,
-                                        pair_min_distance, summarize)
+from companion.planning.metrics import (PlannerCounts, RunSummary, ScheduleRecord, Track, TruthGeometry,
+                                        inside_fence, pair_min_distance, summarize)
 from companion.planning.routes import Route
 from uav_model.plant import (HOVER, KinematicState, PlantLimits, VelocityCommand, VelocityFrame, initial_state,
                              limits_for, step_for)
 
 if TYPE_CHECKING:
-    from companion.planning.flight.fleet_setup import Fleet
+    from companion.planning.flight.fleet_setup import FleetSetup
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,7 @@ def start_states(mission: Mission) -> tuple[dict[str, PlantLimits], dict[str, Ki
     return limits, states
 
 
-def fly(mission: Mission, fleet: Fleet, routes: dict[str, Route], *,
+def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         lower_bounds_s: dict[str, float | None] | None = None, budget: Budget | None = None,
         started: float | None = None) -> RunResult:
     """Fly ``mission`` (its variant set) headless with ``fleet`` (:func:`fleet_setup.build_fleet`)
@@ -164,7 +165,7 @@ def fly(mission: Mission, fleet: Fleet, routes: dict[str, Route], *,
             result = planner.tick(Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad)), other, snapshot, t,
                                   separate_from=separate_from,
                                   schedule_t_s=None if clocks is None else clocks.now(name, t))
-            if planner.replan_due:  # no progress for a while: a new route from here, at once
+            if planner.detour_due:  # no progress for a while: a new route from here, at once
                 planner.adopt_detour(planner.plan_detour(x, y), x, y, t)
             ticks[name].append(result)
             if result.arrived:
@@ -194,12 +195,14 @@ def fly(mission: Mission, fleet: Fleet, routes: dict[str, Route], *,
     planner_ms = {n: [r.planner_ms for r in ticks[n] if not r.arrived] for n in ticks}
     summary = summarize(mission, tracks, routes=routes, planner_ms=planner_ms, geometry=truth,
                         lower_bounds_s=lower_bounds_s)
-    summary.extra.update(  # how often the fail-safe fallbacks acted, per vehicle
-        planner_holds={n: sum(r.command is None and not r.arrived for r in ticks[n]) for n in names},
-        planner_escapes={n: sum(r.escape_reason is not None for r in ticks[n]) for n in names},
-        planner_recoveries={n: sum(r.recovery_reason is not None for r in ticks[n]) for n in names},
-        planner_replans={n: planners[n].replans for n in names},
-        timed_replans={} if clocks is None else dict(clocks.replans))
+    summary = dataclasses.replace(summary, planner={n: PlannerCounts(  # how often the fallbacks acted
+        no_rollout_ticks=sum(r.command is None and not r.arrived for r in ticks[n]),
+        escape_ticks=sum(r.escape_reason is not None for r in ticks[n]),
+        recovery_ticks=sum(r.recovery_reason is not None for r in ticks[n]),
+        stall_detours=planners[n].detours,
+        timed_replans=0 if clocks is None else clocks.replans.get(n, 0)) for n in names},
+        schedule=ScheduleRecord(mission.coordination.hold_s_max, mission.coordination.forecast.value,
+                                fleet.departure_hold_s))
     return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started)
 
 

@@ -15,8 +15,6 @@ from sim_bridge.vehicle.streams import API_RATES_HZ, StreamProfile
 
 LINK = "api"  # the one link each in-process vehicle has: the companion's
 PEER = "companion"
-GCS_SYSTEM_ID = 245  # MAVSDK's ground-station identity, so the vehicles see the same partner
-GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 # The stub's API stream rates, in sim time only (a wall-clock cap would starve a fast sim), less
 # the streams this link's one reader never reads: building them is a third of the telemetry cost.
 UNREAD_STREAMS = frozenset({mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_MISSION_CURRENT})

@@ -11,13 +11,13 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model import frames
 from companion.errors import CommandRefused, MissionUploadError, TelemetryLost, VehicleNotReady
-from companion.sitl.inprocess.link import (BODY_VELOCITY_YAW_RATE_MASK, COMMAND_RESULTS, GCS_COMPONENT_ID,
-                                           GCS_SYSTEM_ID, LINK, PEER, PX4_MODES, Codec, describe, int32_bits,
-                                           mission_result, param_value, text_field)
+from companion.sitl.inprocess.link import (BODY_VELOCITY_YAW_RATE_MASK, COMMAND_RESULTS, LINK, PEER, PX4_MODES, Codec,
+                                           describe, int32_bits, mission_result, param_value, text_field)
 from companion.sitl.inprocess.telemetry import TelemetryIntake
 from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import MAV_FRAME_GLOBAL, FenceItem, fence_items, fence_zones
 from companion.vehicle.port import FlightMode, GeoFenceZone, GeoWaypoint, VelocityYawRateSetpoint
+from sim_bridge.px4 import COMPANION_SYSTEM_ID, GCS_COMPONENT_ID
 from sim_bridge.vehicle import Emit, SimVehicle
 
 if TYPE_CHECKING:
@@ -32,7 +32,7 @@ class InProcessVehicle(BoardReaders):
         self._sim = sim
         self._origin = origin
         self._board = VehicleBoard(sim.name)
-        self._up = Codec(GCS_SYSTEM_ID, GCS_COMPONENT_ID, wire)  # companion -> vehicle
+        self._up = Codec(COMPANION_SYSTEM_ID, GCS_COMPONENT_ID, wire)  # companion -> vehicle, as MAVSDK sends
         self._down = Codec(sim.system_id, sim.component_id, wire) if wire else None  # vehicle -> companion
         self._intake = TelemetryIntake(self._board, origin, sim.name)
 

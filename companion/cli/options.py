@@ -1,11 +1,7 @@
-"""What every ``companion`` subcommand shares: the exit codes and what bad input looks like.
+"""Options that several ``companion`` subcommands share, and the checks behind them.
 
-    0  success
-    1  mission failure (the flight did not succeed, a link or a vehicle failed)
-    2  bad input: one line naming the problem (``file:line: field.path: reason``), no traceback
-
-A handler raises :class:`BadInput` (or returns :func:`bad_input`) for anything the user must fix;
-``companion.cli.main`` turns a raised one into its line and exit 2.
+Each check raises :class:`companion.cli.errors.BadInput` (exit 2, one line) for a value that
+cannot be used.
 """
 
 from __future__ import annotations
@@ -13,6 +9,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import functools
 import math
 import sys
 import time
@@ -20,26 +17,17 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from companion.app.flight_plan import prepare
 from companion.app.results import OutputNotWritable, QuietFileHandler, prepare_output
+from companion.cli.errors import BadInput, bad_input
 from companion.planning.budget import BudgetSpent
-from uav_model.mission import VARIANTS, Mission, MissionError
+from uav_model.mission import VARIANTS, Mission, MissionError, load_mission
 from uav_model.plant import Plant
 
 if TYPE_CHECKING:
     from companion.app.flight_plan import FlightPlan
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
-
-
-class BadInput(ValueError):
-    """A command-line value that cannot be used; exit 2 with this one-line message."""
-
-
-def bad_input(exc: Exception) -> int:
-    """One line on stderr (a MissionError already reads ``file:line: field: reason``); exit 2."""
-    print(str(exc) if isinstance(exc, MissionError) else f"companion: {exc}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
+log = logging.getLogger("companion")
 
 def output_dir(path: Path, *, reserve: bool = False) -> Path:
     """``--out``, created if need be and proved writable (with ``reserve``: the space the results
@@ -162,3 +150,43 @@ class SecondsBudget:
             self._next_report += self.every_s
             print(f"{self.what}: {now - self.started:.0f} s of at most {self.seconds:g} CPU s, {self.units} work units "
                   f"(--certificate-budget S to change, --no-certificate to skip)", file=sys.stderr, flush=True)
+
+
+def connect_pair(text: str) -> tuple[str, str]:
+    """``--connect NAME=URL`` as (name, MAVSDK URL)."""
+    name, sep, url = text.partition("=")
+    if not sep or not name or not url:
+        raise argparse.ArgumentTypeError(f"--connect {text!r}: expected NAME=URL, e.g. a=udpin://0.0.0.0:14540")
+    if "://" not in url:
+        raise argparse.ArgumentTypeError(f"--connect {text!r}: {url!r} is not a MAVSDK URL (udpin://HOST:PORT, "
+                                         "udpout://, tcpout://, serial://DEV:BAUD)")
+    return name, url
+
+
+def positive(text: str) -> float:
+    """A finite number above zero (an argparse type)."""
+    value = float(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text}: must be a positive number")
+    return value
+
+
+def planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callable[[argparse.Namespace], int]:
+    """A subcommand on the mission's plan: a bad file or an unreachable goal exits 2 before it starts."""
+    @functools.wraps(handler)
+    def with_plan(args: argparse.Namespace) -> int:
+        try:
+            plan = prepare(load_mission(args.mission), args.variant)
+            plan = with_certificate_options(dataclasses.replace(plan, geofence=not getattr(args, "no_fence", False)), args)
+        except MissionError as exc:
+            return bad_input(exc)
+        return handler(args, plan)
+    return with_plan
+
+
+def printer(started: float):
+    """A progress line with the wall seconds since ``started``, printed and logged."""
+    def report(line: str) -> None:
+        print(f"[{time.monotonic() - started:6.1f}s] {line}", flush=True)
+        log.info("%s", line)
+    return report

@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
+from companion.cli.errors import EXIT_OK, BadInput
 from companion.formats.importer import ImportError_, import_mission
 from uav_model.mission import MissionError
-
-EXIT_OK, EXIT_BAD_INPUT = 0, 2
 
 
 def add_parsers(sub) -> None:
@@ -28,22 +26,17 @@ def add_parsers(sub) -> None:
     p.set_defaults(func=cmd_replay)
 
 
-def _bad(message: object) -> int:
-    print(f"companion: {message}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
 def cmd_import(args: argparse.Namespace) -> int:
     from companion.scenarios import write_mission_yaml
     try:
         doc, mission = import_mission(args.file, args.base)
     except (ImportError_, MissionError) as exc:
-        return _bad(exc)
+        raise BadInput(str(exc)) from None  # "companion: " before even a MissionError's line
     doc.setdefault("description", f"imported from {args.file.name}")
     try:
         path = write_mission_yaml(doc, args.out)
     except OSError as exc:
-        return _bad(f"--out {args.out}: cannot write ({exc.strerror})")
+        raise BadInput(f"--out {args.out}: cannot write ({exc.strerror})") from None
     print(f"wrote {path}: {len(mission.world.obstacles)} obstacle(s), {len(mission.stations)} station(s), "
           f"{len(mission.vehicles)} vehicle(s)")
     return EXIT_OK
@@ -55,6 +48,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
         path = render_replay(args.out_dir, mission_path=args.mission, output=args.output,
                              fps=args.fps, seconds=args.seconds)
     except (ReplayError, MissionError) as exc:
-        return _bad(exc)
+        raise BadInput(str(exc)) from None
     print(f"wrote {path}")
     return EXIT_OK

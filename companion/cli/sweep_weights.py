@@ -13,7 +13,7 @@ import os
 import platform
 from pathlib import Path
 
-from companion.bench.cli import add_common_arguments, finish, fly, guarded
+from companion.cli.bench import add_common_arguments, finish, fly, guarded
 from companion.bench.machine import cpu_model
 from companion.bench.weights import Weights, grid
 from uav_model.mission import VARIANTS

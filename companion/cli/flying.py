@@ -1,11 +1,8 @@
-"""The flying subcommands of ``companion``: run, validate, plan, upload, schema.
+"""``companion run``: fly the mission over MAVLink, on the embedded stub, external autopilots
+(``--connect``), PX4 SITL (``--sim px4``) or in process (``--in-process``).
 
-``companion.cli`` builds the parser and calls :func:`add_commands`; each subcommand stores its
-handler in ``func``, which returns the exit code:
-
-    0  success
-    1  mission failure (the flight did not succeed, a link or a vehicle failed)
-    2  bad input: one line ``file:line: field.path: reason``, no traceback, nothing armed
+The handler returns the exit code: 0 success, 1 mission failure (the flight did not succeed, a
+link or a vehicle failed), 2 bad input (one line, no traceback, nothing armed).
 """
 
 from __future__ import annotations
@@ -13,61 +10,34 @@ from __future__ import annotations
 import argparse
 import asyncio
 import dataclasses
-import functools
-import json
-import logging
-import math
 import signal
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_base, embedded_stub
-from companion.sitl.options import add_sim_options, inprocess_options, px4_options
-from companion.sitl.px4 import Px4Options, px4_sitl
 from companion.app.event_loop import leave, run_bounded
-from companion.app.flight_plan import FlightPlan, prepare, verify_readback
+from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
 from companion.app.results import release_reserve
-from companion.app.runner import RunResult, run_mission, save_run, summary_table
+from companion.app.live_run import RunResult, run_mission, save_run, summary_table
+from companion.cli.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput
+from companion.cli.options import (add_certificate_options, add_no_fence_option, add_variant_option, connect_pair,
+                                   connections, output_dir, planned, positive, printer, quiet_mavsdk)
+from companion.cli.sim_options import add_sim_options, inprocess_options, px4_options
 from companion.errors import CompanionError, PreflightRefused
-from companion.cli_common import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput, add_certificate_options,
-                                  add_no_fence_option, add_variant_option, bad_input, connections, output_dir,
-                                  quiet_mavsdk, with_certificate_options)
-from uav_model.fence_margin import fence_warnings
-from uav_model.mission import MissionError, load_mission, mission_schema, shared_goals
+from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_base, embedded_stub
+from companion.sitl.px4 import Px4Options, px4_sitl
 
 if TYPE_CHECKING:
     from companion.sitl.inprocess import InProcessOptions
-
-log = logging.getLogger("companion")
-
-
-# -- argument helpers ---------------------------------------------------------------------
-def _connect(text: str) -> tuple[str, str]:
-    name, sep, url = text.partition("=")
-    if not sep or not name or not url:
-        raise argparse.ArgumentTypeError(f"--connect {text!r}: expected NAME=URL, e.g. a=udpin://0.0.0.0:14540")
-    if "://" not in url:
-        raise argparse.ArgumentTypeError(f"--connect {text!r}: {url!r} is not a MAVSDK URL (udpin://HOST:PORT, "
-                                         "udpout://, tcpout://, serial://DEV:BAUD)")
-    return name, url
 
 
 def _port(text: str) -> int:
     value = int(text)
     if not 1 <= value <= 65535 - 8:
         raise argparse.ArgumentTypeError(f"{value} is not a usable UDP port")
-    return value
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text}: must be a positive number")
     return value
 
 
@@ -87,18 +57,18 @@ def _blackout(text: str) -> str:
     return text
 
 
-def add_commands(sub: argparse._SubParsersAction) -> None:
-    """Register run, validate, plan, upload and schema on the ``companion`` parser."""
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register run on the ``companion`` parser."""
     p = sub.add_parser("run", help="fly the mission over MAVLink (embedded stub unless --connect)",
                        description="Fly every vehicle of the mission with A*-BDWA over MAVSDK. Without --connect "
                                    "the bundled sim_bridge is started on loopback and stopped on exit.")
     p.add_argument("mission", type=Path)
-    p.add_argument("--connect", type=_connect, action="append", default=[], metavar="NAME=URL",
+    p.add_argument("--connect", type=connect_pair, action="append", default=[], metavar="NAME=URL",
                    help="fly an external autopilot, e.g. a=udpin://0.0.0.0:14540 (one per vehicle)")
     add_variant_option(p)
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write summary.json, flight.csv, traffic.csv, trajectory.png (and the stub's .tlog) here")
-    p.add_argument("--speedup", type=_positive, default=None,
+    p.add_argument("--speedup", type=positive, default=None,
                    help="embedded stub: sim seconds per wall second (default 1); with --in-process: pace the "
                         "sim at this factor (default: as fast as the loop turns)")
     p.add_argument("--loss", type=_probability, default=0.0, metavar="P", help="embedded stub: API packet loss")
@@ -110,7 +80,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help=f"embedded stub: vehicle i talks to PORT_BASE + i (default: {DEFAULT_PORT_BASE}, or the next "
                         "free block when another autopilot is already there)")
     p.add_argument("--gcs-port", type=_port, default=14550, help="embedded stub: GCS link port (default 14550)")
-    p.add_argument("--progress-every", type=_positive, default=20.0, metavar="S",
+    p.add_argument("--progress-every", type=positive, default=20.0, metavar="S",
                    help="a progress line per vehicle every S sim seconds (default 20)")
     p.add_argument("--no-land", action="store_true", help="hold at the station instead of landing")
     add_sim_options(p)
@@ -125,9 +95,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plan-from-current", action="store_true",
                    help="plan from where each vehicle is and its heading, instead of refusing a vehicle that is "
                         "away from its mission station")
-    p.add_argument("--station-tolerance", type=_positive, default=None, metavar="M",
+    p.add_argument("--station-tolerance", type=positive, default=None, metavar="M",
                    help="how far a vehicle may be from its mission station (default: twice the arrival radius)")
-    p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S", help="wall seconds (default 15)")
+    p.add_argument("--connect-timeout", type=positive, default=15.0, metavar="S", help="wall seconds (default 15)")
     p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
                    help="MAVLink 2 signing: refused, because MAVSDK (the companion's MAVLink library) has no signing "
                         "API; see docs/companion.md, 'Links and signing'")
@@ -136,159 +106,6 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "clock, deterministically and faster than real time (same outputs, no .tlog)")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("validate", help="check a mission file (schema, geometry, reachability)")
-    p.add_argument("mission", type=Path)
-    add_variant_option(p)
-    add_certificate_options(p)
-    p.set_defaults(func=cmd_validate)
-
-    p = sub.add_parser("plan", help="global routes and a plot, no vehicles")
-    p.add_argument("mission", type=Path)
-    add_variant_option(p)
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="write routes.json and trajectory.png here")
-    p.set_defaults(func=cmd_plan)
-
-    p = sub.add_parser("upload", help="plan, upload the routes as MAVLink missions and the geofence, read them back")
-    p.add_argument("mission", type=Path)
-    p.add_argument("--connect", type=_connect, action="append", default=[], metavar="NAME=URL", required=True)
-    add_variant_option(p)
-    p.add_argument("--connect-timeout", type=_positive, default=15.0, metavar="S")
-    add_no_fence_option(p)
-    p.set_defaults(func=cmd_upload)
-
-    p = sub.add_parser("schema", help="print the mission JSON Schema")
-    p.set_defaults(func=cmd_schema)
-
-
-# -- shared steps -------------------------------------------------------------------------
-def _planned(handler: Callable[[argparse.Namespace, FlightPlan], int]) -> Callable[[argparse.Namespace], int]:
-    """A subcommand on the mission's plan: a bad file or an unreachable goal exits 2 before it starts."""
-    @functools.wraps(handler)
-    def with_plan(args: argparse.Namespace) -> int:
-        try:
-            plan = prepare(load_mission(args.mission), args.variant)
-            plan = with_certificate_options(dataclasses.replace(plan, geofence=not getattr(args, "no_fence", False)), args)
-        except MissionError as exc:
-            return bad_input(exc)
-        return handler(args, plan)
-    return with_plan
-
-
-def _printer(started: float):
-    def report(line: str) -> None:
-        print(f"[{time.monotonic() - started:6.1f}s] {line}", flush=True)
-        log.info("%s", line)
-    return report
-
-
-# -- commands ------------------------------------------------------------------------------
-def cmd_schema(args: argparse.Namespace) -> int:
-    print(json.dumps(mission_schema(), indent=2))
-    return EXIT_OK
-
-
-@_planned
-def cmd_validate(args: argparse.Namespace, plan: FlightPlan) -> int:
-    m = plan.mission
-    for station, names in shared_goals(m).items():
-        print(f"{m.source}: warning: vehicles {', '.join(names)} share goal station {station!r}: "
-              f"only one can hold it; the others will wait near it until the time limit")
-    for line in fence_warnings(m):
-        print(f"{m.source}: warning: fence: {line}")
-    routes = ", ".join(f"{n}: {r.nodes_raw} -> {r.nodes_sparse} nodes" for n, r in plan.routes.items())
-    print(f"{m.source}: ok: {len(m.vehicles)} vehicle(s), {len(m.world.obstacles)} obstacle(s) "
-          f"({len(m.world.moving_obstacles)} moving), variant {plan.variant}" + (f"; routes {routes}" if routes else ""))
-    if plan.certificate is not None:
-        print(plan.certificate.describe())
-        if (advice := plan.certificate_advice()) is not None:
-            print(f"  {advice}")
-    return EXIT_OK
-
-
-@_planned
-def cmd_plan(args: argparse.Namespace, plan: FlightPlan) -> int:
-    from companion.planning.bounds import lower_bound_s
-    out = output_dir(args.out)
-    doc: dict = {"mission": plan.mission.name, "variant": plan.variant, "vehicles": {}}
-    for v in plan.mission.by_priority:
-        nodes = plan.nodes_enu_m(v)
-        route = plan.routes.get(v.name)
-        bound = lower_bound_s(plan.mission.world, v.start_enu_m, v.goal_enu_m, v.speed_m_s)
-        doc["vehicles"][v.name] = {
-            "start": v.start, "goal": v.goal, "nodes_raw": None if route is None else route.nodes_raw,
-            "nodes_sparse": None if route is None else route.nodes_sparse,
-            "constraint": getattr(route, "constraint", None),
-            "lower_bound_s": bound,
-            "waypoints_enu_m": [[round(float(x), 3), round(float(y), 3)] for x, y in nodes],
-            "waypoints_geodetic": [[round(w.lat_deg, 7), round(w.lon_deg, 7), w.alt_rel_m] for w in plan.waypoints(v)],
-        }
-        print(f"{v.name}: {v.start} -> {v.goal}: "
-              + (f"{route.nodes_raw} A* nodes -> {route.nodes_sparse} sparse" if route else "no global route (variant)")
-              + f"; lower bound {bound:.1f} s")
-    if plan.certificate is not None:
-        doc["occlusion_certificate"] = plan.certificate.summary_dict()
-        print(plan.certificate.describe())
-    (out / "routes.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    from companion.app.fence import mission_fence
-    from companion.formats.qgc_plan import plan_document
-    zones = mission_fence(plan.mission)
-    for v in plan.mission.vehicles:
-        doc = plan_document(plan.mission, v, plan.waypoints(v), zones)
-        (out / f"{v.name}.plan").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    _save_plan_figure(out / "trajectory.png", plan)
-    print(f"wrote {out / 'routes.json'}, {out / 'trajectory.png'} and a QGroundControl .plan per vehicle")
-    return EXIT_OK
-
-
-def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
-    """The world with the planned routes (nothing flown yet), moving obstacles swept over the
-    longest route's time at cruise."""
-    from companion.plots import place_legend, vehicle_colors, world_figure
-    nodes = {v.name: plan.nodes_enu_m(v) for v in plan.mission.by_priority}
-    t_end = max(sum(math.dist(p, q) for p, q in zip(nodes[v.name][:-1], nodes[v.name][1:])) / v.speed_m_s
-                for v in plan.mission.vehicles)
-    fig, ax = world_figure(plan.mission, title=f"{plan.mission.name}: planned routes ({plan.variant})",
-                           sweep_until_s=t_end)
-    colors = vehicle_colors(plan.mission)
-    for v in plan.mission.by_priority:
-        route = plan.routes.get(v.name)
-        if route is not None and len(route.raw_enu_m) != len(nodes[v.name]):
-            ax.plot(route.raw_enu_m[:, 0], route.raw_enu_m[:, 1], ls="--", lw=0.8, alpha=0.6, color=colors[v.name],
-                    label=f"{v.name}: raw A* ({route.nodes_raw} nodes)")
-        ax.plot(nodes[v.name][:, 0], nodes[v.name][:, 1], lw=1.4, marker="o", ms=3.5, color=colors[v.name],
-                label=f"{v.name}: uploaded route ({len(nodes[v.name])} waypoints)")
-    place_legend(fig, ax)
-    fig.savefig(path)
-
-
-@_planned
-def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
-    conns = connections(plan, args.connect)
-    quiet_mavsdk(None)
-    try:
-        run_bounded(_upload(plan, conns, args.connect_timeout, _printer(time.monotonic())))
-    except PreflightRefused as exc:  # the geofence refused or read back different
-        print(f"companion: refused: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except CompanionError as exc:
-        print(f"companion: upload failed: {exc}", file=sys.stderr)
-        return EXIT_FAILED
-    return EXIT_OK
-
-
-async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, report) -> None:
-    from companion.app.fence import upload_and_verify_fence
-    from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
-    for v in plan.mission.vehicles:
-        async with open_mavsdk_vehicle(v.name, v.system_id, conns[v.name], plan.mission.origin,
-                                       connect_timeout_s=timeout_s) as vehicle:
-            waypoints = plan.waypoints(v)
-            await vehicle.upload_route(waypoints, plan.mission.planner.acceptance_radius_m)
-            got = await vehicle.download_route()
-            verify_readback(v.name, waypoints, got)
-            report(f"{v.name}: uploaded {len(waypoints)} waypoints to {conns[v.name]} and read them back")
-            await upload_and_verify_fence(vehicle, plan, report)
-
 
 MAVSDK_CANNOT_SIGN = ("--signing-key: the companion cannot sign: MAVSDK {version} has no MAVLink 2 signing API, so an "
                       "autopilot that enforces signing would refuse every command it sends; fly unsigned on a trusted link "
@@ -296,7 +113,7 @@ MAVSDK_CANNOT_SIGN = ("--signing-key: the companion cannot sign: MAVSDK {version
                       "sim-bridge --allow-sysid (docs/companion.md)")
 
 
-@_planned
+@planned
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     if args.signing_key is not None:
         from importlib.metadata import version
@@ -354,7 +171,7 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
                checks: PreflightSettings = PreflightSettings(), px4: Px4Options | None = None,
                stub_notices: list[str] | None = None) -> RunResult:
     started = time.monotonic()
-    report = _printer(started)
+    report = printer(started)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     main = asyncio.current_task()

@@ -1,6 +1,7 @@
 """``companion bench``: the four-variant ablation over seeded random scenarios (paper Table IV).
 
 Registered on the main parser by :func:`add_parser`; also runs as ``python -m companion.bench``.
+The options, the output directory and the flying are shared with ``companion sweep weights``.
 """
 
 from __future__ import annotations
@@ -19,11 +20,11 @@ from typing import Any
 
 import yaml
 
-from companion.bench.executors import CONNECT_TIMEOUT_S, ExecutorError, ExecutorKind, ExecutorSpec
+from companion.bench.executors import CONNECT_TIMEOUT_S, ExecutorKind, ExecutorSpec
 from companion.bench.machine import cpu_model
+from companion.bench.table import DEFAULT_VARIANTS
+from companion.cli.errors import BadInput, bad_input
 from uav_model.mission import VARIANTS
-
-DEFAULT_VARIANTS = ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa")
 DESCRIPTION = ("Fly seeded random scenarios (SPEC §3) with each planner variant, headless and in parallel; "
                "write runs.csv, summary.json, table.md, figures and a replayable failure gallery "
                "(paper Table IV, Fig. 11-13). Exit 1 if any run was unsafe or crashed, 2 on bad input.")
@@ -115,10 +116,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return configure(parser)
 
 
-class BadInput(Exception):
-    """Bench input that cannot be used; ``str()`` is the one line shown to the user."""
-
-
 def make_out_dir(out: Path) -> Path:
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -151,12 +148,12 @@ def main(args: argparse.Namespace) -> int:
 
 
 def guarded(prog: str, command: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
-    """``command(args)``, with bad input and executor trouble as one line and exit 2."""
+    """``command(args)``, with bad input and executor trouble (:class:`ExecutorError` is a
+    :class:`BadInput`) as one line and exit 2."""
     try:
         return command(args)
-    except (BadInput, ExecutorError) as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return 2
+    except BadInput as exc:
+        return bad_input(exc, prog)
 
 
 @dataclass(frozen=True)
@@ -198,9 +195,9 @@ def fly(args: argparse.Namespace, out: Path, variants: Sequence[str], weight_set
 def finish(prog: str, flown: Flown) -> int:
     """Write the failure index; exit 1 when a run was unsafe or crashed, else 0."""
     from companion.bench.execute import write_failure_index
-    from companion.bench.table import UNSAFE_REASONS
+    from companion.planning.metrics import UNSAFE_REASONS, FailureReason
     write_failure_index(flown.rows, flown.out)
-    bad = sum(1 for r in flown.rows if r["reason"] in (*UNSAFE_REASONS, "error"))
+    bad = sum(1 for r in flown.rows if r["reason"] in (*UNSAFE_REASONS, FailureReason.ERROR))
     if bad:
         print(f"{prog}: {bad} run(s) unsafe or errored; see {flown.out}/failures/index.md", file=sys.stderr)
     return 1 if bad else 0

@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from companion.cli_common import BadInput
+from companion.cli.errors import BadInput
 from companion.sitl.px4 import API_PORT_BASE, GCS_PORT, PX4_DIR_ENV, Px4Options, check_system_ids, find_px4
 from uav_model.mission import Mission
 
