@@ -40,7 +40,9 @@ def flown_forecast(mission: "Mission", route: "Route", name: str, budget: "Budge
 
     vehicle = mission.vehicle(name)
     alone = dataclasses.replace(mission, vehicles=(vehicle,))
-    track = simulate(alone, routes={name: route}, budget=budget).tracks[name]
+    # Only the track is wanted: no lower bound to score it against (on a large mission that
+    # bound's visibility graph costs more than the flight, and no budget meters it).
+    track = simulate(alone, routes={name: route}, lower_bounds_s={name: None}, budget=budget).tracks[name]
     t, xy = np.asarray(track.t_s, dtype=float), np.column_stack([track.x_m, track.y_m])
     keep = np.zeros(len(t), dtype=bool)
     keep[::_EVERY] = True
