@@ -58,3 +58,42 @@ class SimClock:
     def achieved_speedup(self, wall_t: float) -> float:
         elapsed = wall_t - self._wall_start
         return self.sim_time_s / elapsed if elapsed > 0 else 0.0
+
+    def slip(self, steps: int) -> None:
+        """Give up ``steps`` steps that were due (sim time held while the wall clock runs on)."""
+        if steps > 0:
+            self._wall_origin += steps * self.dt_s / self.speedup
+            self.slipped_s += steps * self.dt_s
+
+
+class OffboardPacer:
+    """Holds sim time while an offboard client's setpoints are late, as a simulator in lockstep does.
+
+    A companion on a loaded machine can go unscheduled for a fraction of a second; at 20x that is
+    seconds of sim time in which the vehicle flies its last setpoint blind. With a pacer, sim time
+    runs at most ``lead_s`` past the oldest latest setpoint of the vehicles in OFFBOARD, for at most
+    ``max_hold_wall_s`` of wall time per stall: a client that is gone for longer is gone (the
+    clock runs free, and the offboard-loss failsafe comes in sim time as it would have).
+    """
+
+    def __init__(self, lead_s: float, max_hold_wall_s: float = 1.0):
+        self.lead_s, self.max_hold_wall_s = lead_s, max_hold_wall_s
+        self.held_s = 0.0  # sim seconds held back in all, for the stats
+        self._stall: float | None = None  # the setpoint time being waited past, and since when (wall)
+        self._since_wall = 0.0
+
+    def steps(self, clock: SimClock, due: int, setpoint_t_s: float | None, wall_t: float) -> int:
+        """Of ``due`` steps, how many may run now; the rest slip on ``clock``. ``setpoint_t_s``: the
+        oldest latest setpoint (sim time) of the vehicles in OFFBOARD, None when none is."""
+        if setpoint_t_s is None:
+            return due
+        room = max(0, math.floor((setpoint_t_s + self.lead_s - clock.sim_time_s) / clock.dt_s + 1e-9))
+        if due <= room:
+            return due
+        if self._stall != setpoint_t_s:
+            self._stall, self._since_wall = setpoint_t_s, wall_t
+        if wall_t - self._since_wall > self.max_hold_wall_s:
+            return due
+        clock.slip(due - room)
+        self.held_s += (due - room) * clock.dt_s
+        return room
