@@ -9,9 +9,10 @@ Sockets (all bound to loopback unless told otherwise):
 - one GCS socket carrying every vehicle, sending to ``host:gcs_port`` and to every peer that
   writes to it (QGroundControl, MAVProxy).
 
-Each socket decodes with its own pymavlink parser per peer and each (vehicle, link) encodes with
-its own ``MAVLink`` object, so sequence numbers are per link as in PX4. Nothing here blocks:
-datagrams go out through ``transport.sendto`` and come in through ``datagram_received``.
+Each socket decodes with its own pymavlink parser per peer (``MAVLink.parse_buffer``) and each
+(vehicle, link) encodes with its own ``MAVLink`` object, so sequence numbers are per link as in
+PX4. Nothing here blocks: datagrams go out through ``transport.sendto`` and come in through
+``DatagramProtocol.datagram_received``.
 """
 
 from __future__ import annotations
@@ -28,10 +29,11 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import Mission
 from sim_bridge.admission import Admission
-from sim_bridge.clock import OffboardPacer, SimClock
+from sim_bridge.clock import SimClock
 from sim_bridge.endpoint import Endpoint, Link
 from sim_bridge.faults import Blackout, FaultConfig, LinkFaults
 from sim_bridge.options import SimBridgeError, SimOptions
+from sim_bridge.px4 import FlightMode
 from sim_bridge.statustext import StatustextSplitter
 from sim_bridge.tlog import TlogSet
 from sim_bridge.vehicle import Emit, SimVehicle
@@ -78,8 +80,8 @@ class SimBridge:
         self._task: asyncio.Task | None = None
         self._tlog: TlogSet | None = None
         self._timers: set[asyncio.TimerHandle] = set()
-        self._cpu_start = self._wall_start = 0.0
-        self._pacer: OffboardPacer | None = None  # options.pace_offboard_s, from start()
+        self._cpu_start = 0.0
+        self._wall_start = 0.0
         self._running = False
 
     def _make_link(self, v: SimVehicle, name: str, with_faults: bool) -> Link:
@@ -118,7 +120,6 @@ class SimBridge:
             raise SimBridgeError(f"cannot open UDP sockets on {bind}: {exc}") from None
         self._clock = SimClock(o.speedup, o.physics_dt_s, loop.time(),
                                max_lag_steps=max(1, math.ceil(o.max_catchup_sim_s / o.physics_dt_s)))
-        self._pacer = None if o.pace_offboard_s is None else OffboardPacer(o.pace_offboard_s)
         if o.tlog_dir is not None:
             epoch_at_start = time.time()  # tlog stamps: this wall instant plus the sim seconds since
             self._tlog = TlogSet(Path(o.tlog_dir), self.mission.name,
@@ -167,11 +168,7 @@ class SimBridge:
         while True:
             now = loop.time()
             try:
-                due = clock.steps_due(now)
-                if self._pacer is not None:  # lockstep: wait (a little) for late setpoints
-                    due = self._pacer.steps(clock, due, min((v.setpoint.received_t_s for v in self.vehicles
-                                                             if v.in_offboard), default=None), now)
-                for _ in range(due):
+                for _ in range(clock.steps_due(now)):
                     clock.advance()
                     for i, v in enumerate(self.vehicles):
                         self._dispatch(i, v.step(dt))
@@ -298,12 +295,13 @@ class SimBridge:
 
     @property
     def achieved_speedup(self) -> float:
-        return 0.0 if self._clock is None else self._clock.achieved_speedup(asyncio.get_running_loop().time())
+        if self._clock is None:
+            return 0.0
+        return self._clock.achieved_speedup(asyncio.get_running_loop().time())
 
     @property
     def slipped_s(self) -> float:
-        """Sim seconds given up: the stub fell behind the wall clock (max_catchup_sim_s) or waited for
-        late setpoints (pace_offboard_s)."""
+        """Sim seconds given up because the stub fell behind the wall clock (see max_catchup_sim_s)."""
         return self._clock.slipped_s if self._clock is not None else 0.0
 
     @property
@@ -327,6 +325,9 @@ class SimBridge:
     def collision_count(self) -> int:
         return sum(v.collision_count for v in self.vehicles)
 
+    def modes(self) -> dict[str, FlightMode]:
+        return {v.name: v.mode for v in self.vehicles}
+
     def api_address(self, index: int) -> tuple[str, int]:
         """The local (host, port) of vehicle ``index``'s API socket."""
         ep = self._api[index]
@@ -335,8 +336,9 @@ class SimBridge:
 
     @property
     def gcs_address(self) -> tuple[str, int] | None:
-        ep = self._gcs
-        return None if ep is None or ep.transport is None else ep.transport.get_extra_info("sockname")[:2]
+        if self._gcs is None or self._gcs.transport is None:
+            return None
+        return self._gcs.transport.get_extra_info("sockname")[:2]
 
     @property
     def tlog_path(self) -> Path | None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
-import math
 import signal
 import sys
 from pathlib import Path
@@ -77,10 +76,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
                    help="MAVLink 2 signing: sign every frame and drop unsigned ones (HEARTBEAT, RADIO_STATUS "
                         "excepted); FILE holds 32 raw bytes, 64 hex digits or a passphrase (SHA-256, as MAVProxy)")
-    p.add_argument("--pace-offboard", type=float, default=None, metavar="S",
-                   help="lockstep with the offboard client: sim time runs at most S sim seconds past its latest "
-                        "setpoint (for up to 1 s of wall time per stall), so a starved client slows the run "
-                        "instead of flying blind (default: off, as PX4 SITL)")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return p
 
@@ -97,15 +92,13 @@ def options_from_args(args: argparse.Namespace) -> SimOptions:
             raise ValueError(f"--param {name}: unknown parameter")
         if name not in _MISSION_DEPENDENT and not defs[name].accepts(value):
             raise ValueError(f"--param {name}={value:g}: outside [{defs[name].min_value:g}, {defs[name].max_value:g}]")
-    if args.pace_offboard is not None and not (math.isfinite(args.pace_offboard) and 0.0 < args.pace_offboard <= 60.0):
-        raise ValueError(f"--pace-offboard {args.pace_offboard}: must be in (0, 60] sim seconds")
     allow = None if args.allow_sysid is None else parse_sysids(args.allow_sysid)
     key = None if args.signing_key is None else load_signing_key(args.signing_key)
     return SimOptions(speedup=args.speedup, host=args.host, bind_host=args.bind, api_port_base=args.api_port_base,
                       gcs_port=None if args.no_gcs else args.gcs_port, physics_dt_s=args.physics_dt, seed=args.seed,
                       faults=faults, tlog_dir=args.tlog, tlog_per_vehicle=args.tlog_per_vehicle,
                       speed_headroom=args.speed_headroom, params=tuple(args.param), allow_sysids=allow,
-                      signing_key=key, pace_offboard_s=args.pace_offboard)
+                      signing_key=key)
 
 
 async def _serve(mission, options: SimOptions) -> None:

@@ -37,9 +37,6 @@ class SimOptions:
     # Behind by more than this (the process was not scheduled), sim time slips instead of
     # jumping: a jump would run the offboard-loss clock over setpoints still queued in the socket.
     max_catchup_sim_s: float = 0.4
-    # Lockstep with an offboard client: sim time runs at most this far past its latest setpoint
-    # (clock.OffboardPacer; None: the wall clock alone, as PX4 SITL). The companion's embedded stub sets it.
-    pace_offboard_s: float | None = None
     params: tuple[tuple[str, float], ...] = ()  # parameter values at boot (NAME, VALUE), as a SITL startup script
     allow_sysids: frozenset[int] | None = None  # obey only these sender system ids (None: anyone, as PX4)
     signing_key: bytes | None = field(default=None, repr=False)  # MAVLink 2 signing: sign out, refuse unsigned in

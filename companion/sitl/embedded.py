@@ -45,10 +45,6 @@ class StubOptions:
     tlog_dir: Path | None = None
     log_path: Path | None = None  # the child's output; None: discarded
     params: tuple[str, ...] = ()  # autopilot parameters at boot (NAME=VALUE); none: PX4's defaults
-    # Lockstep with the companion (sim-bridge --pace-offboard): at a speed factor, a companion left
-    # unscheduled for 0.25 s of wall time by a loaded machine would leave its vehicles 5 s of sim
-    # time (50 m at 20x) on their last setpoint; the stub waits for it instead (up to 1 s of wall).
-    pace_offboard_s: float | None = 1.0
 
     def argv(self, mission_path: Path) -> list[str]:
         out = [sys.executable, "-m", "companion.sitl.stub_child", str(mission_path), "--speedup", f"{self.speedup:g}",
@@ -64,8 +60,6 @@ class StubOptions:
             out += ["--tlog", str(self.tlog_dir)]
         for p in self.params:
             out += ["--param", p]
-        if self.pace_offboard_s is not None:
-            out += ["--pace-offboard", f"{self.pace_offboard_s:g}"]
         return out
 
 

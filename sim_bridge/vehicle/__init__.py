@@ -163,11 +163,6 @@ class SimVehicle:
     def setpoint(self) -> Setpoint | None:
         return self.modes.setpoint
 
-    @property
-    def in_offboard(self) -> bool:
-        """Armed, in OFFBOARD, flying on a setpoint (``setpoint`` is set)."""
-        return self.armed and self.mode is FlightMode.OFFBOARD and self.modes.setpoint is not None
-
     def param(self, name: str) -> float:
         return self.params[name]
 

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.mission import parse_mission
-from sim_bridge.clock import ClockError, OffboardPacer, SimClock
+from sim_bridge.clock import ClockError, SimClock
 from sim_bridge.faults import Blackout, FaultConfig, FaultSpecError, LinkFaults
 from sim_bridge.streams import API_PROFILE, StreamProfile, StreamScheduler
 from sim_bridge.truth import CollisionChecker
@@ -74,31 +74,6 @@ def test_clock_runs_fixed_steps_at_the_speed_factor_and_slips_when_starved():
         SimClock(speedup=0.0, dt_s=0.02, wall_start_s=0.0)
     with pytest.raises(ClockError):
         SimClock(speedup=float("nan"), dt_s=0.02, wall_start_s=0.0)
-
-
-def test_the_offboard_pacer_holds_sim_time_for_late_setpoints_then_lets_it_run():
-    clock = SimClock(speedup=20.0, dt_s=0.02, wall_start_s=0.0, max_lag_steps=1000)
-    pacer = OffboardPacer(lead_s=1.0, max_hold_wall_s=0.5)
-    assert pacer.steps(clock, clock.steps_due(0.01), None, 0.01) == 10  # nobody in OFFBOARD: the wall clock
-    for _ in range(10):
-        clock.advance()
-    # The last setpoint came at sim 0.2 s: the clock may run to 1.2 s, not on to the 5 s the wall asks.
-    due = clock.steps_due(0.25)
-    allowed = pacer.steps(clock, due, 0.2, 0.25)
-    assert due == 240 and allowed == 50
-    for _ in range(allowed):
-        clock.advance()
-    assert clock.sim_time_s == pytest.approx(1.2) and clock.slipped_s == pytest.approx(3.8)
-    assert clock.steps_due(0.25) == 0  # the withheld steps slipped: no burst afterwards
-    assert pacer.steps(clock, clock.steps_due(0.5), 0.2, 0.5) == 0  # still held, 0.25 s wall into the stall
-    # A stall longer than max_hold_wall_s is a client that is gone: sim time runs free again.
-    due = clock.steps_due(0.8)
-    assert pacer.steps(clock, due, 0.2, 0.8) == due > 0
-    # A fresh setpoint starts a new hold.
-    for _ in range(due):
-        clock.advance()
-    t = clock.sim_time_s
-    assert pacer.steps(clock, clock.steps_due(1.5), t, 1.5) == 50 and pacer.held_s > 0
 
 
 def test_loss_is_seeded_per_link_and_repeatable():
