@@ -53,16 +53,21 @@ def _ring(origin: frames.GeoOrigin, poly: Polygon) -> tuple[tuple[float, float],
     return tuple(frames.local_to_geodetic(origin, x, y)[:2] for x, y in list(simple.exterior.coords)[:-1])
 
 
+def _grown_polygon(o: Obstacle, standoff_m: float) -> Polygon:
+    """A polygon obstacle's exclusion in ENU metres (the footprint grown, ``standoff_m`` inside its keep-out)."""
+    grow = exclusion_margin_m(o, standoff_m)
+    if grow <= 0.0:
+        return o.footprint
+    return o.footprint.buffer(grow, quad_segs=max(2, int(grow / FENCE_VERTEX_SPACING_M)))
+
+
 def exclusion_zone(origin: frames.GeoOrigin, o: Obstacle, standoff_m: float) -> GeoFenceZone:
     """One static obstacle as an exclusion circle or polygon, ``standoff_m`` inside its keep-out."""
-    grow = exclusion_margin_m(o, standoff_m)
     if o.is_circle:
         lat, lon, _ = frames.local_to_geodetic(origin, *o.center)
-        return GeoFenceZone(inclusion=False, center_deg=(lat, lon), radius_m=o.size_m + grow)
-    if grow <= 0.0:
-        return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, o.footprint))
-    grown = o.footprint.buffer(grow, quad_segs=max(2, int(grow / FENCE_VERTEX_SPACING_M)))
-    return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, grown))
+        radius_m = o.size_m + exclusion_margin_m(o, standoff_m)
+        return GeoFenceZone(inclusion=False, center_deg=(lat, lon), radius_m=radius_m)
+    return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, _grown_polygon(o, standoff_m)))
 
 
 def mission_fence(mission: Mission) -> tuple[GeoFenceZone, ...]:
@@ -81,8 +86,8 @@ class FenceGeometry:
     def __init__(self, mission: Mission):
         standoff = fence_standoff_m(mission)
         self.area = mission.world.geofence
-        self.exclusions = [(o.id, o.footprint.buffer(exclusion_margin_m(o, standoff)) if not o.is_circle
-                            else Point(o.center).buffer(o.size_m + exclusion_margin_m(o, standoff)))
+        self.exclusions = [(o.id, _grown_polygon(o, standoff) if not o.is_circle
+                            else Point(o.center).buffer(o.size_m + exclusion_margin_m(o, standoff), quad_segs=64))
                            for o in mission.world.static_obstacles]
 
     def breach(self, x_east_m: float, y_north_m: float, within_m: float) -> str | None:

@@ -7,8 +7,8 @@
 As PX4 (navigator ``Geofence``, commander ``failsafe.cpp`` ``fromGfActParam``): a position is
 inside the fence when it lies in at least one inclusion zone (if there are any) and in no exclusion
 zone; a breach is reported once, as it begins (STATUSTEXT "Geofence: approaching or outside
-geofence", as PX4's health checks send it), and while armed it takes GF_ACTION: 0 none, 1 warning, 2 Hold, 3 Return, 4 terminate,
-5 Land (PX4's default 2). The action is not undone by the stub: a client may switch mode again
+geofence", as PX4's health checks send it), and while armed it takes GF_ACTION: 0 none,
+1 warning, 2 Hold, 3 Return, 4 terminate, 5 Land (PX4's default 2). The action is not undone by the stub: a client may switch mode again
 (PX4 lets the user take over a geofence Hold by a mode switch), and a new breach acts again.
 GF_PREDICT 1 also checks the braking point (PX4's experimental predictive trigger, default 0).
 GF_MAX_HOR_DIST (> 0) is a circle around home, as PX4's ("Geofence: exceeding maximum distance to
