@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -169,6 +170,10 @@ else:  # pragma: no cover (PyYAML built without libyaml)
             self._start_counting()
 
 BoundedLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, BoundedLoader.construct_mapping)
+# YAML 1.1 reads 1e3 (no dot) as a string; a user, JSON and YAML 1.2 mean a number.
+BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float",
+                                    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+                                    list("-+0123456789."))
 
 
 def load_yaml(text: str, source: str) -> tuple[Any, yaml.Node | None]:

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 from companion.app.failsafe import FailsafeEvent
 from companion.app.flight_log import FlightLog
+from companion.app.fence import FenceGeometry
 from companion.app.flight_plan import FlightPlan
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.coordination.replan import ReplanJob, Replanned
@@ -80,6 +81,7 @@ class FlightContext:
         self.vehicles = dict(vehicles)
         self.report = report
         self.field = ObstacleField.from_world(plan.mission.world)
+        self.fence = FenceGeometry(plan.mission) if plan.geofence else None  # what was uploaded, if anything
         self.barrier = asyncio.Barrier(len(self.vehicles))
         self.arrived: set[str] = set()  # vehicles parked at their station: others drop the sightline term
         self.departure_sim_s: float | None = None  # the common departure (t = 0 of the schedule), set by the first pilot

@@ -21,7 +21,10 @@ streamed all through the grace, reach it again (measured: 0.2-3 s after they res
 A geofence breach is told apart first: PX4 says "Geofence violation: ..." as it takes GF_ACTION
 (Hold by default, then "Failsafe activated" too). Any such notice heard in flight is a breach, in
 whatever mode (with GF_ACTION 1 the vehicle stays in OFFBOARD): the flight ends with the failure
-reason ``geofence``, and the companion does not fight the autopilot's action.
+reason ``geofence``, and the companion does not fight the autopilot's action. The words are not
+needed: a mode change out of OFFBOARD while the vehicle is at the fence it uploaded (``at_fence``,
+from its own position) is the fence's action too. PX4 sends no FENCE_STATUS, and its STATUSTEXT
+("Geofence: ...") may be lost on the link or split.
 
 Every failsafe judged is kept as a :class:`FailsafeEvent` (the run's summary lists them).
 """
@@ -79,6 +82,7 @@ class FailsafeWatch:
         self.mode_changes = status.mode_changes
         self.used_notice_t: float | None = status.last_failsafe_t_sim_s  # notices before OFFBOARD do not count
         self.fence_notices = status.fence_notices  # likewise for breach notices
+        self.fence_where: str | None = None  # at_fence, when that (not a notice) made the verdict FENCE
         self.recovering = False  # a failsafe is being recovered: until OFFBOARD is back, Hold/RTL stay one
         self.grace_since_wall: float | None = None
 
@@ -93,8 +97,10 @@ class FailsafeWatch:
             self.used_notice_t = st.last_failsafe_t_sim_s
 
     def judge(self, st: VehicleStatus, clock_s: float | None, now_wall_s: float, grace_wall_s: float,
-              recent_gap: bool) -> ModeVerdict:
-        if st.fence_notices != self.fence_notices:
+              recent_gap: bool, at_fence: str | None = None) -> ModeVerdict:
+        """``at_fence``: where the vehicle is at its uploaded fence (``fence.FenceGeometry.breach``), or None."""
+        if st.fence_notices != self.fence_notices or (at_fence is not None and st.mode is not FlightMode.OFFBOARD):
+            self.fence_where = at_fence if st.fence_notices == self.fence_notices else None
             self.fence_notices = st.fence_notices
             self._use_notice(st)  # its "Failsafe activated" is the fence's, not an offboard loss
             return ModeVerdict.FENCE

@@ -13,6 +13,10 @@ buffered with round joins of about ``FENCE_VERTEX_SPACING_M`` per vertex, whose 
 the offset curve, so they never come closer to the planner's keep-out. Moving obstacles are not
 fenced (a fence cannot move).
 
+:class:`FenceGeometry` answers, from a position, whether the vehicle is at the uploaded fence: with
+a failsafe mode change that is the autopilot's fence action, whatever its words (PX4 sends no
+FENCE_STATUS; its STATUSTEXT is "Geofence: approaching or outside geofence").
+
 If the autopilot refuses the fence, or reads back something else, the flight is refused
 (:class:`~companion.errors.GeofenceRefused`) before anything is armed; ``companion run --no-fence``
 skips the step for autopilots without fence support.
@@ -24,7 +28,7 @@ import asyncio
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from shapely.geometry import Polygon
+from shapely.geometry import Point, Polygon
 
 from uav_model import frames
 from uav_model.fence_margin import exclusion_margin_m, fence_standoff_m, fence_warnings
@@ -49,16 +53,21 @@ def _ring(origin: frames.GeoOrigin, poly: Polygon) -> tuple[tuple[float, float],
     return tuple(frames.local_to_geodetic(origin, x, y)[:2] for x, y in list(simple.exterior.coords)[:-1])
 
 
+def _grown_polygon(o: Obstacle, standoff_m: float) -> Polygon:
+    """A polygon obstacle's exclusion in ENU metres (the footprint grown, ``standoff_m`` inside its keep-out)."""
+    grow = exclusion_margin_m(o, standoff_m)
+    if grow <= 0.0:
+        return o.footprint
+    return o.footprint.buffer(grow, quad_segs=max(2, int(grow / FENCE_VERTEX_SPACING_M)))
+
+
 def exclusion_zone(origin: frames.GeoOrigin, o: Obstacle, standoff_m: float) -> GeoFenceZone:
     """One static obstacle as an exclusion circle or polygon, ``standoff_m`` inside its keep-out."""
-    grow = exclusion_margin_m(o, standoff_m)
     if o.is_circle:
         lat, lon, _ = frames.local_to_geodetic(origin, *o.center)
-        return GeoFenceZone(inclusion=False, center_deg=(lat, lon), radius_m=o.size_m + grow)
-    if grow <= 0.0:
-        return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, o.footprint))
-    grown = o.footprint.buffer(grow, quad_segs=max(2, int(grow / FENCE_VERTEX_SPACING_M)))
-    return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, grown))
+        radius_m = o.size_m + exclusion_margin_m(o, standoff_m)
+        return GeoFenceZone(inclusion=False, center_deg=(lat, lon), radius_m=radius_m)
+    return GeoFenceZone(inclusion=False, vertices_deg=_ring(origin, _grown_polygon(o, standoff_m)))
 
 
 def mission_fence(mission: Mission) -> tuple[GeoFenceZone, ...]:
@@ -68,6 +77,32 @@ def mission_fence(mission: Mission) -> tuple[GeoFenceZone, ...]:
     standoff = fence_standoff_m(mission)
     area = GeoFenceZone(inclusion=True, vertices_deg=_ring(origin, world.geofence))
     return (area,) + tuple(exclusion_zone(origin, o, standoff) for o in world.static_obstacles)
+
+
+class FenceGeometry:
+    """The uploaded fence in the mission's ENU metres (the zones :func:`mission_fence` uploads,
+    before their conversion to degrees)."""
+
+    def __init__(self, mission: Mission):
+        standoff = fence_standoff_m(mission)
+        self.area = mission.world.geofence
+        self.exclusions = [(o.id, _grown_polygon(o, standoff) if not o.is_circle
+                            else Point(o.center).buffer(o.size_m + exclusion_margin_m(o, standoff), quad_segs=64))
+                           for o in mission.world.static_obstacles]
+
+    def breach(self, x_east_m: float, y_north_m: float, within_m: float) -> str | None:
+        """Why (x, y) is at the fence (outside the inclusion or inside an exclusion, or within
+        ``within_m`` of doing so), or None."""
+        p = Point(x_east_m, y_north_m)
+        edge = self.area.exterior.distance(p)
+        if not self.area.contains(p) or edge <= within_m:
+            return f"{edge:.1f} m {'inside' if self.area.contains(p) else 'outside'} the inclusion fence (the area)"
+        for name, zone in self.exclusions:
+            d = zone.distance(p)
+            if d <= within_m:
+                return (f"inside the exclusion fence of obstacle {name!r}" if d == 0.0
+                        else f"{d:.1f} m from the exclusion fence of obstacle {name!r}")
+        return None
 
 
 def _kind(z: GeoFenceZone) -> str:

@@ -42,6 +42,7 @@ from companion.vehicle.port import HOVER, FlightMode, LandedState, PoseSample, V
 
 __all__ = ["FlightContext", "Pilot", "PilotOutcome", "RunSettings", "wall_for_sim"]
 
+FENCE_NEAR_M = 5.0  # a failsafe this near the uploaded fence is its action (0.5 s of position lag at 10 m/s)
 STALE_EXCUSES_S = 10.0  # wall: RTL this soon after our own telemetry gap is taken as the link-loss failsafe
 # A telemetry gap this long (wall) may have been the link failing both ways; shorter ones are a busy
 # machine. PX4 SITL counts COM_OF_LOSS_T (1 s) in wall time at any speed factor, as the stub does.
@@ -273,7 +274,9 @@ class Pilot(Departure, Steering):
         st = self.vehicle.status()
         recent_gap = self._stale_ended_wall is not None and time.monotonic() - self._stale_ended_wall < STALE_EXCUSES_S
         grace_wall = max(wall_for_sim(self.vehicle, OVERRIDE_GRACE_SIM_S, 0.0), OVERRIDE_GRACE_MIN_WALL_S)
-        verdict = self._failsafes.judge(st, self.vehicle.clock_s(), time.monotonic(), grace_wall, recent_gap)
+        pose, fence = self.vehicle.latest_pose(), self.ctx.fence
+        at_fence = None if fence is None or pose is None else fence.breach(pose.x_east_m, pose.y_north_m, FENCE_NEAR_M)
+        verdict = self._failsafes.judge(st, self.vehicle.clock_s(), time.monotonic(), grace_wall, recent_gap, at_fence)
         if verdict is ModeVerdict.FENCE:
             if st.mode is FlightMode.OFFBOARD:  # the notice comes before the mode: wait for GF_ACTION's
                 try:
@@ -282,10 +285,12 @@ class Pilot(Departure, Steering):
                 except TelemetryLost:
                     pass  # GF_ACTION 1 (warning only): still in OFFBOARD
                 st = self.vehicle.status()
-            self._note_failsafe(st.mode, FailsafeCause.GEOFENCE, st.last_fence_text)
+            where = self._failsafes.fence_where
+            notice = st.last_fence_text if where is None else f"no fence notice heard; the vehicle was {where}"
+            self._note_failsafe(st.mode, FailsafeCause.GEOFENCE, notice)
             if st.mode is not FlightMode.OFFBOARD:
                 self.outcome.phase = "geofence"  # the autopilot's fence action stands: nothing to send
-            raise MissionAborted("geofence", f"the autopilot reported a geofence breach ({st.last_fence_text!r}) "
+            raise MissionAborted("geofence", f"the autopilot reported a geofence breach ({notice!r}) "
                                  f"and is in {st.mode.value}; companion stands down", vehicle=self.name)
         if verdict is ModeVerdict.FLYING and st.mode is FlightMode.OFFBOARD:
             self._recovered()  # OFFBOARD came back after a resume attempt that had given up waiting

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from companion.formats.coords import geo_point
 from uav_model.mission_errors import echo
 from uav_model.mission_read import finite
 
@@ -26,12 +27,7 @@ class GeoJsonError(ValueError):
 
 
 def _geo(pos: Any, where: str) -> dict[str, float]:
-    lon, lat = (finite(v) for v in pos[:2]) if isinstance(pos, list) and len(pos) >= 2 else (None, None)
-    if lon is None or lat is None:
-        raise GeoJsonError(f"{where}: expected a position [lon, lat] of finite numbers, got {echo(pos)}")
-    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-        raise GeoJsonError(f"{where}: [{lon}, {lat}] is not a [lon, lat] position in degrees (out of range)")
-    return {"lat_deg": lat, "lon_deg": lon}
+    return geo_point(pos, where, lon_first=True, error=GeoJsonError)
 
 
 def _metres(value: Any, where: str) -> float:

@@ -29,6 +29,7 @@ from typing import Any
 
 from collections.abc import Sequence
 
+from companion.formats.coords import geo_point
 from companion.vehicle.port import GeoFenceZone, GeoWaypoint
 from uav_model import frames
 from uav_model.mission import Mission, VehicleSpec
@@ -125,12 +126,7 @@ def plan_document(mission: Mission, vehicle: VehicleSpec, waypoints: Sequence[Ge
 
 
 def _geo(pair: Any, where: str) -> dict[str, float]:
-    lat, lon = (finite(v) for v in pair[:2]) if isinstance(pair, list) and len(pair) >= 2 else (None, None)
-    if lat is None or lon is None:
-        raise PlanFormatError(f"{where}: expected [lat, lon] in degrees, got {echo(pair)}")
-    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-        raise PlanFormatError(f"{where}: [{lat:g}, {lon:g}] is out of range for [lat, lon] in degrees")
-    return {"lat_deg": lat, "lon_deg": lon}
+    return geo_point(pair, where, lon_first=False, error=PlanFormatError)
 
 
 def _length(value: Any, where: str) -> float:

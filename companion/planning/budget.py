@@ -2,7 +2,8 @@
 what it spends, the caller decides when that is enough.
 
 The core calls ``budget.spend(units)`` at its natural steps: one unit per tick of a headless
-flight, per grown reachable set and per allowed-cell mask of a space-time search. It never reads
+flight, per grown reachable set and per allowed-cell mask of a space-time search, and a sight
+shadow's cost per shadow mask (:mod:`shadow`: its obstacles' circles and vertices). It never reads
 a clock. :class:`WorkBudget` counts those units (deterministic: the same mission stops at the same
 place on every machine); a caller that bounds wall time passes its own object with the same
 ``spend`` (``companion validate``'s reads the clock there, and shows progress).

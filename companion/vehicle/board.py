@@ -19,10 +19,12 @@ from companion.vehicle.port import FlightMode, PoseSample, TrafficReport, Vehicl
 # STATUSTEXTs that mean the autopilot took control away because setpoints stopped: PX4's
 # "Failsafe activated" (then RTL or Hold, per COM_OBL_RC_ACT) and the stub's own wording.
 FAILSAFE_TEXTS = ("failsafe activated", "offboard control lost")
-# A geofence breach: PX4's navigator says "Geofence violation: approaching or outside geofence"
-# (or "... exceeding maximum distance to Home", "... altitude ...") as it takes GF_ACTION. The same
-# words inside "Arming denied: ..." are a refusal on the ground, not a breach.
-FENCE_TEXTS = ("geofence violation",)
+# A geofence breach. PX4's STATUSTEXT is "Geofence: approaching or outside geofence" (or
+# "Geofence: exceeding maximum distance to Home", "... altitude above Home"; the binary of
+# ../shared/px4-sih holds these), its event "Geofence violation: ..." with the same ending. The
+# same words inside "Arming denied: ..." are a refusal on the ground, "Geofence violation for
+# waypoint N" a mission check: neither is a breach.
+FENCE_TEXTS = ("geofence violation:", "geofence: approaching", "geofence: exceeding")
 
 
 # Faster than any multicopter this companion flies: a sample this far from the last one is another

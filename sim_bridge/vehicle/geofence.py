@@ -6,13 +6,14 @@
 
 As PX4 (navigator ``Geofence``, commander ``failsafe.cpp`` ``fromGfActParam``): a position is
 inside the fence when it lies in at least one inclusion zone (if there are any) and in no exclusion
-zone; a breach is reported once, as it begins ("Geofence violation: approaching or outside
-geofence"), and while armed it takes GF_ACTION: 0 none, 1 warning, 2 Hold, 3 Return, 4 terminate,
-5 Land (PX4's default 2). The action is not undone by the stub: a client may switch mode again
+zone; a breach is reported once, as it begins (STATUSTEXT "Geofence: approaching or outside
+geofence", as PX4's health checks send it), and while armed it takes GF_ACTION: 0 none,
+1 warning, 2 Hold, 3 Return, 4 terminate, 5 Land (PX4's default 2). The action is not undone by the stub: a client may switch mode again
 (PX4 lets the user take over a geofence Hold by a mode switch), and a new breach acts again.
 GF_PREDICT 1 also checks the braking point (PX4's experimental predictive trigger, default 0).
-GF_MAX_HOR_DIST (> 0) is a circle around home, as PX4's ("Geofence violation: exceeding maximum
-distance to Home"), with the same action. PX4 refuses to arm while the vehicle is outside its
+GF_MAX_HOR_DIST (> 0) is a circle around home, as PX4's ("Geofence: exceeding maximum distance to
+Home"), with the same action. While the vehicle is in the mode the action chose, its heartbeat
+says MAV_STATE_CRITICAL, as PX4's does in any failsafe. PX4 refuses to arm while the vehicle is outside its
 fence; so does the stub.
 """
 
@@ -36,8 +37,9 @@ from sim_bridge.vehicle.types import Emit
 if TYPE_CHECKING:
     from sim_bridge.vehicle import SimVehicle
 
-BREACH_TEXT = "Geofence violation: approaching or outside geofence"  # PX4's geofenceCheck.cpp
-DISTANCE_TEXT = "Geofence violation: exceeding maximum distance to Home"  # GF_MAX_HOR_DIST
+# PX4's geofenceCheck.cpp STATUSTEXT (mavlink_log_critical; "Geofence violation: ..." is its event)
+BREACH_TEXT = "Geofence: approaching or outside geofence"
+DISTANCE_TEXT = "Geofence: exceeding maximum distance to Home"  # GF_MAX_HOR_DIST
 _VERTEX = {mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION: True,
            mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION: False}
 _CIRCLE = {mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION: True, mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION: False}
@@ -159,6 +161,7 @@ class Geofence:
         self.fence = Fence()
         self.breached = False
         self.breaches: list[tuple[float, GeofenceAction]] = []  # (sim time, action taken), for tests
+        self.action_mode: FlightMode | None = None  # the mode GF_ACTION entered (a failsafe while it lasts)
 
     @property
     def action(self) -> GeofenceAction:
@@ -191,6 +194,8 @@ class Geofence:
 
     def check(self, t: float) -> list[Emit]:
         """One step: on a new breach, say so and (armed) take GF_ACTION."""
+        if self.action_mode is not None and self._v.mode is not self.action_mode:
+            self.action_mode = None  # the client took over (or the action ended): the failsafe is over
         text = self.violation()
         started = text is not None and not self.breached
         self.breached = text is not None
@@ -212,6 +217,7 @@ class Geofence:
         if target is FlightMode.RTL and not v.in_air:
             target = FlightMode.HOLD
         v.modes.enter(target)
+        self.action_mode = target
         if target is FlightMode.RTL:
             out.append(Emit(v.nav.rtl_start_text()))
         return out

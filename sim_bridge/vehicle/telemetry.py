@@ -106,8 +106,8 @@ class Telemetry:
         v = self._v
         if not v.armed:
             status = mavlink.MAV_STATE_STANDBY
-        elif v.modes.failsafe_t is not None:
-            status = mavlink.MAV_STATE_CRITICAL  # PX4 during a failsafe
+        elif v.modes.failsafe_t is not None or v.geofence.action_mode is v.mode:
+            status = mavlink.MAV_STATE_CRITICAL  # PX4 during a failsafe (offboard loss or the fence's action)
         else:
             status = mavlink.MAV_STATE_ACTIVE
         return self._mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, self.base_mode(),

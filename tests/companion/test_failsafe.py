@@ -131,3 +131,47 @@ def test_the_board_counts_breach_notices_but_not_an_arming_refusal():
     st = asyncio.run(go())
     assert (st.fence_notices, st.last_fence_t_sim_s, st.failsafe_notices) == (1, 12.5, 1)
     assert st.last_fence_text == "Geofence violation: exceeding maximum distance to Home"
+
+
+def test_the_board_hears_px4s_own_breach_statustext_and_not_a_mission_check():
+    # What PX4 (the build in ../shared/px4-sih) sends as STATUSTEXT: "Geofence: ..."; "Geofence
+    # violation: ..." is its event's wording. A mission's waypoint check is not a breach.
+    async def go():
+        board = VehicleBoard("a")
+        await board.note_clock(3.0)
+        await board.put_text("Geofence violation for waypoint 1\t")
+        assert board.status().fence_notices == 0
+        await board.put_text("Geofence: approaching or outside geofence\t")
+        await board.put_text("Geofence: exceeding maximum altitude above Home")
+        return board.status()
+    st = asyncio.run(go())
+    assert st.fence_notices == 2 and st.last_fence_text == "Geofence: exceeding maximum altitude above Home"
+
+
+def test_a_hold_at_the_uploaded_fence_without_any_text_is_a_fence_event():
+    # No notice heard (lost, or worded otherwise): the Hold comes while the vehicle is at its fence.
+    watch = FailsafeWatch(OFFBOARD)
+    at = "inside the exclusion fence of obstacle 'mast'"
+    assert watch.judge(OFFBOARD, 40.0, 0.0, GRACE_WALL_S, False, at) is ModeVerdict.FLYING  # still flying: no action
+    st = _to(OFFBOARD, FlightMode.HOLD)
+    assert watch.judge(st, 41.0, 0.1, GRACE_WALL_S, False, at) is ModeVerdict.FENCE
+    assert watch.fence_where == at
+    # Away from the fence, the same Hold without a text is what it was before: wait for evidence.
+    watch = FailsafeWatch(OFFBOARD)
+    assert watch.judge(st, 41.0, 0.1, GRACE_WALL_S, False, None) is ModeVerdict.WAIT
+
+
+def test_the_fence_geometry_is_the_uploaded_one_and_names_where_the_vehicle_is():
+    from pathlib import Path
+
+    from companion.app.fence import FenceGeometry
+    from uav_model.mission import load_mission
+    mission = load_mission(Path(__file__).resolve().parents[1] / "data" / "small_field.yaml")
+    fence = FenceGeometry(mission)
+    # The pond (r 70 m, inflation 14 m < the 16.7 m standoff): its exclusion is the footprint.
+    assert fence.breach(420.0 + 70.0 + 4.0, 330.0, 5.0) == "4.0 m from the exclusion fence of obstacle 'pond'"
+    assert fence.breach(420.0 + 60.0, 330.0, 5.0) == "inside the exclusion fence of obstacle 'pond'"
+    assert fence.breach(420.0 + 70.0 + 6.0, 330.0, 5.0) is None
+    assert fence.breach(-30.0, 300.0, 5.0) == "5.0 m outside the inclusion fence (the area)"  # area + 25 m margin
+    assert fence.breach(-22.0, 300.0, 5.0) == "3.0 m inside the inclusion fence (the area)"
+    assert fence.breach(100.0, 300.0, 5.0) is None

@@ -193,7 +193,8 @@ def test_geojson_to_yaml_keeps_the_geometry(tmp_path):
     ('{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {}, '
      '"geometry": {"type": "LineString", "coordinates": [[8.5, 47.4], [8.6, 47.4]]}}]}', "features[0]: a LineString"),
     ('{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"radius_m": 5}, '
-     '"geometry": {"type": "Point", "coordinates": [200.0, 47.4]}}]}', "features[0]: [200.0, 47.4] is not"),
+     '"geometry": {"type": "Point", "coordinates": [200.0, 47.4]}}]}',
+     "features[0]: [200, 47.4] is out of range for [lon, lat] in degrees"),
 ])
 def test_bad_files_get_one_line_naming_the_file(tmp_path, content, message):
     path = tmp_path / "bad.geojson"

@@ -92,6 +92,22 @@ def test_a_non_finite_number_is_refused_in_every_field(field, path, value):
     assert all(p.line is not None for p in err.problems)
 
 
+@pytest.mark.parametrize("written, words", [
+    ("1e308", "1e+308 is greater than the maximum of 100000"),  # a number (YAML 1.1 would read a string)
+    ("1e999", "inf is not a finite number"),
+    ("2.5e1", None),
+])
+def test_a_number_in_exponent_form_is_a_number_and_held_to_its_limits(written, words):
+    text = REFERENCE.replace("    radius_m: 500.0", f"    radius_m: {written}", 1)
+    assert text != REFERENCE
+    if words is None:
+        assert parse_mission(text, "m.yaml").world.obstacles[0].size_m == 25.0
+        return
+    with pytest.raises(MissionError) as exc:
+        parse_mission(text, "m.yaml")
+    assert "obstacles[0].radius_m: " + words in str(exc.value)
+
+
 def test_an_obstacle_centre_with_a_nan_latitude_is_refused_not_emptied():
     err = _refused(BASE.replace("lat_deg: 47.4067", "lat_deg: .nan"))
     assert str(err) == "hostile.yaml:10: obstacles[4].center.lat_deg: nan is not a finite number " \

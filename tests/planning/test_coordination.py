@@ -124,6 +124,32 @@ def test_compiled_shadow_masks_equal_the_numpy_masks(world, p):
 
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_shadow_mask_charges_its_cost_and_stops_at_the_same_mask_on_either_path(compiled):
+    """Each mask charges a unit per circle and per convex piece's vertex, on either path, so a work
+    budget runs out at the same mask (a limit-sized mask is seconds of numpy: it must be metered)."""
+    from companion.planning.budget import BudgetSpent, WorkBudget
+    if compiled and shadow_module.numba is None:
+        pytest.skip("needs the fast extra (numba): pip install -e '.[fast]'")
+    from uav_model.world import World, make_obstacle
+    ell = [(600.0, 100.0), (800.0, 100.0), (800.0, 300.0), (700.0, 300.0), (700.0, 200.0), (600.0, 200.0)]
+    world = World(0.0, 0.0, 1000.0, 1000.0, 0.0, (make_obstacle("c", "circle", center=(300.0, 300.0), radius_m=40.0),
+                                                  make_obstacle("l", "polygon", vertices=ell)))
+    shadows = SightShadows(world, rasterise(world, 25.0))
+    assert shadows.mask_units == 1 + 3 * 4  # the L is cut into four triangles
+    saved = shadow_module._blocked_jit
+    shadow_module._blocked_jit = saved if compiled else None
+    try:
+        budget = WorkBudget(2 * shadows.mask_units)
+        for p in ((50.0, 50.0), (900.0, 900.0)):
+            shadows.blocked_from(p, budget)
+        assert budget.spent == 2 * shadows.mask_units
+        with pytest.raises(BudgetSpent):
+            shadows.blocked_from((50.0, 900.0), budget)
+    finally:
+        shadow_module._blocked_jit = saved
+
+
 @pytest.mark.skipif(shadow_module.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(worlds(1, 5), st.floats(6.0, 30.0), st.data())

@@ -14,6 +14,7 @@ import socket
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
@@ -53,7 +54,10 @@ class Client:
             self.dec.signing.timestamp = signing_timestamp()
         self.frames: list = []
 
-    def close(self) -> None:
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
         self.sock.close()
 
     def arm(self) -> None:
@@ -78,66 +82,67 @@ def _acks(frames) -> list:
     return [m for _, m in frames if m.get_type() == "COMMAND_ACK" and m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM]
 
 
-async def _arm_attempt(client: Client) -> list:
-    client.arm()
-    return _acks(await client.collect(1.5))
+@dataclass
+class ArmAttempt:
+    """One client's COMPONENT_ARM_DISARM: the ACKs it got, whether the vehicle was armed after it,
+    the frames it heard in ``listen_s`` after that, and its decoder's signature counts."""
+
+    acks: list
+    armed: bool
+    frames: list
+    signing: object
+
+
+@pytest.fixture
+def arm_attempts():
+    """``arm_attempts(options, clients, **stub)``: a stub of MISSION on free ports (no GCS link), then
+    each client of ``clients`` (Client keyword arguments, plus ``listen_s``) in turn on vehicle 0's
+    API port tries to arm it. Returns the attempts in order and the stub's admission record."""
+
+    def run(options: SimOptions, clients: list[dict], **stub) -> tuple[list[ArmAttempt], object]:
+        async def scenario():
+            attempts = []
+            async with stub_on_free_ports(MISSION, options, gcs=False, **stub) as sim:
+                for spec in clients:
+                    spec = dict(spec)
+                    listen_s = spec.pop("listen_s", 0.0)
+                    with Client(sim, **spec) as client:
+                        client.arm()
+                        acks = _acks(await client.collect(1.5))
+                        armed = sim.vehicle(0).armed
+                        frames = await client.collect(listen_s) if listen_s else []
+                        attempts.append(ArmAttempt(acks, armed, frames, client.dec.signing))
+                return attempts, sim.admission
+        return asyncio.run(scenario())
+
+    return run
 
 
 @pytest.mark.timeout(60)
-def test_a_foreign_system_id_is_refused_with_a_log_line_and_no_effect(caplog):
-    async def scenario():
-        async with stub_on_free_ports(MISSION, SimOptions(speedup=4.0), allow_sysids=frozenset({245}),
-                                      gcs=False) as sim:
-            intruder = Client(sim, sysid=250)
-            try:
-                refused = await _arm_attempt(intruder)
-                armed_by_intruder = sim.vehicle(0).armed
-            finally:
-                intruder.close()
-            owner = Client(sim, sysid=245)
-            try:
-                accepted = await _arm_attempt(owner)
-            finally:
-                owner.close()
-            return refused, armed_by_intruder, accepted, sim.vehicle(0).armed, sim.admission.refused
-
+def test_a_foreign_system_id_is_refused_with_a_log_line_and_no_effect(caplog, arm_attempts):
     with caplog.at_level(logging.WARNING, logger="sim_bridge.admission"):
-        refused, armed_by_intruder, accepted, armed, count = asyncio.run(scenario())
-    assert refused == [] and armed_by_intruder is False
-    assert [a.result for a in accepted] == [mavlink.MAV_RESULT_ACCEPTED] and armed is True
-    assert count >= 1
+        (intruder, owner), admission = arm_attempts(SimOptions(speedup=4.0), [{"sysid": 250}, {"sysid": 245}],
+                                                    allow_sysids=frozenset({245}))
+    assert intruder.acks == [] and intruder.armed is False
+    assert [a.result for a in owner.acks] == [mavlink.MAV_RESULT_ACCEPTED] and owner.armed is True
+    assert admission.refused >= 1
     assert any("refused COMMAND_LONG from system 250" in r.message and "not in --allow-sysid 245" in r.message
                for r in caplog.records), caplog.text
 
 
 @pytest.mark.timeout(60)
-def test_a_stub_with_a_key_signs_its_frames_and_obeys_only_signed_commands(caplog):
-    async def scenario():
-        async with stub_on_free_ports(MISSION, SimOptions(speedup=4.0, signing_key=KEY), gcs=False) as sim:
-            results = {}
-            for name, key in (("unsigned", None), ("other key", hashlib.sha256(b"wrong").digest())):
-                c = Client(sim, sysid=245, key=key, verify_key=KEY)
-                try:
-                    results[name] = (await _arm_attempt(c), sim.vehicle(0).armed)
-                finally:
-                    c.close()
-            c = Client(sim, sysid=245, key=KEY, verify_key=KEY)
-            try:
-                results["signed"] = (await _arm_attempt(c), sim.vehicle(0).armed)
-                frames = await c.collect(0.5)
-            finally:
-                c.close()
-            return results, frames, c.dec.signing
-
+def test_a_stub_with_a_key_signs_its_frames_and_obeys_only_signed_commands(caplog, arm_attempts):
+    wrong = hashlib.sha256(b"wrong").digest()
     with caplog.at_level(logging.WARNING, logger="sim_bridge.admission"):
-        results, frames, verified = asyncio.run(scenario())
-    assert results["unsigned"] == ([], False)
-    assert results["other key"] == ([], False)
-    acks, armed = results["signed"]
-    assert [a.result for a in acks] == [mavlink.MAV_RESULT_ACCEPTED] and armed is True
+        (unsigned, other, signed), _ = arm_attempts(SimOptions(speedup=4.0, signing_key=KEY), [
+            {"sysid": 245, "verify_key": KEY}, {"sysid": 245, "key": wrong, "verify_key": KEY},
+            {"sysid": 245, "key": KEY, "verify_key": KEY, "listen_s": 0.5}])
+    assert (unsigned.acks, unsigned.armed) == ([], False)
+    assert (other.acks, other.armed) == ([], False)
+    assert [a.result for a in signed.acks] == [mavlink.MAV_RESULT_ACCEPTED] and signed.armed is True
     # Every frame the stub sent is MAVLink 2 with the signed flag, and verifies with the key.
-    assert frames and all(data[0] == 0xFD and data[2] & 0x01 for data, _ in frames)
-    assert verified.goodsig_count > 0 and verified.badsig_count == 0
+    assert signed.frames and all(data[0] == 0xFD and data[2] & 0x01 for data, _ in signed.frames)
+    assert signed.signing.goodsig_count > 0 and signed.signing.badsig_count == 0
     assert any("unsigned or not signed with --signing-key" in r.message for r in caplog.records), caplog.text
 
 

@@ -125,11 +125,32 @@ def test_gf_max_hor_dist_is_a_circle_around_home_with_its_own_words(mission, mak
     v.params.override("GF_MAX_HOR_DIST", 40.0)
     assert v.geofence.violation() is None
     v.state = replace(v.state, east_m=home_e + 41.0)
-    assert v.geofence.violation() == DISTANCE_TEXT == "Geofence violation: exceeding maximum distance to Home"
+    assert v.geofence.violation() == DISTANCE_TEXT == "Geofence: exceeding maximum distance to Home"
     texts = [m.text for m in step_for(v, 0.1) if m.get_type() == "STATUSTEXT"]
     assert texts == [DISTANCE_TEXT]  # on the ground: said, no action
     ack = send_command(v, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     assert ack.result == mavlink.MAV_RESULT_DENIED and not v.armed
+
+
+def test_the_fence_action_is_a_failsafe_in_the_heartbeat_until_the_client_takes_over(mission, make_vehicle, gcs):
+    # PX4's heartbeat says MAV_STATE_CRITICAL while vehicle_status.failsafe holds: the structured
+    # sign of the fence's Hold beside its text (PX4 streams no FENCE_STATUS).
+    v = make_vehicle(mission, params={"MIS_TAKEOFF_ALT": 5.0})
+    assert send_command(v, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == mavlink.MAV_RESULT_ACCEPTED
+    nan = math.nan
+    send_command(v, gcs, mavlink.MAV_CMD_NAV_TAKEOFF, nan, nan, nan, nan, nan, nan, nan)
+    step_for(v, 30.0, until=lambda v: v.mode is FlightMode.HOLD and v.in_air)
+    assert v.tele.heartbeat().system_status == mavlink.MAV_STATE_ACTIVE
+    home_n, home_e, _ = v.home_ned
+    v.params.override("GF_MAX_HOR_DIST", 1.0)
+    v.state = replace(v.state, east_m=home_e + 5.0)
+    texts = [m.text for m in step_for(v, 0.1) if m.get_type() == "STATUSTEXT"]
+    assert texts == [DISTANCE_TEXT, "Failsafe activated"] and v.mode is FlightMode.HOLD
+    assert v.tele.heartbeat().system_status == mavlink.MAV_STATE_CRITICAL
+    v.params.override("GF_MAX_HOR_DIST", 0.0)
+    send_command(v, gcs, mavlink.MAV_CMD_NAV_LAND, nan, nan, nan, nan, nan, nan, nan)  # the client takes over
+    step_for(v, 0.1)
+    assert v.mode is FlightMode.LAND and v.tele.heartbeat().system_status == mavlink.MAV_STATE_ACTIVE
 
 
 # ---------------------------------------------------------------- over UDP ------------------

@@ -12,6 +12,10 @@ Vectorised over every cell at once, one obstacle at a time:
   * a non-convex polygon is split into triangles (constrained Delaunay), each convex.
 
 Moving obstacles are left out: a plan made before flight must not count on a shadow that moves.
+
+A mask costs :attr:`SightShadows.mask_units` work units of a :mod:`budget`: one per circle and one
+per vertex of each convex piece, charged by both paths (the numpy one piece by piece, as it goes;
+the compiled one before it starts), so a budget stops at the same mask on either.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import math
 import numpy as np
 import shapely
 
+from companion.planning.budget import Budget, spend
 from companion.planning.grid import OccupancyGrid
 from uav_model.world import World
 
@@ -71,15 +76,19 @@ class SightShadows:
             self._piece_off = np.concatenate([o for _, _, o in self._pieces])
         self._bounds = _bounding_discs(self._circle_rows, self._pieces)
         self._extent = max(float(np.abs(xs).max()), float(np.abs(ys).max()), 1.0)
+        self.mask_units = len(self._circles) + sum(len(v) for v, _, _ in self._pieces)
 
-    def blocked_from(self, xy: tuple[float, float]) -> np.ndarray:
-        """(ny, nx) bool: the segment from each cell centre to ``xy`` meets a true obstacle."""
+    def blocked_from(self, xy: tuple[float, float], budget: Budget | None = None) -> np.ndarray:
+        """(ny, nx) bool: the segment from each cell centre to ``xy`` meets a true obstacle.
+        ``budget``: charged :attr:`mask_units`; :class:`budget.BudgetSpent` when it runs out."""
         px, py = float(xy[0]), float(xy[1])
         if _blocked_jit is not None:
+            spend(budget, self.mask_units)
             return self._blocked_compiled(px, py)
         dx, dy = self._qx - px, self._qy - py  # q - p, broadcast (1, nx) and (ny, 1)
         out = np.zeros(self.shape, dtype=bool)
         len2 = dx * dx + dy * dy
+        spend(budget, len(self._circles))
         for (cx, cy, r), inside in zip(self._circles, self._inside):
             # p is outside the disc (a vehicle never is inside); with w = c - p the segment
             # meets the disc when q is inside, or when the foot of c on the line lies within the
@@ -92,6 +101,7 @@ class SightShadows:
                 break
             out |= inside | ((along > 0) & (along < len2) & (cross * cross < r * r * len2))
         for v, normal, offset in self._pieces:
+            spend(budget, len(v))
             out |= self._meets_convex(px, py, dx, dy, v, normal, offset)
         return out
 

@@ -76,7 +76,7 @@ class SpaceTimeProblem:
                  others: tuple[TimedRoute, ...], horizon_s: float, memo: dict | None = None, t0_s: float = 0.0,
                  budget: Budget | None = None):
         self.grid = grid
-        self.budget = budget  # charged a unit per allowed mask and per grown set
+        self.budget = budget  # charged a unit per allowed mask and per grown set, and each shadow mask's cost
         self.shadows = shadows
         self.model = model
         self.start = _cell(grid, start_xy)
@@ -114,7 +114,7 @@ class SpaceTimeProblem:
         return value
 
     def shadow_bits(self, xy: tuple[float, float]) -> np.ndarray:
-        return self._memoised(("shadow", xy), lambda: bitgrid.pack(self.shadows.blocked_from(xy)))
+        return self._memoised(("shadow", xy), lambda: bitgrid.pack(self.shadows.blocked_from(xy, self.budget)))
 
     def far_bits(self, xy: tuple[float, float]) -> np.ndarray:
         return self._memoised(("far", xy, self.model.min_distance_m), lambda: bitgrid.farther(

@@ -55,7 +55,9 @@ def flown_forecast(mission: "Mission", route: "Route", name: str, budget: "Budge
     routes = {name: route}
     # Alone, it is planned against nobody: a timed variant tracks its route at cruise.
     fleet = build_fleet(alone, routes, first=route_forecast(alone, routes))
-    track = fly(alone, fleet, routes, budget=budget).tracks[name]
+    # Only the track is wanted: no lower bound to score it against (on a large mission that
+    # bound's visibility graph costs more than the flight, and no budget meters it).
+    track = fly(alone, fleet, routes, lower_bounds_s={name: None}, budget=budget).tracks[name]
     t, xy = np.asarray(track.t_s, dtype=float), np.column_stack([track.x_m, track.y_m])
     keep = np.zeros(len(t), dtype=bool)
     keep[::_EVERY] = True
