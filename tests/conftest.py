@@ -26,11 +26,18 @@ def reference_mission() -> Mission:
 
 
 @pytest.fixture(scope="session")
-def reference_headless(reference_mission: Mission):
-    """The reference mission flown by ``companion simulate``'s runner: its RunSummary."""
+def reference_flight(reference_mission: Mission):
+    """The reference mission flown by ``companion simulate``'s runner, once per process: the whole
+    run (tracks, ticks, summary), for tests that only read it."""
     from companion.planning.flight.headless import simulate
 
-    return simulate(reference_mission).summary
+    return simulate(reference_mission)
+
+
+@pytest.fixture(scope="session")
+def reference_headless(reference_flight):
+    """The reference mission flown by ``companion simulate``'s runner: its RunSummary."""
+    return reference_flight.summary
 
 
 # A test that an optional extra decides says so in one form, skipif(reason="needs the ... extra: pip

@@ -23,7 +23,6 @@ from sim_bridge.testing import free_udp_port_block
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = ROOT / "tests" / "data" / "small_swap.yaml"
-MOVING = ROOT / "missions" / "moving_obstacles.yaml"
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
@@ -197,23 +196,6 @@ def test_a_companion_listening_before_the_autopilot_boots_flies(companion, tmp_p
     for name in ("a", "b"):
         refused = f"{name}: arm refused" in run.stdout
         assert not refused or f"{name}: armed after" in run.stdout, run.stdout[-3000:]
-
-
-def test_moving_obstacles_over_connect_need_no_clock_flag(sitl, companion, tmp_path):
-    # The README's command: an external sim-bridge, --connect per vehicle, no --shared-clock. The
-    # companion finds that both vehicles stamp with the stub's clock (which moves the obstacles),
-    # so tracks and the obstacles' truth share a time base: no false collision.
-    # On the unicycle, as the reference: this test is about the clock, not the multicopter's approach.
-    mission = tmp_path / "moving_unicycle.yaml"
-    text = MOVING.read_text()
-    assert "plant:" not in text
-    mission.write_text(text.replace("\nvehicles:", "\nplant: unicycle\nvehicles:", 1))
-    stub = sitl(mission, speedup=20)
-    stub.wait_for_clock(60.0)  # the stub has run a while: mission time and the stub's clock differ
-    result = _run(companion, mission, stub, tmp_path / "out", timeout_s=180)
-    assert "clock: one sim clock for all vehicles (detected)" in result.stdout
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
-    stub.assert_success()
 
 
 def _open_field(tmp_path: Path) -> Path:

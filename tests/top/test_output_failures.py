@@ -117,7 +117,7 @@ def test_run_on_a_full_disk_reports_every_truncated_log_and_keeps_the_results(tm
 
 def test_out_folder_removed_in_flight_still_gives_the_verdict_and_the_summary(tmp_path):
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "companion", "run", str(SMALL), "--in-process", "--speedup", "8",
+    proc = subprocess.Popen([sys.executable, "-m", "companion", "run", str(SMALL), "--in-process", "--speedup", "20",
                              "--out", str(out)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 300.0  # a bound for a loaded machine; a free one is in flight in ~5 s

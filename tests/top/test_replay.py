@@ -49,14 +49,27 @@ def _replays(out: Path, *args: str) -> list[np.ndarray]:
     return frames
 
 
-@pytest.mark.parametrize("mission", ["paper_reference.yaml", "moving_obstacles.yaml"])
-def test_a_flown_run_replays_as_a_gif(tmp_path, capsys, companion_logger, mission):
+# A small-reference flight (the reference scaled by 0.2): with moving obstacles, moving_obstacles.yaml's
+# truck and balloon scaled the same way. A fifth of the reference's flight to run for each.
+SMALL_MOVING = """  - {id: truck, shape: circle, center: [200.0, 460.0], radius_m: 24.0,
+     motion: {type: shuttle, to: [460.0, 200.0], speed_m_s: 4.0}}
+  - {id: balloon, shape: circle, center: [520.0, 400.0], radius_m: 20.0,
+     motion: {type: orbit, pivot: [460.0, 440.0], speed_m_s: 3.0}}
+"""
+
+
+@pytest.mark.parametrize("moving", [False, True], ids=["static", "moving"])
+def test_a_flown_run_replays_as_a_gif(tmp_path, capsys, companion_logger, moving):
+    mission = tmp_path / "small.yaml"
+    text = SMALL.read_text()
+    mission.write_text(text.replace("\nvehicles:", "\n" + SMALL_MOVING.rstrip("\n") + "\nvehicles:", 1) if moving else text)
+    assert len(load_mission(mission).world.moving_obstacles) == (2 if moving else 0)
     out = tmp_path / "run"
-    main(["run", str(ROOT / "missions" / mission), "--in-process", "--out", str(out)])
+    main(["run", str(mission), "--in-process", "--out", str(out)])
     assert (out / "flight.csv").exists()
     frames = _replays(out)  # the mission from summary.json
     # Each vehicle is drawn in its own colour, the one the trajectory plot gives it.
-    for color in vehicle_colors(load_mission(ROOT / "missions" / mission)).values():
+    for color in vehicle_colors(load_mission(mission)).values():
         assert _share_of(frames[-1], color) > 0.001, color
 
 
