@@ -13,7 +13,7 @@ from dataclasses import replace
 
 from uav_model.mission import Mission
 from sim_bridge.bridge import SimBridge, SimOptions
-from sim_bridge.px4 import COMPANION_SYSTEM_ID, GCS_COMPONENT_ID
+from sim_bridge.vehicle.px4 import COMPANION_SYSTEM_ID, GCS_COMPONENT_ID
 
 
 def free_udp_ports(n: int) -> tuple[int, ...]:

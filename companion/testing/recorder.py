@@ -25,7 +25,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from uav_model.frames import ned_to_enu
 from companion.planning.metrics import Track
-from sim_bridge.px4 import GCS_COMPONENT_ID, GCS_SYSTEM_ID, mode_name
+from sim_bridge.vehicle.px4 import GCS_COMPONENT_ID, GCS_SYSTEM_ID, mode_name
 
 _STAMPED = {"LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "ATTITUDE"}  # carry time_boot_ms
 

@@ -15,7 +15,7 @@ the machine's load and is repeatable.
 
 pymavlink is only the codec. Everything the companion sends is a real ``MAVLink_*_message`` built
 and packed by the companion's own ``MAVLink`` encoder (as MAVSDK's identity:
-``sim_bridge.px4.COMPANION_SYSTEM_ID``, component 190); ``SimVehicle.handle`` answers it at once and its replies (COMMAND_ACK, mission
+``sim_bridge.vehicle.px4.COMPANION_SYSTEM_ID``, component 190); ``SimVehicle.handle`` answers it at once and its replies (COMMAND_ACK, mission
 protocol, PARAM_VALUE, the heartbeat after a mode change) are read from the messages it emits,
 exactly as the streamed telemetry is. ``wire=True`` also packs and parses every message in both
 directions, as the UDP path does. Frames convert only through :mod:`uav_model.frames`.

@@ -17,7 +17,7 @@ from companion.sitl.inprocess.telemetry import TelemetryIntake
 from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import MAV_FRAME_GLOBAL, FenceItem, fence_items, fence_zones
 from companion.vehicle.port import FlightMode, GeoFenceZone, GeoWaypoint, VelocityYawRateSetpoint
-from sim_bridge.px4 import COMPANION_SYSTEM_ID, GCS_COMPONENT_ID
+from sim_bridge.vehicle.px4 import COMPANION_SYSTEM_ID, GCS_COMPONENT_ID
 from sim_bridge.vehicle import Emit, SimVehicle
 
 if TYPE_CHECKING:
