@@ -40,6 +40,7 @@ class RunSettings:
     keepalive_sim_s: float = 0.1  # sim, setpoint resend period (bounded to 10..100 ms wall)
     max_offboard_reentries: int = 10  # within offboard_reentry_window_s: a link that keeps failing ends the flight
     offboard_reentry_window_s: float = 60.0  # sim
+    offboard_entry_s: float = 15.0  # sim: OFFBOARD asked for (again) this long before the flight gives up
     offboard_resume_wait_s: float = 0.5  # sim: a grace for PX4's own re-entry (0.2-3 s) before asking for it
     arm_retry_s: float = 15.0  # sim: PX4 refuses to arm for ~4.2 s after boot (TEMPORARILY_REJECTED)
     yaw_align_tolerance_deg: float = 10.0

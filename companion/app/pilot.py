@@ -129,10 +129,7 @@ class Pilot(Departure, Steering):
             self._offboard_live = False
 
     async def _engage_and_fly(self) -> None:
-        await self.vehicle.send_setpoint(self.setpoint)
-        await self._retry("offboard start", lambda: self.vehicle.start_offboard(self.setpoint))
-        await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.OFFBOARD,
-                                      wall_for_sim(self.vehicle, 5.0), "OFFBOARD mode")
+        await self._enter_offboard()
         self._failsafes = FailsafeWatch(self.vehicle.status())
         await self._align_heading()
         await self._barrier("all vehicles at their initial heading", wall_for_sim(self.vehicle, 60.0, 10.0))
