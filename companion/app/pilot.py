@@ -138,7 +138,7 @@ class Pilot(Departure, Steering):
         depart = self.vehicle.latest_pose()
         assert depart is not None
         self.outcome.phase = "offboard"
-        self.outcome.t_depart_sim_s = depart.t_sim_s
+        self.outcome.t_depart_sim_s = self.ctx.departures[self.name] = depart.t_sim_s
         if self.ctx.departure_sim_s is None:  # the first to depart starts the schedule's clock for all
             self.ctx.departure_sim_s = depart.t_sim_s
         result = self._tick(depart)
