@@ -19,10 +19,12 @@ from companion.vehicle.port import FlightMode, PoseSample, TrafficReport, Vehicl
 # STATUSTEXTs that mean the autopilot took control away because setpoints stopped: PX4's
 # "Failsafe activated" (then RTL or Hold, per COM_OBL_RC_ACT) and the stub's own wording.
 FAILSAFE_TEXTS = ("failsafe activated", "offboard control lost")
-# A geofence breach: PX4's navigator says "Geofence violation: approaching or outside geofence"
-# (or "... exceeding maximum distance to Home", "... altitude ...") as it takes GF_ACTION. The same
-# words inside "Arming denied: ..." are a refusal on the ground, not a breach.
-FENCE_TEXTS = ("geofence violation",)
+# A geofence breach, as the autopilot takes GF_ACTION: PX4 SIH (main, 2026) says "Geofence:
+# approaching or outside geofence", older PX4 and the stub "Geofence violation: approaching or
+# outside geofence" (or "... exceeding maximum distance to Home", "... altitude ..."). The same
+# words inside "Arming denied: ..." are a refusal on the ground, and PX4's "Geofence violation for
+# waypoint N" at a mission upload is a route it warns about: neither is a breach.
+FENCE_TEXTS = ("geofence violation:", "outside geofence", "geofence breach")
 
 
 # Faster than any multicopter this companion flies: a sample this far from the last one is another

@@ -75,7 +75,7 @@ class VehicleStatus:
     gps_fix_type: int | None = None  # GPS_FIX_TYPE (3 = 3D fix); None until reported
     failsafe_notices: int = 0  # "Failsafe activated" / "Offboard control lost" texts heard so far
     last_failsafe_t_sim_s: float | None = None  # the vehicle's clock when the latest of them was heard
-    fence_notices: int = 0  # "Geofence violation: ..." texts heard so far (PX4's breach notice)
+    fence_notices: int = 0  # geofence breach notices heard so far (board.FENCE_TEXTS)
     last_fence_t_sim_s: float | None = None  # the vehicle's clock when the latest of them was heard
     last_fence_text: str | None = None  # its words (PX4 names the fence: custom zones, distance, altitude)
     link_anomaly: str | None = None  # telemetry no single vehicle can produce (two systems on one link)

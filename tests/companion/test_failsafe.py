@@ -131,3 +131,15 @@ def test_the_board_counts_breach_notices_but_not_an_arming_refusal():
     st = asyncio.run(go())
     assert (st.fence_notices, st.last_fence_t_sim_s, st.failsafe_notices) == (1, 12.5, 1)
     assert st.last_fence_text == "Geofence violation: exceeding maximum distance to Home"
+
+
+def test_px4s_own_breach_wording_counts_and_its_waypoint_warning_does_not():
+    async def go():
+        board = VehicleBoard("a")
+        await board.note_clock(40.0)
+        await board.put_text("Geofence violation for waypoint 3\t")  # at the route upload, PX4 SIH main
+        assert board.status().fence_notices == 0
+        await board.put_text("Geofence: approaching or outside geofence\t")  # the breach, as PX4 SIH main says it
+        return board.status()
+    st = asyncio.run(go())
+    assert st.fence_notices == 1 and st.last_fence_text == "Geofence: approaching or outside geofence"
