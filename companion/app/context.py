@@ -90,8 +90,8 @@ class FlightContext:
         self.clocks = self.fleet.clocks if shared_clock else None  # unrelated clocks: no common schedule
         self.off_schedule: set[str] = set()  # no longer flying its plan (failed, stood down): holds nobody back
         self.departures: dict[str, float] = {}  # each vehicle's departure on its own clock
-        # The first vehicle's departure hold, kept against the lower vehicles' real progress.
-        self.kept_hold = self._kept_hold()
+        # Unrelated clocks: the first vehicle's departure hold is kept against the lower vehicles instead.
+        self.kept_hold = None if shared_clock else self._kept_hold()
         self.worst_lag_s = 0.0  # how far behind sim time a schedule clock fell, at most
         self._observed: dict[str, float] = {}  # per vehicle: the sim time of its last sample given to the clocks
         self.replan_task: asyncio.Task | None = None  # the in-flight re-plan of a lagging vehicle: at most one
@@ -121,18 +121,17 @@ class FlightContext:
         timed routes are planned, read at the clocks the headless runner reads them at
         (``fleet.clocks``: for a lower vehicle, held back while the vehicles above it lag their
         plans), after every vehicle's latest sample has been given to them. Per vehicle since its
-        own departure when the vehicles' clocks are unrelated. The first vehicle's departure hold
-        is kept against the vehicles below it (``timed.KeptHold``) either way."""
-        first = self.kept_hold is not None and not self.rank[pilot.name]
+        own departure when the vehicles' clocks are unrelated; there, with no clocks to share, the
+        first vehicle's departure hold is kept against the vehicles below it (``timed.KeptHold``)."""
         if not (self.shared_clock and self.departure_sim_s is not None):
             t = pose.t_sim_s - (pilot.outcome.t_depart_sim_s or pose.t_sim_s)
-            return self._held(pilot.name, t) if first else t
+            return self._held(pilot.name, t) if self.kept_hold is not None and not self.rank[pilot.name] else t
         t = pose.t_sim_s - self.departure_sim_s
         if self.clocks is None:
-            return self._held(pilot.name, t) if first else t
+            return t
         self._observe_fleet()
         self._start_replan(t)
-        tau = self._held(pilot.name, t) if first else self.clocks.now(pilot.name, t)
+        tau = self.clocks.now(pilot.name, t)
         self.worst_lag_s = max(self.worst_lag_s, t - tau)
         return tau
 
@@ -146,12 +145,11 @@ class FlightContext:
 
     def _held(self, first: str, t: float) -> float:
         """The first vehicle's schedule time, its hold kept against the lower vehicles (each
-        observed at its schedule's time: since the common departure, or its own)."""
+        observed on its own clock since its own departure)."""
         kept = self.kept_hold
         assert kept is not None
-        common = self.departure_sim_s if self.shared_clock else None
         for name, vehicle in self.vehicles.items():
-            pose, depart = vehicle.latest_pose(), common if common is not None else self.departures.get(name)
+            pose, depart = vehicle.latest_pose(), self.departures.get(name)
             if name == first or pose is None or depart is None:
                 continue
             if name in self.arrived or name in self.off_schedule:

@@ -341,7 +341,8 @@ class PriorityClocks:
 
 
 class KeptHold:
-    """The first vehicle's departure hold, kept against the vehicles below it (live). The plan times the
+    """The first vehicle's departure hold, kept against the vehicles below it when no
+    :class:`PriorityClocks` run (live, one clock per vehicle: independent autopilots). The plan times the
     hold so that the lower vehicles, on their timed routes from t = 0, meet the first where their
     sight lines stay blocked; a lower vehicle that falls behind its plan meanwhile (a real
     multicopter gets to cruise from a hover more slowly than planned) meets it late, with the line
