@@ -19,6 +19,7 @@ from companion.app.fence import FenceGeometry
 from companion.app.flight_plan import FlightPlan
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.coordination.replan import ReplanJob, Replanned
+from companion.planning.coordination.clocks import KeptHold
 from companion.vehicle.port import PoseSample, Vehicle
 
 if TYPE_CHECKING:
@@ -32,7 +33,7 @@ class RunSettings:
     shared_clock: bool | None = None  # one sim clock for all vehicles; None: detect it at connect
     connect_timeout_s: float = 15.0  # wall
     ready_timeout_s: float = 30.0  # wall
-    command_attempts: int = 3
+    command_attempts: int = 5  # retryable answers only (TIMEOUT, BUSY): a loaded machine times MAVSDK transfers out
     progress_every_s: float = 20.0  # sim
     lookahead_s: float = 2.0  # sim, safety monitors
     link_lost_after_s: float = 10.0  # sim, continuous silence before the flight is abandoned ...
@@ -41,6 +42,7 @@ class RunSettings:
     keepalive_sim_s: float = 0.1  # sim, setpoint resend period (bounded to 10..100 ms wall)
     max_offboard_reentries: int = 10  # within offboard_reentry_window_s: a link that keeps failing ends the flight
     offboard_reentry_window_s: float = 60.0  # sim
+    offboard_entry_s: float = 15.0  # sim: OFFBOARD asked for (again) this long before the flight gives up
     offboard_resume_wait_s: float = 0.5  # sim: a grace for PX4's own re-entry (0.2-3 s) before asking for it
     arm_retry_s: float = 15.0  # sim: PX4 refuses to arm for ~4.2 s after boot (TEMPORARILY_REJECTED)
     yaw_align_tolerance_deg: float = 10.0
@@ -89,6 +91,9 @@ class FlightContext:
         self.setup = plan.fleet_setup()
         self.clocks = self.setup.clocks if shared_clock else None  # unrelated clocks: no common schedule
         self.off_schedule: set[str] = set()  # no longer flying its plan (failed, stood down): holds nobody back
+        self.departures: dict[str, float] = {}  # each vehicle's departure on its own clock
+        # Unrelated clocks: the first vehicle's departure hold is kept against the lower vehicles instead.
+        self.kept_hold = None if shared_clock else self._kept_hold()
         self.worst_lag_s = 0.0  # how far behind sim time a schedule clock fell, at most
         self._observed: dict[str, float] = {}  # per vehicle: the sim time of its last sample given to the clocks
         self.replan_task: asyncio.Task | None = None  # the in-flight re-plan of a lagging vehicle: at most one
@@ -118,9 +123,11 @@ class FlightContext:
         timed routes are planned, read at the clocks the headless runner reads them at
         (``setup.clocks``: for a lower vehicle, held back while the vehicles above it lag their
         plans), after every vehicle's latest sample has been given to them. Per vehicle since its
-        own departure when the vehicles' clocks are unrelated."""
+        own departure when the vehicles' clocks are unrelated; there, with no clocks to share, the
+        first vehicle's departure hold is kept against the vehicles below it (``timed.KeptHold``)."""
         if not (self.shared_clock and self.departure_sim_s is not None):
-            return pose.t_sim_s - (pilot.outcome.t_depart_sim_s or pose.t_sim_s)
+            t = pose.t_sim_s - (pilot.outcome.t_depart_sim_s or pose.t_sim_s)
+            return self._held(pilot.name, t) if self.kept_hold is not None and not self.rank[pilot.name] else t
         t = pose.t_sim_s - self.departure_sim_s
         if self.clocks is None:
             return t
@@ -128,6 +135,34 @@ class FlightContext:
         self._start_replan(t)
         tau = self.clocks.now(pilot.name, t)
         self.worst_lag_s = max(self.worst_lag_s, t - tau)
+        return tau
+
+    def _kept_hold(self) -> KeptHold | None:
+        co = self.plan.coordinated
+        if co is None or co.hold_s <= 0:
+            return None
+        first, *below = (v.name for v in self.mission.by_priority)
+        return KeptHold(co.timed[first], {n: co.timed[n] for n in below if n in co.timed},
+                        self.mission.coordination.hold_s_max - co.hold_s)
+
+    def _held(self, first: str, t: float) -> float:
+        """The first vehicle's schedule time, its hold kept against the lower vehicles (each
+        observed on its own clock since its own departure)."""
+        kept = self.kept_hold
+        assert kept is not None
+        for name, vehicle in self.vehicles.items():
+            pose, depart = vehicle.latest_pose(), self.departures.get(name)
+            if name == first or pose is None or depart is None:
+                continue
+            if name in self.arrived or name in self.off_schedule:
+                kept.done(name)
+            else:
+                kept.observe(name, (pose.x_east_m, pose.y_north_m), pose.t_sim_s - depart)
+        fixed = kept.extra_s is not None
+        tau = kept.now(t)
+        if not fixed and kept.extra_s is not None and kept.extra_s > 0.5:
+            self.report(f"{first}: departs {kept.extra_s:.1f} s after its planned hold of {kept.departure_s:.1f} s: "
+                        "the vehicles below it are behind their plans")
         return tau
 
     def _observe_fleet(self) -> None:

@@ -3,7 +3,8 @@
     (LAND/RTL on the ground: HOLD first) -> arm, retried while PX4 refuses it during boot
     -> (all armed) -> arm again if COM_DISARM_PRFLT ran out (or nearly) meanwhile -> take off,
     confirm armed (disarmed on the ground before lifting: arm and take off once more)
-    -> (airborne) ... OFFBOARD -> yaw in place to the mission's initial heading
+    -> (airborne) ... setpoints streaming for a second, then OFFBOARD, asked again until the
+    heartbeat shows it -> yaw in place to the mission's initial heading
 
 PX4 refuses to arm for ~4.2 s after boot (TEMPORARILY_REJECTED, which MAVSDK reports as
 COMMAND_DENIED), disarms 10 s after an arm without take-off, refuses to arm in LAND after a
@@ -34,6 +35,11 @@ TAKEOFF_ATTEMPTS = 3  # a take-off the preflight disarm beat on the ground (a lo
 ON_GROUND_ALT_M = 1.0  # disarmed below this: it never lifted, arming again is safe
 PRFLT_MARGIN_SIM_S = 5.0  # take off at least this long before COM_DISARM_PRFLT runs out (PX4 detects take-off ~1.6 s after the command)
 MIN_ALIGN_RATE_RAD_S = math.radians(30.0)  # PX4 yaws in place at 86-90 deg/s; the stub at v/r
+# PX4 takes OFFBOARD only while its health checks see a live setpoint stream (its docs: streamed for
+# over a second), acks DO_SET_MODE even when it then stays where it is, and shows the mode only in
+# its 1 Hz heartbeat: stream first, ask, and ask again while the heartbeat does not show it.
+OFFBOARD_LEAD_SIM_S = 1.0
+OFFBOARD_ASK_EVERY_SIM_S = 2.0
 
 
 class Departure:
@@ -128,6 +134,37 @@ class Departure:
         self._armed_at_sim_s = self.vehicle.clock_s()
         if self.outcome.arm_attempts > 1:
             self.ctx.report(f"{self.name}: armed after {self.outcome.arm_attempts} attempts")
+
+    async def _enter_offboard(self) -> None:
+        """OFFBOARD, from a hover whose setpoints the keep-alive streams from before this call."""
+        await self.vehicle.send_setpoint(self.setpoint)
+        pose = self.vehicle.latest_pose()
+        if pose is not None:
+            lead_until = pose.t_sim_s + OFFBOARD_LEAD_SIM_S
+            try:
+                await self.vehicle.wait_until(lambda s, p: p is not None and p.t_sim_s >= lead_until,
+                                              wall_for_sim(self.vehicle, OFFBOARD_LEAD_SIM_S, 1.0),
+                                              "setpoints streaming")
+            except TelemetryLost:
+                pass  # the requests below tell whether the autopilot takes it
+        total_wall = wall_for_sim(self.vehicle, self.ctx.settings.offboard_entry_s)
+        give_up = time.monotonic() + total_wall
+        requests = 0
+        while True:
+            requests += 1
+            await self._retry("offboard start", lambda: self.vehicle.start_offboard(self.setpoint))
+            each_wall = min(wall_for_sim(self.vehicle, OFFBOARD_ASK_EVERY_SIM_S, 0.5),
+                            max(0.1, give_up - time.monotonic()))
+            try:
+                await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.OFFBOARD, each_wall, "OFFBOARD mode")
+                break
+            except TelemetryLost:
+                if time.monotonic() >= give_up:
+                    raise CommandRefused("offboard start", "MODE_UNCHANGED", vehicle=self.name, detail=(
+                        f"still {self.vehicle.status().mode.value} after {requests} requests in "
+                        f"{total_wall:.1f} s wall")) from None
+        if requests > 1:
+            self.ctx.report(f"{self.name}: OFFBOARD after {requests} requests")
 
     async def _align_heading(self) -> None:
         """Yaw in place (in OFFBOARD, hovering) to the mission's initial heading: PX4 spawns facing

@@ -18,8 +18,9 @@ heartbeats and its "Failsafe activated" never reaches us, while the telemetry st
 gap either). The only evidence is then PX4 itself re-entering OFFBOARD once the setpoints,
 streamed all through the grace, reach it again (measured: 0.2-3 s after they resume).
 
-A geofence breach is told apart first: PX4 says "Geofence violation: ..." as it takes GF_ACTION
-(Hold by default, then "Failsafe activated" too). Any such notice heard in flight is a breach, in
+A geofence breach is told apart first: PX4 says "Geofence: approaching or outside geofence" (older
+PX4 and the stub "Geofence violation: ...") as it takes GF_ACTION (Hold by default, then "Failsafe
+activated" too). Any such notice heard in flight is a breach, in
 whatever mode (with GF_ACTION 1 the vehicle stays in OFFBOARD): the flight ends with the failure
 reason ``geofence``, and the companion does not fight the autopilot's action. The words are not
 needed: a mode change out of OFFBOARD while the vehicle is at the fence it uploaded (``at_fence``,
@@ -43,7 +44,7 @@ OVERRIDE_GRACE_MIN_WALL_S = 6.0  # ... and at least this long in wall time: a cu
 
 
 class FailsafeCause(enum.Enum):
-    GEOFENCE = "geofence"  # a "Geofence violation" notice: the fence was breached
+    GEOFENCE = "geofence"  # a geofence breach notice: the fence was breached
     OFFBOARD_LOSS = "offboard_loss"  # setpoints were late (a failsafe notice or our own telemetry gap)
 
 

@@ -44,7 +44,7 @@ FENCE_VERTEX_SPACING_M = 25.0  # a curved inflated corner becomes straight runs 
 SIMPLIFY_M = 0.05  # vertices closer than this to a straight run are dropped
 LATLON_TOLERANCE_DEG = 2e-7  # MISSION_ITEM_INT stores 1e-7 degrees: one rounding step each way
 RADIUS_TOLERANCE_M = 0.01  # param1 is a float32
-UPLOAD_ATTEMPTS = 3
+UPLOAD_ATTEMPTS = 5  # transfers time out on a loaded machine (MAVSDK counts wall time); a refusal ends at once
 
 
 def _ring(origin: frames.GeoOrigin, poly: Polygon) -> tuple[tuple[float, float], ...]:

@@ -139,7 +139,9 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
             doc["live"]["schedule"] = {"departure_hold_s": round(plan.coordinated.hold_s, 3),
                                        "blocking": {n: b.value for n, b in plan.coordinated.blocking.items()},
                                        "worst_lag_s": None if flight is None or flight.clocks is None
-                                       else round(flight.worst_lag_s, 3)}
+                                       else round(flight.worst_lag_s, 3),
+                                       "departure_hold_extra_s": None if flight is None or flight.kept_hold is None
+                                       else round(flight.kept_hold.extra_s or 0.0, 3)}
             if flight is not None and flight.clocks is not None:  # in-flight re-plans of a lagging vehicle
                 doc["live"]["schedule"].update(replans=dict(flight.clocks.replans),
                                                replan_tries=dict(flight.clocks.tries),

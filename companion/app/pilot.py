@@ -130,10 +130,7 @@ class Pilot(Departure, Steering):
             self._offboard_live = False
 
     async def _engage_and_fly(self) -> None:
-        await self.vehicle.send_setpoint(self.setpoint)
-        await self._retry("offboard start", lambda: self.vehicle.start_offboard(self.setpoint))
-        await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.OFFBOARD,
-                                      wall_for_sim(self.vehicle, 5.0), "OFFBOARD mode")
+        await self._enter_offboard()
         self._failsafes = FailsafeWatch(self.vehicle.status())
         await self._align_heading()
         await self._barrier("all vehicles at their initial heading", wall_for_sim(self.vehicle, 60.0, 10.0))
@@ -142,7 +139,7 @@ class Pilot(Departure, Steering):
         depart = self.vehicle.latest_pose()
         assert depart is not None
         self.outcome.phase = "offboard"
-        self.outcome.t_depart_sim_s = depart.t_sim_s
+        self.outcome.t_depart_sim_s = self.ctx.departures[self.name] = depart.t_sim_s
         if self.ctx.departure_sim_s is None:  # the first to depart starts the schedule's clock for all
             self.ctx.departure_sim_s = depart.t_sim_s
         result = self._tick(depart)

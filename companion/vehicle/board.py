@@ -21,10 +21,10 @@ from companion.vehicle.port import FlightMode, PoseSample, TrafficReport, Vehicl
 FAILSAFE_TEXTS = ("failsafe activated", "offboard control lost")
 # A geofence breach. PX4's STATUSTEXT is "Geofence: approaching or outside geofence" (or
 # "Geofence: exceeding maximum distance to Home", "... altitude above Home"; the binary of
-# ../shared/px4-sih holds these), its event "Geofence violation: ..." with the same ending. The
-# same words inside "Arming denied: ..." are a refusal on the ground, "Geofence violation for
-# waypoint N" a mission check: neither is a breach.
-FENCE_TEXTS = ("geofence violation:", "geofence: approaching", "geofence: exceeding")
+# ../shared/px4-sih holds these), its event and older PX4 "Geofence violation: ..." with the same
+# ending. The same words inside "Arming denied: ..." are a refusal on the ground, "Geofence
+# violation for waypoint N" a mission check at upload: neither is a breach.
+FENCE_TEXTS = ("geofence violation:", "geofence: approaching", "geofence: exceeding", "outside geofence")
 
 
 # Faster than any multicopter this companion flies: a sample this far from the last one is another

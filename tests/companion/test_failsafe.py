@@ -175,3 +175,15 @@ def test_the_fence_geometry_is_the_uploaded_one_and_names_where_the_vehicle_is()
     assert fence.breach(-30.0, 300.0, 5.0) == "5.0 m outside the inclusion fence (the area)"  # area + 25 m margin
     assert fence.breach(-22.0, 300.0, 5.0) == "3.0 m inside the inclusion fence (the area)"
     assert fence.breach(100.0, 300.0, 5.0) is None
+
+
+def test_px4s_own_breach_wording_counts_and_its_waypoint_warning_does_not():
+    async def go():
+        board = VehicleBoard("a")
+        await board.note_clock(40.0)
+        await board.put_text("Geofence violation for waypoint 3\t")  # at the route upload, PX4 SIH main
+        assert board.status().fence_notices == 0
+        await board.put_text("Geofence: approaching or outside geofence\t")  # the breach, as PX4 SIH main says it
+        return board.status()
+    st = asyncio.run(go())
+    assert st.fence_notices == 1 and st.last_fence_text == "Geofence: approaching or outside geofence"

@@ -21,6 +21,8 @@ SPEEDUP = 4.0  # PX4 SIH's speed factor in this tier: PX4 scales its loss timeou
 pytestmark = [pytest.mark.px4, pytest.mark.slow, pytest.mark.timeout(300)]
 
 RELAY_PORT_BASE = API_PORT_BASE + 100  # where the companion listens behind the relay
+# The occlusion certificate (pre-flight numpy, 20 CPU s by default) is not read here: skipped to keep the tier short.
+NO_CERTIFICATE = "--no-certificate"
 
 
 def _departed(fleet, after_s: float) -> None:
@@ -40,7 +42,7 @@ def test_a_3_s_uplink_blackout_on_px4_defaults_the_mission_goes_on(px4, companio
     relay = UplinkCut([API_PORT_BASE, API_PORT_BASE + 1], [RELAY_PORT_BASE, RELAY_PORT_BASE + 1])
     try:
         fleet.listen_port_base = RELAY_PORT_BASE
-        live = companion.start(fleet)
+        live = companion.start(fleet, NO_CERTIFICATE)
         _departed(fleet, 20.0)
         relay.cut(3.0)
         run = live.wait(240)
@@ -60,7 +62,7 @@ def test_a_3_s_uplink_blackout_on_px4_defaults_the_mission_goes_on(px4, companio
 
 def test_a_killed_companion_leaves_px4_holding_within_its_loss_timeout(px4, companion):
     fleet = px4(SMALL, speedup=SPEEDUP)
-    live = companion.start(fleet)
+    live = companion.start(fleet, NO_CERTIFICATE)
     _departed(fleet, 10.0)
     killed_wall_s = time.monotonic()
     live.signal(signal.SIGKILL)  # the whole process group, MAVSDK servers too: a crash

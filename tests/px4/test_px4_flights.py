@@ -20,6 +20,8 @@ SMALL = ROOT / "missions" / "small_reference.yaml"
 SPEEDUP = 4.0  # PX4 SIH's speed factor in this tier: PX4 scales its loss timeouts with it
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
+# The occlusion certificate (pre-flight numpy, 20 CPU s by default) is not read here: skipped to keep the tier short.
+NO_CERTIFICATE = "--no-certificate"
 
 
 @pytest.mark.timeout(600)
@@ -27,7 +29,7 @@ def test_the_reference_on_px4_flies_within_5_percent_of_the_multicopter_simulati
     # `companion run --sim px4`: the companion starts PX4 itself, flies, and stops it.
     out = tmp_path / "run"
     result = companion.cli("run", REFERENCE, "--sim", "px4", "--px4-dir", px4.px4_dir, "--speedup", f"{SPEEDUP:g}",
-                           "--out", out, timeout_s=540)
+                           NO_CERTIFICATE, "--out", out, timeout_s=540)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["success"], summary["reason"]
@@ -43,7 +45,7 @@ def test_the_reference_on_px4_flies_within_5_percent_of_the_multicopter_simulati
 @pytest.mark.timeout(600)
 def test_the_small_reference_then_a_second_run_on_the_same_px4(px4, companion, tmp_path):
     fleet = px4(SMALL, speedup=SPEEDUP)
-    first = companion(fleet, timeout_s=300)
+    first = companion(fleet, NO_CERTIFICATE, timeout_s=300)
     assert first.exit_code == 0, first.tail
     assert first.summary["success"], first.summary["reason"]
     fleet.assert_arrived()
@@ -52,7 +54,7 @@ def test_the_small_reference_then_a_second_run_on_the_same_px4(px4, companion, t
     armed_before = {n: fleet.vehicle(n).armed_history.count(True) for n in ("a", "b")}
 
     # Both vehicles now stand at the other station: the same mission is refused, nothing arms.
-    again = companion(fleet, timeout_s=120)
+    again = companion(fleet, NO_CERTIFICATE, timeout_s=120)
     assert again.exit_code == 2, again.tail
     err = again.stderr.strip().splitlines()
     assert len(err) == 1 and "from station" in err[0] and "--plan-from-current" in err[0], err
@@ -60,7 +62,7 @@ def test_the_small_reference_then_a_second_run_on_the_same_px4(px4, companion, t
     assert {n: fleet.vehicle(n).armed_history.count(True) for n in ("a", "b")} == armed_before
 
     # The way back, from where they stand: PX4 re-arms after its own landing and disarm.
-    back = companion(fleet, "--plan-from-current", mission=_swapped(SMALL, tmp_path), timeout_s=300)
+    back = companion(fleet, NO_CERTIFICATE, "--plan-from-current", mission=_swapped(SMALL, tmp_path), timeout_s=300)
     assert back.exit_code == 0, back.tail
     assert back.summary["success"], back.summary["reason"]
     for name in ("a", "b"):

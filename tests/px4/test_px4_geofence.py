@@ -1,85 +1,66 @@
-"""The companion's geofence on real PX4: uploaded and read back, then enforced by PX4 itself when a
-vehicle is flown out of it (by offboard setpoints from this test, on the vehicle's GCS link).
+"""The companion's geofence on real PX4: uploaded and read back, then breached in a companion flight
+and reported by the companion as a fence event.
 
-PX4 takes its own geofence action (GF_ACTION) and says so; the companion's own report of a PX4
-fence event is not asserted here: this test pins what PX4 does.
+The breach is forced with a fence the companion uploaded for a smaller area (`companion upload`),
+left on PX4 while `companion run --no-fence` flies the whole mission out of it: PX4 takes its own
+geofence action (GF_ACTION) and says so, and the companion stands down with the reason
+``geofence`` and the breach among its failsafes.
 """
 
 from __future__ import annotations
 
-import asyncio
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import yaml
-from pymavlink.dialects.v20 import common as mavlink
-
-from companion.testing.px4 import command_long
-
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = ROOT / "missions" / "small_reference.yaml"
 SPEEDUP = 4.0  # PX4 SIH's speed factor in this tier: PX4 scales its loss timeouts with it
+NO_CERTIFICATE = "--no-certificate"  # pre-flight numpy (20 CPU s by default) this test does not read
+FENCED_M = 300.0  # the smaller area's east and north edge; its fence (area + 100 m margin) ends at 400 m
 
-pytestmark = [pytest.mark.px4, pytest.mark.slow, pytest.mark.timeout(300)]
-
-OFFBOARD_MAIN_MODE = 6  # PX4 custom main mode
-VELOCITY_ONLY = 0b0000_1111_1100_0111  # SET_POSITION_TARGET_LOCAL_NED type_mask: velocity + yaw rate
-
-
-async def _offboard(fleet, name: str, seconds: float, north_m_s: float, east_m_s: float, down_m_s: float,
-                    every: Callable[[], None] | None = None) -> None:
-    """Stream a velocity setpoint to ``name`` on its GCS link for ``seconds`` of wall time (on the
-    recorder's loop); call ``every()`` each 0.5 s."""
-    sysid = fleet.mission.vehicle(name).system_id
-    setpoint = mavlink.MAVLink_set_position_target_local_ned_message(
-        0, sysid, 1, mavlink.MAV_FRAME_LOCAL_NED, VELOCITY_ONLY, 0, 0, 0, north_m_s, east_m_s, down_m_s, 0, 0, 0, 0, 0)
-    end, next_call = time.monotonic() + seconds, 0.0
-    while time.monotonic() < end:
-        fleet.recorder.send(sysid, setpoint)
-        if every is not None and time.monotonic() >= next_call:
-            every()
-            next_call = time.monotonic() + 0.5
-        await asyncio.sleep(0.05)
+pytestmark = [pytest.mark.px4, pytest.mark.slow, pytest.mark.timeout(420)]
 
 
-def _solo(tmp_path: Path) -> Path:
-    """The small reference with vehicle a alone: one PX4 is enough to judge its fence."""
+def _solo(tmp_path: Path, area_max_m: float | None = None) -> Path:
+    """The small reference with vehicle a alone (one PX4 is enough to judge its fence); with
+    ``area_max_m``, inside that smaller area, station B at its corner."""
     doc = yaml.safe_load(SMALL.read_text())
     doc["vehicles"] = doc["vehicles"][:1]
-    out = tmp_path / "small_reference_a.yaml"
+    name = "small_reference_a"
+    if area_max_m is not None:
+        doc["area"].update(x_max_m=area_max_m, y_max_m=area_max_m)
+        doc["stations"]["B"] = [area_max_m, area_max_m]
+        name += "_fenced"
+    doc["name"] = name
+    out = tmp_path / f"{name}.yaml"
     out.write_text(yaml.safe_dump(doc, sort_keys=False))
     return out
 
 
-def test_the_fence_is_accepted_by_px4_and_px4_acts_on_a_breach(px4, companion, tmp_path):
+def test_a_breach_of_the_uploaded_fence_is_reported_by_the_companion_as_a_fence_event(px4, companion, tmp_path):
     mission = _solo(tmp_path)
     fleet = px4(mission, speedup=SPEEDUP)
-    upload = companion.cli("upload", mission, *fleet.connect_args(), timeout_s=180)
+    fenced = _solo(tmp_path, FENCED_M)
+    upload = companion.cli("upload", fenced, *fleet.connect_args(), timeout_s=180)
     assert upload.returncode == 0, upload.stdout[-3000:] + upload.stderr
     assert "a: geofence uploaded and read back (the area and 1 obstacle" in upload.stdout, upload.stdout
 
-    # a stands at A (0, 0); the fence's inclusion polygon is the area plus 100 m (x >= -100 m).
-    # This test flies it in OFFBOARD on its GCS link (the companion is gone; its API port is free).
-    a = fleet.recorder.log(fleet.mission.vehicle("a").system_id)
+    # The whole mission (B at 636 m, 636 m) flown with that fence left on PX4.
+    run = companion(fleet, "--no-fence", NO_CERTIFICATE, timeout_s=300)
+    assert run.exit_code == 1, run.tail
+    summary = run.summary
+    assert summary["reason"] == "geofence", (summary["reason"], summary["live"]["message"])
+    fences = [e for e in summary["failsafes"] if e["cause"] == "geofence"]
+    assert len(fences) == 1 and fences[0]["vehicle"] == "a" and not fences[0]["recovered"], summary["failsafes"]
+    assert "geofence" in (fences[0]["notice"] or "").lower(), fences[0]  # PX4's own words, as heard
+    assert fences[0]["mode"] != "OFFBOARD", fences[0]  # PX4 took over, and the companion let it
+    assert "geofence breach" in run.stdout, run.tail
 
-    def offboard_and_arm() -> None:  # on the recorder's loop
-        if a.last_mode != "OFFBOARD":
-            fleet.recorder.send(a.system_id, command_long(a.system_id, mavlink.MAV_CMD_DO_SET_MODE,
-                                                   mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, OFFBOARD_MAIN_MODE))
-        if not a.armed:  # refused for PX4's first seconds: asked again
-            fleet.recorder.send(a.system_id, command_long(a.system_id, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1))
-    fleet.telemetry.call(_offboard(fleet, "a", 40.0 / SPEEDUP, 0.0, 0.0, -2.0, every=offboard_and_arm), 60)
-    assert a.armed and a.last_mode == "OFFBOARD", (a.modes, a.statustext)
-    assert (a.altitude_m or 0.0) > 10.0, a.altitude_m
-    t_out = fleet.clock_s("a")
-    fleet.telemetry.call(_offboard(fleet, "a", 40.0 / SPEEDUP, 0.0, -8.0, 0.0), 60)  # west, for 40 s sim
-    after = [m for t, m in fleet.vehicle("a").mode_history() if t > t_out]
-    assert after and after[0] != "OFFBOARD", fleet.vehicle("a").mode_history()  # PX4 took over ...
-    texts = [t for t in fleet.vehicle("a").statustext if "fence" in t.lower()]
-    assert texts, fleet.vehicle("a").statustext  # ... and said why
+    # PX4's action stood: a stopped at the fence (400 m), not at B, and it did fly out to it.
+    modes = [m for _, m in fleet.vehicle("a").mode_history()]
+    assert "OFFBOARD" in modes and modes[-1] != "OFFBOARD", modes
     tr = fleet.track("a")
-    assert tr.x_m.min() > -100.0 - 60.0, tr.x_m.min()  # stopped at the fence, not 320 m beyond it
-    assert tr.x_m.min() < -30.0, tr.x_m.min()  # and it did fly out towards it
+    reach = max(float(tr.x_m.max()), float(tr.y_m.max()))
+    assert FENCED_M + 100.0 - 30.0 < reach < FENCED_M + 100.0 + 60.0, reach

@@ -1,6 +1,7 @@
 """The timed variant (``astar-bdwa-timed``) on real PX4 SITL at 4x: PX4's telemetry volume, the
-pre-flight re-plan PX4's limits force (MPC_ACC_HOR 3 m/s^2 derates the 30 m turns to 33.3 m), and
-the departure hold the occlusion certificate predicts, flown; the process exits by itself."""
+pre-flight re-plan PX4's limits force (MPC_ACC_HOR 3 m/s^2 derates the 30 m turns to 33.3 m), the
+departure hold the occlusion certificate predicts, flown and kept against b's real progress, and the
+sight line blocked at closest approach; the process exits by itself."""
 
 from __future__ import annotations
 
@@ -18,8 +19,6 @@ pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
 
 @pytest.mark.timeout(600)
-@pytest.mark.xfail(strict=False, reason="known gap: on PX4 at 4x the timed small reference arrives, but the sight "
-                   "line is open at closest approach (the schedule is not yet kept against PX4's slower turns)")
 def test_the_timed_small_reference_holds_a_as_certified_and_keeps_the_line_blocked(px4, companion, tmp_path):
     mission = tmp_path / "small_reference_hold.yaml"
     mission.write_text(SMALL.read_text() + f"coordination:\n  hold_s_max: {HOLD_S_MAX}\n")
@@ -35,7 +34,10 @@ def test_the_timed_small_reference_holds_a_as_certified_and_keeps_the_line_block
 
     # The plan re-made for PX4's limits in a child process, the loop kept turning meanwhile.
     assert "planning again for the flown mission (in a child process)" in run.stdout, run.tail
-    assert "not keeping up" not in (run.out_dir / "companion.log").read_text()
+    # MAVSDK keeps up in flight: PX4 streams attitude at 400/s of wall time until the companion's
+    # rate requests land, and on a loaded machine a callback or two may drop before that.
+    log = (run.out_dir / "companion.log").read_text()
+    assert "not keeping up" not in log[log.index("OFFBOARD, departed"):], run.tail
 
     # The departure hold flown is the one the certificate predicts for the flown mission.
     schedule, certificate = summary["live"]["schedule"], summary["occlusion_certificate"]
@@ -43,6 +45,14 @@ def test_the_timed_small_reference_holds_a_as_certified_and_keeps_the_line_block
     assert certificate["whole_flight"] and certificate["whole_flight_min_hold_s"] is not None, certificate
     assert hold == pytest.approx(certificate["whole_flight_min_hold_s"], abs=0.01), (schedule, certificate)
     assert 0.0 < hold <= HOLD_S_MAX
+    # b gets to cruise from a hover more slowly on PX4 than planned: with one clock per vehicle a
+    # departs that much later (its hold kept against b's progress), within what hold_s_max leaves.
+    # Two PX4 clocks the companion detects as one get the shared-clock PriorityClocks instead.
+    extra = schedule["departure_hold_extra_s"]
+    if schedule["worst_lag_s"] is None:  # one clock per vehicle
+        assert extra is not None and 0.0 <= extra <= HOLD_S_MAX - hold + 0.5, schedule
+    else:
+        assert extra is None, schedule
     rows = [r for r in run.flight_log() if r["vehicle"] == "a" and r["x_m"] and r["t_plan_s"]]
     x0, y0 = float(rows[0]["x_m"]), float(rows[0]["y_m"])
     left = next(r for r in rows if math.hypot(float(r["x_m"]) - x0, float(r["y_m"]) - y0) > 5.0)

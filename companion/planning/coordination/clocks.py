@@ -112,6 +112,45 @@ class PriorityClocks:
         return t_s if clock is None else clock.now(t_s)
 
 
+class KeptHold:
+    """The first vehicle's departure hold, kept against the vehicles below it when no
+    :class:`PriorityClocks` run (live, one clock per vehicle: independent autopilots). The plan times the
+    hold so that the lower vehicles, on their timed routes from t = 0, meet the first where their
+    sight lines stay blocked; a lower vehicle that falls behind its plan meanwhile (a real
+    multicopter gets to cruise from a hover more slowly than planned) meets it late, with the line
+    open. While it holds, the first reads its route at a :class:`ScheduleClock` over the lower
+    vehicles, so it departs as much later as they lag, by at most ``extra_max_s`` (what the
+    mission's ``hold_s_max`` leaves); from its departure on it reads sim time less the extra hold
+    it took: in flight it waits for nobody.
+
+        kept = KeptHold(timed["a"], {"b": timed["b"]}, extra_max_s=hold_s_max - hold_s)
+        kept.observe("b", (x, y), t)   # the lower vehicles, while the first holds
+        tau = kept.now(t)              # the time to read the first's timed route at
+    """
+
+    def __init__(self, first: TimedRoute, below: "dict[str, TimedRoute]", extra_max_s: float):
+        self.departure_s = first.departure_s
+        self._clock = ScheduleClock(below, slack_s=0.0) if below and first.departure_s > 0 else None
+        self.extra_max_s = max(0.0, extra_max_s)
+        self.extra_s: float | None = None  # the extra hold taken, fixed at the departure
+
+    def observe(self, name: str, xy_enu_m, t_s: float) -> None:
+        if self._clock is not None and self.extra_s is None:
+            self._clock.observe(name, xy_enu_m, t_s)
+
+    def done(self, name: str) -> None:
+        if self._clock is not None:
+            self._clock.done(name)
+
+    def now(self, t_s: float) -> float:
+        if self.extra_s is not None:
+            return t_s - self.extra_s
+        tau = t_s if self._clock is None else max(self._clock.now(t_s), t_s - self.extra_max_s)
+        if tau >= self.departure_s:
+            self.extra_s = t_s - tau
+        return tau
+
+
 SIGHT_NEAR_MARGIN_M = 200.0  # see VehiclePlanner.sight_near_m; chosen on a tuning seed
 
 
