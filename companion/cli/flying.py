@@ -86,9 +86,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_sim_options(p)
     add_no_fence_option(p)
     add_certificate_options(p)
-    p.add_argument("--shared-clock", action="store_true", default=None,
-                   help="with --connect: assert that every vehicle stamps telemetry with one sim clock (an external "
-                        "sim-bridge). Not needed: the companion detects it when the vehicles' clocks agree")
+    p.add_argument("--shared-clock", action=argparse.BooleanOptionalAction, default=None,
+                   help="with --connect: every vehicle stamps telemetry with one sim clock (an external sim-bridge), "
+                        "or --no-shared-clock: each has its own (separate PX4 instances). Default: detected from "
+                        "the vehicles' clocks at connect, which cannot tell apart PX4 instances booted together; "
+                        "--sim px4 knows its instances are separate")
     p.add_argument("--keep-failsafe", action="store_true",
                    help="leave the autopilot's COM_OBL_RC_ACT as it is (PX4's default: Return on an offboard loss) "
                         "instead of setting 5 (Hold); the companion resumes OFFBOARD from either")
@@ -123,7 +125,9 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     out = None if args.out is None else output_dir(args.out, reserve=True)
     px4 = px4_options(args, plan.mission, out)
     log_file = quiet_mavsdk(out)
-    settings = RunSettings(shared_clock=True if conns is None and px4 is None else args.shared_clock,
+    # The embedded stub runs one clock; the PX4 instances --sim px4 starts run one each.
+    shared_clock = True if conns is None and px4 is None else False if px4 is not None else None
+    settings = RunSettings(shared_clock=shared_clock if args.shared_clock is None else args.shared_clock,
                            connect_timeout_s=args.connect_timeout, progress_every_s=args.progress_every,
                            land=not args.no_land, failsafe_hold=not args.keep_failsafe)
     checks = PreflightSettings(station_tolerance_m=args.station_tolerance, plan_from_current=args.plan_from_current,

@@ -1,4 +1,4 @@
-"""The first vehicle's departure hold kept against the lower vehicles (timed.KeptHold): it departs
+"""The first vehicle's departure hold kept against the lower vehicles (coordination.clocks.KeptHold): it departs
 as much later as they lag their plans, at most what hold_s_max leaves,
 and from then on reads sim time less that extra hold."""
 
