@@ -39,10 +39,9 @@ _CHILD = """
 import json, sys
 seed, count, workers, numpy_only = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
 if numpy_only:
+    sys.modules["numba"] = None  # before any import: the DWA's backend is chosen when its configs are built
     from companion.planning.coordination import shadow
-    from companion.planning.dwa import kernels
     from uav_model.plant import multicopter
-    kernels.numpy_only().__enter__()
     shadow._blocked_jit = None
     multicopter._substep_loop = multicopter.substep_loop_python
 import resource, time

@@ -22,7 +22,8 @@ import time
 import numpy as np
 
 from uav_model.mission import parse_mission
-from companion.planning.dwa import Command, OtherUav, Pose, kernels, plan_step
+from companion.planning.dwa import Command, OtherUav, Pose, plan_step
+from companion.planning.dwa.backend import COMPILED, NUMPY
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.vehicle_planner import VehiclePlanner, window_settings
 from companion.bench.machine import machine_line
@@ -89,14 +90,6 @@ def interleaved(fns: dict, n: int, rounds: int = 10) -> dict[str, tuple[float, f
             for k, v in samples.items()}
 
 
-def numpy_only(fn):
-    """``fn`` run on the numpy kernels (what the code without numba, and before it, runs)."""
-    def run():
-        with kernels.numpy_only():
-            return fn()
-    return run
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3000)
@@ -120,8 +113,10 @@ def main() -> None:
         paper = lambda: plan_step(pose, goal, other, snapshot, cfg)  # noqa: E731
         timed_window = lambda: plan_step(pose, goal, other, snapshot, timed_cfg)  # noqa: E731
         fns = {"paper": paper, "timed": timed_window}
-        if kernels.circle_clearance is not None:  # numba: the numpy kernels beside, interleaved
-            fns.update({"paper, numpy": numpy_only(paper), "timed, numpy": numpy_only(timed_window)})
+        if COMPILED is not None:  # numba: the numpy backend beside, interleaved
+            paper_np, timed_np = (dataclasses.replace(c, backend=NUMPY) for c in (cfg, timed_cfg))
+            fns.update({"paper, numpy": lambda: plan_step(pose, goal, other, snapshot, paper_np),
+                        "timed, numpy": lambda: plan_step(pose, goal, other, snapshot, timed_np)})
         for key, (med, p99, cpu) in interleaved(fns, args.repeat).items():
             window = (f"timed window ({timed_cfg.count} rollouts)" if key.startswith("timed")
                       else f"paper window ({cfg.count} rollouts)")

@@ -24,7 +24,7 @@ from companion.planning.budget import BudgetSpent, WorkBudget
 from companion.planning.errors import NoPath
 from companion.app.steering import clearance_here_m
 from companion.planning.dwa import OtherUav, Pose
-from companion.planning.dwa.sightline_slope import open_clearance
+from companion.planning.dwa.backend import DEFAULT as DWA_KERNELS
 from companion.planning.dwa.step import warm_up_kernels
 from companion.planning.fleet import Neighbour, react_to
 from companion.planning.obstacle_field import ObstacleField
@@ -45,7 +45,7 @@ def warm_up_headless(mission: Mission, variant: str | None = None) -> float:
     # the sloped sightline critic (timed variants) once the other vehicle is near, which the first
     # ticks do not see; the flight passes the rollouts' ends as strided views
     ends = np.zeros((2, 2))[:, 0]
-    open_clearance(ends, ends, (5.0, 5.0), 1.0, ObstacleField.from_world(mission.world).at_time(0.0))
+    DWA_KERNELS.open_clearance(ends, ends, (5.0, 5.0), 1.0, ObstacleField.from_world(mission.world).at_time(0.0))
     return time.monotonic() - started
 
 

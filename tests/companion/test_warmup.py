@@ -24,18 +24,24 @@ SCRIPT = textwrap.dedent("""
     from companion.app.flight_plan import prepare
     from companion.app.steering import clearance_here_m
     from companion.app.warmup import warm_up_planners
-    from companion.planning.dwa import kernels
+    from numba.core.dispatcher import Dispatcher
+    from companion.planning.dwa import distance_jit, evaluate_jit, geometry_jit, heading_jit, sightline_jit
     from companion.planning.obstacle_field import ObstacleField
     from companion.planning.flight.headless import simulate
 
+    def loaded():  # the DWA's compiled kernels: signatures per dispatcher
+        return {f"{m.__name__}.{k}": len(v.signatures)
+                for m in (distance_jit, evaluate_jit, geometry_jit, heading_jit, sightline_jit)
+                for k, v in vars(m).items() if isinstance(v, Dispatcher)}
+
     mission = load_mission(sys.argv[1]).with_variant(sys.argv[2])
     warm_up_planners(prepare(mission))
-    warm = {n: len(getattr(kernels, n).signatures) for n in kernels._NAMES}
+    warm = loaded()
     assert sum(warm.values()) >= 3, warm
     simulate(mission)  # every tick of a whole flight, moving and turning
     field = ObstacleField.from_world(mission.world)
     clearance_here_m(10.0, 10.0, field.from_tracks(field.tracks_at(30.0)))  # the flight log's column
-    later = {n: len(getattr(kernels, n).signatures) for n in kernels._NAMES}
+    later = loaded()
     print({n: later[n] - warm[n] for n in warm if later[n] != warm[n]})
 """)
 

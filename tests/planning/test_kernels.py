@@ -1,6 +1,5 @@
-"""The compiled kernels (numba, the ``fast`` extra: geometry, culling, heading, the choice) give bit for bit
-the numbers of the numpy kernels they replace, over random worlds; and the clearance agrees with
-shapely."""
+"""The compiled backend's kernels (numba, the ``fast`` extra: geometry, culling, heading, the choice) give bit
+for bit the numbers of the numpy backend's, over random worlds; and the clearance agrees with shapely."""
 
 from __future__ import annotations
 
@@ -10,14 +9,11 @@ import shapely
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from companion.planning.dwa import DwaConfig, LocalGoals, ObstacleSnapshot, kernels
-from companion.planning.dwa.evaluate import choose
-from companion.planning.dwa.geometry import inflated_clearance, polygon_signed_distance
-from companion.planning.dwa.heading import heading_from_ends
-from companion.planning.dwa.sightline import sightline_scores
-from companion.planning.dwa.sightline_slope import open_clearance
+from companion.planning.dwa import DwaConfig, LocalGoals, ObstacleSnapshot
+from companion.planning.dwa.backend import COMPILED, DEFAULT, NUMPY
+from companion.planning.dwa.evaluate import Critics
 
-needs_numba = pytest.mark.skipif(kernels.circle_clearance is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+needs_numba = pytest.mark.skipif(COMPILED is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 
 coord = st.floats(-300.0, 300.0, allow_nan=False)
 speed = st.sampled_from([0.0, 0.0, -4.0, 2.5])  # static as often as moving
@@ -59,14 +55,10 @@ def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
 @given(worlds(), st.integers(0, 2**31), st.integers(1, 3000))
 def test_clearance_kernels_match_numpy_bit_for_bit(snap: ObstacleSnapshot, seed: int, n: int) -> None:
     px, py, t = points(seed, n)
-    compiled = inflated_clearance(px, py, t, snap)
-    with kernels.numpy_only():
-        reference = inflated_clearance(px, py, t, snap)
-    assert same_bits(compiled, reference)
+    assert same_bits(COMPILED.inflated_clearance(px, py, t, snap), NUMPY.inflated_clearance(px, py, t, snap))
     if snap.poly_ids:
-        compiled = polygon_signed_distance(px, py, t, snap)
-        with kernels.numpy_only():
-            assert same_bits(compiled, polygon_signed_distance(px, py, t, snap))
+        assert same_bits(COMPILED.polygon_signed_distance(px, py, t, snap),
+                         NUMPY.polygon_signed_distance(px, py, t, snap))
 
 
 @needs_numba
@@ -75,11 +67,9 @@ def test_clearance_kernels_match_numpy_bit_for_bit(snap: ObstacleSnapshot, seed:
 def test_sightline_kernels_match_numpy_bit_for_bit(snap: ObstacleSnapshot, seed: int, n: int, qx: float,
                                                    qy: float, t_s: float) -> None:
     ex, ey, _ = points(seed, n)
-    ends = np.c_[ex, ey]
-    compiled = sightline_scores(ends, (qx, qy), t_s, snap), open_clearance(ex, ey, (qx, qy), t_s, snap)
-    with kernels.numpy_only():
-        reference = sightline_scores(ends, (qx, qy), t_s, snap), open_clearance(ex, ey, (qx, qy), t_s, snap)
-    assert all(same_bits(a, b) for a, b in zip(compiled, reference))
+    for kernel in ("sightline_depths", "open_clearance"):
+        got = getattr(COMPILED, kernel)(ex, ey, (qx, qy), t_s, snap)
+        assert same_bits(got, getattr(NUMPY, kernel)(ex, ey, (qx, qy), t_s, snap)), kernel
 
 
 @settings(max_examples=40, deadline=None)
@@ -88,7 +78,7 @@ def test_clearance_is_the_distance_to_the_buffered_shape(snap: ObstacleSnapshot,
     """Whichever kernels run: the clearance of a point is shapely's distance to the inflated
     (round-buffered) true shape, negative inside by the depth (static time 0)."""
     px, py, _ = points(seed, 40)
-    got = inflated_clearance(px, py, np.zeros(40), snap)
+    got = DEFAULT.inflated_clearance(px, py, np.zeros(40), snap)
     shapes = [shapely.Point(xy).buffer(r, 256) for xy, r in zip(snap.circle_xy_m, snap.circle_radius_m)]
     shapes += [shapely.Polygon(snap.vertices(i)) for i in range(len(snap.poly_ids))]
     margins = np.concatenate([snap.circle_margin_m, snap.poly_margin_m])
@@ -105,9 +95,8 @@ def test_clearance_is_the_distance_to_the_buffered_shape(snap: ObstacleSnapshot,
        st.none() | st.tuples(coord, coord))
 def test_culling_kernel_matches_numpy(snap: ObstacleSnapshot, x: float, y: float, reach: float, horizon: float,
                                       to_xy: tuple[float, float] | None) -> None:
-    keep, kept = snap.near_mask(x, y, reach, horizon, to_xy)
-    with kernels.numpy_only():
-        ref_keep, ref_kept = snap.near_mask(x, y, reach, horizon, to_xy)
+    keep, kept = COMPILED.near_mask(snap, x, y, reach, horizon, to_xy)
+    ref_keep, ref_kept = NUMPY.near_mask(snap, x, y, reach, horizon, to_xy)
     assert keep.dtype == ref_keep.dtype and np.array_equal(keep, ref_keep) and kept == ref_kept
 
 
@@ -120,9 +109,8 @@ def test_heading_kernel_matches_numpy(seed: int, n: int, tx: float, ty: float, h
     ey[::11] = ty
     final = heading + np.linspace(-3.0, 3.0, n)
     goals = LocalGoals.single((tx, ty))
-    got = heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True)
-    with kernels.numpy_only():
-        assert same_bits(got, heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True))
+    got = COMPILED.heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True)
+    assert same_bits(got, NUMPY.heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True))
 
 
 @st.composite
@@ -147,7 +135,7 @@ def choices(draw):
                                                                         50.0, n)
     speed = None if config.count == config.samples else rng.uniform(0.0, 1.0, n)
     error = draw(st.sampled_from([float("nan"), 2.5, -2.0, 0.0]))
-    return config, legal, error, heading, distance, sightline, speed
+    return config, Critics(legal, error, distance, sightline, speed), heading
 
 
 @needs_numba
@@ -156,8 +144,6 @@ def choices(draw):
 def test_choice_kernel_matches_numpy(case) -> None:
     """The compiled choice (turn preference, normalised weighted sum, argmax) picks the same
     rollout with the same total, to the last bit, and counts the same legal rollouts."""
-    got = choose(*case)
-    with kernels.numpy_only():
-        reference = choose(*case)
+    got, reference = COMPILED.choose(*case), NUMPY.choose(*case)
     assert got[0] == reference[0] and got[2] == reference[2]
     assert same_bits(np.array([got[1]]), np.array([reference[1]]))

@@ -1,5 +1,5 @@
-"""The fused compiled kernels (:mod:`companion.planning.dwa.kernels_fused`) give bit for bit what
-the numpy code they stand for gives: the obstacle pass (clearances, the rule per point and per
+"""The compiled backend's fused kernels (``obstacle_rule`` and ``pick``) give bit for bit what the
+numpy backend's rows give: the obstacle pass (clearances, the rule per point and per
 rollout, the distance critic) on random worlds and rollouts, and the fused choice (heading
 critic toward one target, choice, command) on random windows and critics; and the goal windows
 the tracker now builds from views of its route hold what the constructor derives."""
@@ -11,14 +11,12 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from companion.planning.dwa import DwaConfig, LocalGoals, ObstacleSnapshot, kernels
-from companion.planning.dwa.evaluate import choose, command_for, pick
-from companion.planning.dwa.heading import heading_from_ends
+from companion.planning.dwa import DwaConfig, LocalGoals, ObstacleSnapshot
+from companion.planning.dwa.backend import COMPILED, NUMPY
 from companion.planning.dwa.legality import Rule, legal_rollouts
-from companion.planning.dwa.step import _obstacle_rule
 from tests.planning.test_kernels import choices, worlds
 
-needs_numba = pytest.mark.skipif(kernels.pick is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+needs_numba = pytest.mark.skipif(COMPILED is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 
 
 def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
@@ -43,26 +41,19 @@ def test_obstacle_pass_matches_numpy(snap: ObstacleSnapshot, seed: int, samples:
     c, s = np.cos(heading), np.sin(heading)
     xy = np.array([[c, -s, x], [s, c, y]]) @ config.body_hom_m
     px, py = xy[0].reshape(shape), xy[1].reshape(shape)
-    keep, kept = snap.near_mask(x, y, reach, config.horizon_s)
-    assume(kept)
-    near = snap.near(x, y, reach, config.horizon_s)
-    clear, ok, distance, legal = _obstacle_rule(px, py, snap, keep, None, config, shape)
-    with kernels.numpy_only():
-        ref_clear, ref_ok, ref_distance, ref_legal = _obstacle_rule(px, py, snap, None, near, config, shape)
-        assert ref_legal is None  # the numpy path leaves the rule per rollout to legal_rollouts
-        ref_legal = legal_rollouts({Rule.OBSTACLE: ref_ok}, config)
+    culled = COMPILED.cull(snap, x, y, reach, config.horizon_s)
+    assume(culled.count)
+    clear, ok, distance, legal = COMPILED.obstacle_rule(px, py, culled, config)
+    ref_clear, ref_ok, ref_distance, ref_legal = NUMPY.obstacle_rule(px, py, NUMPY.cull(snap, x, y, reach,
+                                                                                         config.horizon_s), config)
+    assert ref_legal is None  # the numpy row leaves the rule per rollout to legal_rollouts
+    ref_legal = legal_rollouts({Rule.OBSTACLE: ref_ok}, config)
     assert same_bits(ok, ref_ok) and same_bits(distance, ref_distance) and same_bits(legal, ref_legal)
-    # The clearances: exact where worked out, and left out (+inf) only above the saturation.
-    raw = kernels.obstacle_pass(px.ravel(), py.ravel(), config.point_times_s, snap.circle_xy_m, snap.circle_vel_m_s,
-                                snap.circle_radius_m, snap.circle_margin_m, snap.poly_a_m, snap.poly_b_m, snap.poly_d_m,
-                                snap.poly_inv_len2, snap.poly_dx_per_dy, snap.poly_vel_m_s, snap.poly_margin_m,
-                                snap.poly_centre_m, snap.poly_bound_m, keep, shape[1], config.distance_saturation_m)[0]
-    left_out = np.isinf(raw)
-    assert same_bits(raw[~left_out], ref_clear[~left_out])
-    assert (ref_clear[left_out] > config.distance_saturation_m).all()
-    assert (clear is None) == bool(left_out.any())
+    # The clearances: exact when returned; left out (None) only when some lie above the saturation.
     if clear is not None:
         assert same_bits(clear, ref_clear)
+    else:
+        assert (ref_clear > config.distance_saturation_m).any()
 
 
 @needs_numba
@@ -71,17 +62,13 @@ def test_obstacle_pass_matches_numpy(snap: ObstacleSnapshot, seed: int, samples:
 def test_fused_choice_matches_numpy(case, seed: int, tx: float, ty: float, heading_rad: float) -> None:
     """The same command, every field to the last bit, as the heading critic toward (tx, ty),
     the choice and command_for give with the numpy code (ties, nothing legal, all legal)."""
-    config, legal, error, _, distance, sightline, speed = case
+    config, critics, _ = case
     rng = np.random.default_rng(seed)
     ex, ey = rng.uniform(-300.0, 300.0, (2, config.count))
     ex[::5] = tx  # straight above or below the target, and on it
     ey[::7] = ty
-    got = pick(config, legal, error, ex, ey, heading_rad, (tx, ty), distance, sightline, speed)
-    with kernels.numpy_only():
-        final = heading_rad + config.final_dheading_rad
-        heading = heading_from_ends(ex, ey, final, LocalGoals.single((tx, ty)), (0.0, 0.0), None, None, True)
-        best, total, n_legal = choose(config, legal, error, heading, distance, sightline, speed)
-        reference = command_for(config, best, heading, distance, sightline, total, n_legal)
+    got = COMPILED.pick(config, critics, ex, ey, heading_rad, (tx, ty))
+    reference = NUMPY.pick(config, critics, ex, ey, heading_rad, (tx, ty))
     assert got.legal_count == reference.legal_count
     for name in ("yaw_rate_rad_s", "speed_m_s", "heading_score", "distance_score", "sightline_score", "eval_score"):
         assert same_bits(np.float64(getattr(got, name)), np.float64(getattr(reference, name))), name

@@ -1,5 +1,5 @@
-"""The compiled heading critic over a goal window and the compiled obstacle rule + distance critic
-(:mod:`companion.planning.dwa.kernels_tick`) give bit for bit the numbers of their numpy twins,
+"""The compiled heading critic over a goal window, the compiled obstacle rule + distance critic and
+the compiled sight frame (the compiled backend's) give bit for bit the numbers of their numpy twins,
 on random rollouts, goal windows and clearances (ties, points on the goals, already inside)."""
 
 from __future__ import annotations
@@ -9,13 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.planning.dwa import LocalGoals, kernels
-from companion.planning.dwa.distance import obstacle_and_distance
-from companion.planning.dwa.heading import heading_from_ends
-from companion.planning.dwa.sightline import _sightline_scores
+from companion.planning.dwa import LocalGoals
+from companion.planning.dwa.backend import COMPILED, NUMPY
 from tests.planning.test_kernels import worlds
 
-needs_numba = pytest.mark.skipif(kernels.heading_goals is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+needs_numba = pytest.mark.skipif(COMPILED is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 
 
 def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
@@ -52,9 +50,8 @@ def windows(draw):
 def test_heading_window_kernel_matches_numpy(case) -> None:
     px, py, final, goals, soonest = case
     ex, ey = px[:, -1], py[:, -1]
-    got = heading_from_ends(ex, ey, final, goals, (0.0, 0.0), px, py, False, soonest)
-    with kernels.numpy_only():
-        reference = heading_from_ends(ex, ey, final, goals, (0.0, 0.0), px, py, False, soonest)
+    got = COMPILED.heading_from_ends(ex, ey, final, goals, (0.0, 0.0), px, py, False, soonest)
+    reference = NUMPY.heading_from_ends(ex, ey, final, goals, (0.0, 0.0), px, py, False, soonest)
     assert same_bits(got, reference)
 
 
@@ -78,9 +75,8 @@ def clearances(draw):
 @given(clearances())
 def test_obstacle_kernel_matches_numpy(case) -> None:
     clear, shape, saturation = case
-    ok, distance = obstacle_and_distance(clear, shape, saturation)
-    with kernels.numpy_only():
-        ref_ok, ref_distance = obstacle_and_distance(clear, shape, saturation)
+    ok, distance = COMPILED.obstacle_and_distance(clear, shape, saturation)
+    ref_ok, ref_distance = NUMPY.obstacle_and_distance(clear, shape, saturation)
     assert same_bits(ok, ref_ok) and same_bits(distance, ref_distance)
 
 
@@ -95,6 +91,5 @@ def test_sight_frame_kernel_matches_numpy_on_a_subset(snap, seed: int, n: int, q
     ex, ey = rng.uniform(-400.0, 400.0, (2, n))
     keep = rng.random(snap.count) < 0.6
     keep[rng.integers(snap.count)] = True  # sightline_term keeps at least one
-    got = _sightline_scores(ex, ey, (qx, qy), t_s, snap, keep)
-    with kernels.numpy_only():
-        assert same_bits(got, _sightline_scores(ex, ey, (qx, qy), t_s, snap, keep))
+    got = COMPILED.sightline_depths(ex, ey, (qx, qy), t_s, snap, keep)
+    assert same_bits(got, NUMPY.sightline_depths(ex, ey, (qx, qy), t_s, snap, keep))

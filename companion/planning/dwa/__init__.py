@@ -50,16 +50,21 @@ The package, one concern per module (nav2 DWB style):
     evaluate    normalisation and the weighted sum
     recovery    no legal rollout: spin recovery, hold, recovery on the margin, escape
     step        plan_step, wiring the above
+    backend     the kernels a tick runs: numpy's, or their compiled twins (numba, the ``fast``
+                extra: geometry_jit, heading_jit, sightline_jit, distance_jit, evaluate_jit),
+                held by the config and chosen when it is built
 """
 
+from companion.planning.dwa.backend import DEFAULT
 from companion.planning.dwa.config import DwaConfig
-from companion.planning.dwa.geometry import inflated_clearance
 from companion.planning.dwa.heading import heading_scores
 from companion.planning.dwa.shapes import rollouts
 from companion.planning.dwa.sightline import sightline_scores
 from companion.planning.dwa.snapshot import NO_OBSTACLES, ObstacleSnapshot
 from companion.planning.dwa.step import plan_step
 from companion.planning.dwa.types import Command, LocalGoals, NoLegalRollout, OtherUav, Pose
+
+inflated_clearance = DEFAULT.inflated_clearance  # the clearance a caller without a config (the flight log) reads
 
 __all__ = ["NO_OBSTACLES", "Command", "DwaConfig", "LocalGoals", "NoLegalRollout", "ObstacleSnapshot", "OtherUav",
            "Pose", "heading_scores", "inflated_clearance", "plan_step", "rollouts", "sightline_scores"]

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from companion.planning.dwa.backend import DEFAULT, Backend
 from companion.planning.dwa.shapes import homogeneous, recovery_shapes
 from uav_model.plant.unicycle import body_rollouts
 
@@ -41,6 +42,8 @@ class DwaConfig:
     sight segment's clearance to the nearest obstacle when it is open (:mod:`.sightline`).
     ``fixed_scale``: each critic divided by a fixed scale (H / 180, D / saturation, S / cap,
     V / 1) instead of the paper's sum over the candidates (:mod:`.evaluate`).
+    ``backend``: the kernels every tick of this config runs (:mod:`.backend`): numba's compiled
+    twins when numba is installed, else numpy's; the same commands either way.
     """
 
     speed_m_s: float
@@ -67,6 +70,7 @@ class DwaConfig:
     # at cruise it carries on about this long along its heading, and a spin recovery gets going
     # this much after its yaw (see recovery.hover_check). 0: the plant flies the rollouts exactly.
     tracking_lag_s: float = 0.0
+    backend: Backend = field(default=DEFAULT, repr=False)
 
     # S below is the number of rollouts: yaw_rate samples x speed_samples (speeds outer).
     count: int = field(init=False, repr=False)  # S
@@ -95,6 +99,9 @@ class DwaConfig:
     saturated_sums: tuple[float, ...] = field(init=False, repr=False)  # [n]: numpy's sum of n of them
     saturated_sums_m: np.ndarray = field(init=False, repr=False)  # the same as an array (compiled choice)
     weights: np.ndarray = field(init=False, repr=False)  # (w_h, w_d, w_s, w_v)
+    # What the compiled choice reads of the config, as one tuple (see evaluate_jit): rates, speeds,
+    # final_dheading_rad, weights, saturation, saturated_sums_m, sightline_slope, fixed_scale, cap.
+    choice_consts: tuple = field(init=False, repr=False)
     end_reach_m: float = field(init=False, repr=False)  # the farthest prediction point from the pose
     # Spin recovery: rollouts (R = J headings x recovery samples) that start after yawing in place
     # by rec_turn_rad (J headings one tick of full-rate yaw apart, all round), rec_delay_s later.
@@ -146,6 +153,10 @@ class DwaConfig:
                             ("weights", np.array([self.w_h, self.w_d, self.w_s, self.w_v], dtype=float))):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
+        object.__setattr__(self, "choice_consts", (
+            self.yaw_rates_rad_s, self.speeds_m_s, self.final_dheading_rad, self.weights,
+            float(self.distance_saturation_m), self.saturated_sums_m, bool(self.sightline_slope), bool(self.fixed_scale),
+            float(self.sightline_cap_m)))
         object.__setattr__(self, "end_reach_m", float(np.hypot(body[:, -1, 0], body[:, -1, 1]).max()))
         object.__setattr__(self, "steps", steps)
         object.__setattr__(self, "horizon_s", float(t[-1]))

@@ -2,55 +2,49 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from companion.planning.dwa import kernels
-from companion.planning.dwa.config import DwaConfig
-from companion.planning.dwa.geometry import one_layout
+from companion.planning.dwa.heading import heading_toward
 from companion.planning.dwa.legality import commit_turn
 from companion.planning.dwa.types import Command
 
-_NONE = np.zeros(0)  # a critic that is off, for the compiled choice
+if TYPE_CHECKING:
+    from companion.planning.dwa.config import DwaConfig
+
+@dataclass(frozen=True, slots=True)
+class Critics:
+    """What the choice reads besides the heading critic: which rollouts are legal (S,), the
+    goal's bearing off the nose when the turn-around preference applies (NaN when it does not:
+    see :func:`.legality.turn_error`), D (S,), and S and V (S,) or None when off."""
+
+    legal: np.ndarray
+    turn_error: float
+    distance: np.ndarray
+    sightline: np.ndarray | None
+    speed: np.ndarray | None
 
 
-def choose(config: DwaConfig, legal: np.ndarray, turn_error: float, heading: np.ndarray, distance: np.ndarray,
-           sightline: np.ndarray | None, speed: np.ndarray | None) -> tuple[int, float, int]:
-    """The turn-around preference (``turn_error``: see :func:`legality.turn_error`), the weighted
-    sum and the best rollout: (its index, its total, how many rollouts are legal). With numba,
-    one compiled pass does the same operations (:func:`kernels.choose`)."""
-    if kernels.choose is not None:
-        # One signature per kernel (each new one compiles or loads in flight; see app/warmup.py):
-        # the read-only all-legal mask and saturated distances as writable copies (31 elements).
-        saturated = distance is config.saturated_m
-        legal = legal if legal.flags.writeable else legal.copy()
-        distance = distance if distance.flags.writeable else distance.copy()
-        return kernels.choose(legal, config.yaw_rates_rad_s, turn_error, config.weights, heading, distance,
-                              saturated, config.distance_saturation_m, config.saturated_sums_m,
-                              _NONE if sightline is None else sightline, sightline is not None,
-                              config.sightline_slope, _NONE if speed is None else speed, speed is not None,
-                              config.fixed_scale, config.sightline_cap_m)
-    legal = commit_turn(legal, config, turn_error)
+def choose(config: DwaConfig, critics: Critics, heading: np.ndarray) -> tuple[int, float, int]:
+    """The turn-around preference, the weighted sum and the best rollout: (its index, its
+    total, how many rollouts are legal)."""
+    legal = commit_turn(critics.legal, config, critics.turn_error)
     n_legal = int(np.count_nonzero(legal))
-    total = evaluate(config, legal, heading, distance, sightline, n_legal == config.count, speed)
+    total = evaluate(config, legal, heading, critics.distance, critics.sightline, n_legal == config.count,
+                     critics.speed)
     best = int(total.argmax())
     return best, float(total[best]), n_legal
 
 
-def pick(config: DwaConfig, legal: np.ndarray, turn_error: float, ex: np.ndarray, ey: np.ndarray,
-         heading_rad: float, target_xy: tuple[float, float], distance: np.ndarray, sightline: np.ndarray | None,
-         speed: np.ndarray | None) -> Command:
-    """With numba: the heading critic toward one target (``heading.heading_from_ends``' single
-    path, prediction points (ex, ey) of a pose heading ``heading_rad``), :func:`choose` and
-    :func:`command_for` in one compiled call (:func:`kernels.pick`); the same command."""
-    saturated = distance is config.saturated_m
-    legal = legal if legal.flags.writeable else legal.copy()
-    distance = distance if distance.flags.writeable else distance.copy()
-    return Command(*kernels.pick(
-        one_layout(ex), one_layout(ey), float(heading_rad), config.final_dheading_rad, float(target_xy[0]),
-        float(target_xy[1]), legal, config.yaw_rates_rad_s, config.speeds_m_s, turn_error, config.weights, distance,
-        saturated, config.distance_saturation_m, config.saturated_sums_m, _NONE if sightline is None else sightline,
-        sightline is not None, config.sightline_slope, _NONE if speed is None else speed, speed is not None,
-        config.fixed_scale, config.sightline_cap_m))
+def pick(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarray, heading_rad: float,
+         target_xy: tuple[float, float]) -> Command:
+    """The command toward one target: the heading critic toward ``target_xy`` at the prediction
+    points (ex, ey) of a pose heading ``heading_rad``, :func:`choose` and :func:`command_for`."""
+    heading = heading_toward(ex, ey, heading_rad + config.final_dheading_rad, *target_xy)
+    best, total, n_legal = choose(config, critics, heading)
+    return command_for(config, best, heading, critics.distance, critics.sightline, total, n_legal)
 
 
 def evaluate(config: DwaConfig, legal: np.ndarray, heading: np.ndarray, distance: np.ndarray,

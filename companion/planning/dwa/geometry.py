@@ -7,8 +7,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.planning.dwa import kernels
-
 if TYPE_CHECKING:
     from companion.planning.dwa.snapshot import ObstacleSnapshot
 
@@ -31,19 +29,9 @@ def inflated_clearance(px: np.ndarray, py: np.ndarray, t_s: np.ndarray, snap: Ob
 
     Obstacles run along the first axis and points along the second, so that every elementwise
     operation streams over the points and every reduction over obstacles or edges is a
-    row-wise one: numpy is several times slower reducing a short last axis. With numba, the
-    compiled loops of :mod:`.kernels` compute the same numbers.
+    row-wise one: numpy is several times slower reducing a short last axis. The compiled twin
+    is :func:`.geometry_jit.inflated_clearance`.
     """
-    if kernels.circle_clearance is not None:
-        px, py, t_s = one_layout(px), one_layout(py), one_layout(t_s)
-        n_c = len(snap.circle_ids)
-        out = np.empty((n_c + len(snap.poly_ids), len(px)))
-        if n_c:
-            kernels.circle_clearance(px, py, t_s, snap.circle_xy_m, snap.circle_vel_m_s, snap.circle_radius_m,
-                                     snap.circle_margin_m, out, 0)
-        if snap.poly_ids:
-            _compiled_polygons(px, py, t_s, snap, snap.poly_margin_m, out, n_c)
-        return out
     parts = []
     if snap.circle_ids:
         parts.append(_circle_distance(px, py, t_s, snap) - snap.circle_margin_m[:, None])
@@ -62,11 +50,6 @@ _CHUNK_BYTES = 120 * 1024
 
 def polygon_signed_distance(px: np.ndarray, py: np.ndarray, t_s: np.ndarray, snap: ObstacleSnapshot) -> np.ndarray:
     """Distance (P, N) from points at times t_s to each TRUE polygon, negative inside."""
-    if kernels.polygon_clearance is not None:
-        px, py, t_s = one_layout(px), one_layout(py), one_layout(t_s)
-        out = np.empty((len(snap.poly_ids), len(px)))
-        _compiled_polygons(px, py, t_s, snap, np.zeros(len(snap.poly_ids)), out, 0)
-        return out
     chunk = max(64, _CHUNK_BYTES // (8 * snap.poly_a_m.shape[0] * max(1, snap.poly_a_m.shape[1])))
     if len(px) <= chunk:
         return _polygon_signed_distance(px, py, t_s, snap)
@@ -79,12 +62,6 @@ def one_layout(a: np.ndarray) -> np.ndarray:
     or loads from its cache, one signature per layout and read-only flag, at the first call with
     it. One layout keeps that to the first tick (companion.app.warmup pays it before the flight)."""
     return a if a.flags.carray else np.array(a, order="C")  # carray: C-contiguous, aligned and writable
-
-
-def _compiled_polygons(px: np.ndarray, py: np.ndarray, t_s: np.ndarray, snap: ObstacleSnapshot,
-                       margin: np.ndarray, out: np.ndarray, row0: int) -> None:
-    kernels.polygon_clearance(px, py, t_s, snap.poly_a_m, snap.poly_b_m, snap.poly_d_m, snap.poly_inv_len2,
-                              snap.poly_dx_per_dy, snap.poly_vel_m_s, margin, out, row0)
 
 
 def _circle_distance(px: np.ndarray, py: np.ndarray, t_s: np.ndarray, snap: ObstacleSnapshot) -> np.ndarray:

@@ -7,8 +7,7 @@ import math
 
 import numpy as np
 
-from companion.planning.dwa import kernels, libm
-from companion.planning.dwa.geometry import one_layout
+from companion.planning.dwa import libm
 from companion.planning.dwa.types import LocalGoals
 
 
@@ -30,9 +29,28 @@ def single_target(goals: LocalGoals, reach_m: float, origin: tuple[float, float]
     return math.hypot(goals.first_xy[0] - x0, goals.first_xy[1] - y0) > reach_m + goals.station_radius_m
 
 
+def resolve_single(ex: np.ndarray, ey: np.ndarray, goals: LocalGoals, origin: tuple[float, float],
+                   single: bool | None) -> bool:
+    """``single`` when the caller knows it, else :func:`single_target` for prediction points
+    (ex, ey) leaving ``origin``."""
+    if single is not None:
+        return single
+    x0, y0 = origin
+    dx, dy = ex - x0, ey - y0
+    return single_target(goals, math.sqrt(float((dx * dx + dy * dy).max())), origin)
+
+
+def heading_toward(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray, tx, ty) -> np.ndarray:
+    """H (S,) toward the target (tx, ty) (floats, or one per rollout): 180 - |heading - bearing|
+    in degrees."""
+    bearing = libm.arctan2(ty - ey, tx - ex)  # the compiled kernels' bits (see libm)
+    deviation = np.abs((final_heading - bearing + np.pi) % (2.0 * np.pi) - np.pi)
+    return 180.0 - np.degrees(deviation)
+
+
 def heading_from_ends(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray, goals: LocalGoals,
-             origin: tuple[float, float], px: np.ndarray | None, py: np.ndarray | None,
-             single: bool | None = None, soonest_deg: float = 0.0) -> np.ndarray:
+                      origin: tuple[float, float], px: np.ndarray | None, py: np.ndarray | None,
+                      single: bool | None = None, soonest_deg: float = 0.0) -> np.ndarray:
     """heading_scores from the prediction points (ex, ey) (S,) leaving the pose ``origin``; the
     whole rollouts px, py (S, K + 1) are read only when not ``single`` (see single_target).
 
@@ -44,20 +62,8 @@ def heading_from_ends(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray,
     nodes = goals.nodes_xy
     count = len(nodes)
     at_station = None
-    if single is None:
-        x0, y0 = origin
-        dx, dy = ex - x0, ey - y0
-        single = single_target(goals, math.sqrt(float((dx * dx + dy * dy).max())), origin)
-    if single:
+    if resolve_single(ex, ey, goals, origin, single):
         tx, ty = goals.first_xy
-        if kernels.heading_toward is not None:
-            # Contiguous copies (S floats): the ends arrive as views or as arrays by the path taken, and
-            # each layout is a compiled signature of its own (loaded, or compiled, at its first call).
-            return kernels.heading_toward(np.ascontiguousarray(ex), np.ascontiguousarray(ey), final_heading, tx, ty)
-    elif kernels.heading_goals is not None:  # one compiled pass, one layout per argument (see one_layout)
-        return kernels.heading_goals(one_layout(ex), one_layout(ey), one_layout(final_heading), one_layout(px),
-                                     one_layout(py), one_layout(nodes), one_layout(goals.prev_nodes_xy),
-                                     one_layout(goals.radius2_m2), bool(goals.ends_at_station), float(soonest_deg))
     else:
         gx, gy = nodes[:, 0], nodes[:, 1]
         near2 = (((px.ravel() - gx[:, None]) ** 2 + (py.ravel() - gy[:, None]) ** 2)
@@ -74,9 +80,7 @@ def heading_from_ends(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray,
             at_station = n_reached == count
         target = nodes[np.minimum(n_reached, count - 1)]
         tx, ty = target[:, 0], target[:, 1]
-    bearing = libm.arctan2(ty - ey, tx - ex)  # the compiled kernels' bits (see libm)
-    deviation = np.abs((final_heading - bearing + np.pi) % (2.0 * np.pi) - np.pi)
-    heading = 180.0 - np.degrees(deviation)
+    heading = heading_toward(ex, ey, final_heading, tx, ty)
     if at_station is None:
         return heading
     arrive = np.full(len(heading), 180.0)

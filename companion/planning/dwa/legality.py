@@ -18,11 +18,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from enum import Enum
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.types import LocalGoals, OtherUav, Pose
+
+if TYPE_CHECKING:
+    from companion.planning.dwa.config import DwaConfig
 
 
 class Rule(str, Enum):

@@ -32,8 +32,6 @@ import numpy as np
 
 from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.evaluate import command_for, evaluate
-from companion.planning.dwa.geometry import inflated_clearance
-from companion.planning.dwa.heading import heading_scores
 from companion.planning.dwa.legality import Rule, inside_fence_by, separation_limits2, uav_distance2
 from companion.planning.dwa.shapes import rotation
 from companion.planning.dwa.sightline import sightline_term
@@ -102,7 +100,8 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
     dt = config.dt_s
     hover_steps = config.steps + round((config.spin_time_s + config.tracking_lag_s) / dt)
     t_hover = dt * np.arange(hover_steps + 1)
-    field_h = snapshot.near(pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m, float(t_hover[-1]))
+    field_h = config.backend.near(snapshot, pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m,
+                                  float(t_hover[-1]))
     margins = np.concatenate([field_h.circle_margin_m, field_h.poly_margin_m])[:, None]
     hover_inf = np.ones(hover_steps + 1, dtype=bool)
     hover_true = hover_inf.copy()
@@ -111,7 +110,7 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
         ahead = np.linspace(0.0, config.stop_drift_m, 1 + math.ceil(config.stop_drift_m / _DRIFT_STEP_M))
         sx = np.repeat(pose.x_m + ahead * math.cos(pose.heading_rad), hover_steps + 1)
         sy = np.repeat(pose.y_m + ahead * math.sin(pose.heading_rad), hover_steps + 1)
-        hc = inflated_clearance(sx, sy, np.tile(t_hover, len(ahead)), field_h)
+        hc = config.backend.inflated_clearance(sx, sy, np.tile(t_hover, len(ahead)), field_h)
         if len(ahead) > 1:  # the worst point of the braking segment at each time; the floor is the pose's
             hc = np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(ahead), -1).min(axis=1)[:, 1:]], axis=1)
         floor_inf = np.minimum(hc[:, 0:1], 0.0)
@@ -147,7 +146,7 @@ def spin_candidates(pose: Pose, config: DwaConfig, hover: HoverCheck) -> tuple[n
     ok_inf = hover.inflated[delay_k]
     ok_true = hover.true[delay_k]
     if hover.field.count:
-        rc = inflated_clearance(px.ravel(), py.ravel(), config.rec_point_times_s, hover.field)
+        rc = config.backend.inflated_clearance(px.ravel(), py.ravel(), config.rec_point_times_s, hover.field)
         ok_inf = ok_inf & (rc >= hover.floor_inflated - 1e-9).all(axis=0).reshape(n_r, -1)[:, 1:].all(axis=1)
         ok_true = ok_true & (rc + hover.margins >= hover.floor_true - 1e-9).all(axis=0).reshape(n_r, -1)[:, 1:].all(axis=1)
         distance = np.clip(rc.min(axis=0).reshape(n_r, -1)[:, 1:].min(axis=1), 0.0, config.distance_saturation_m)
@@ -170,7 +169,7 @@ def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapsho
                   config: DwaConfig, pts: np.ndarray, legal: np.ndarray, distance: np.ndarray,
                   reason: str) -> NoLegalRollout:
     """Yaw in place (speed 0) toward the best legal recovery rollout's heading."""
-    scores = heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals)
+    scores = config.backend.heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals)
     sight = sightline_term(pose, other, snapshot, config, pts[:, -1, 0], pts[:, -1, 1])
     total = evaluate(config, legal, scores, distance, sight)
     i = int(total.argmax())

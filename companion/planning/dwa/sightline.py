@@ -3,14 +3,15 @@ UAV-UAV sight segment are."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from companion.planning.dwa import kernels
-from companion.planning.dwa.config import DwaConfig
-from companion.planning.dwa.geometry import one_layout
-from companion.planning.dwa.sightline_slope import open_clearance
 from companion.planning.dwa.snapshot import ObstacleSnapshot
 from companion.planning.dwa.types import OtherUav, Pose
+
+if TYPE_CHECKING:
+    from companion.planning.dwa.config import DwaConfig
 
 
 def sightline_scores(ends: np.ndarray, other_xy: tuple[float, float], t_s: float,
@@ -21,11 +22,11 @@ def sightline_scores(ends: np.ndarray, other_xy: tuple[float, float], t_s: float
     of the obstacle's extents left and right of the segment's line; the result is the largest
     d_O, or 0 when nothing crosses.
     """
-    return _sightline_scores(ends[:, 0], ends[:, 1], other_xy, t_s, snap)
+    return sightline_depths(ends[:, 0], ends[:, 1], other_xy, t_s, snap)
 
 
-def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, float], t_s: float,
-                      snap: ObstacleSnapshot, keep: np.ndarray | None = None) -> np.ndarray:
+def sightline_depths(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, float], t_s: float,
+                     snap: ObstacleSnapshot, keep: np.ndarray | None = None) -> np.ndarray:
     """sightline_scores for ends (ex, ey), each (S,), over the obstacles where ``keep`` (a mask,
     circles then polygons; all when None).
 
@@ -36,8 +37,6 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
     rest is a handful of elementwise operations on the (rows, S) blocks.
     """
     qx, qy = other_xy
-    if kernels.sight_frame is not None:
-        return _compiled_scores(ex, ey, float(qx), float(qy), float(t_s), snap, keep)
     dx = qx - ex
     dy = qy - ey
     n_s = len(ex)
@@ -59,8 +58,6 @@ def _sightline_scores(ex: np.ndarray, ey: np.ndarray, other_xy: tuple[float, flo
         parts.append((p_a + shift[:, None, :]).reshape(-1, 2))  # vertices, from q
         parts.append(p_d.reshape(-1, 2))  # edge vectors
     m = (parts[0] if len(parts) == 1 else np.concatenate(parts)) @ basis
-    if kernels.sightline_depth is not None:
-        return kernels.sightline_depth(m, len2, c_r, n_c, n_p, p_a.shape[1] if n_p else 0)
     best = np.zeros(n_s)
     if n_c:
         side, along = m[:n_c, :n_s], m[:n_c, n_s:]  # centre: from the line; along it, from q
@@ -98,23 +95,6 @@ def _kept(snap: ObstacleSnapshot, keep: np.ndarray | None) -> tuple[np.ndarray, 
     return c_xy[kc], c_vel[kc], c_r[kc], p_a[kp], p_d[kp], p_vel[kp]
 
 
-def _compiled_scores(ex: np.ndarray, ey: np.ndarray, qx: float, qy: float, t_s: float, snap: ObstacleSnapshot,
-                     keep: np.ndarray | None) -> np.ndarray:
-    """_sightline_scores with its operands built in one compiled pass (:func:`kernels.sight_frame`,
-    which also picks the obstacles ``keep`` marks); the product stays numpy's."""
-    p_a, p_d = snap.poly_a_m, snap.poly_d_m
-    if p_a.ndim != 3:  # no polygons at all: (0, 0, 2) for the one signature
-        p_a = p_d = np.zeros((0, 0, 2))
-    rows, basis, len2, radius, n_p = kernels.sight_frame(
-        one_layout(ex), one_layout(ey), qx, qy, t_s, one_layout(snap.circle_xy_m), one_layout(snap.circle_vel_m_s),
-        one_layout(snap.circle_radius_m), one_layout(p_a), one_layout(snap.poly_vel_m_s), one_layout(p_d),
-        _ALL if keep is None else keep, keep is not None)
-    return kernels.sightline_depth(rows @ basis, len2, radius, len(radius), n_p, p_a.shape[1] if n_p else 0)
-
-
-_ALL = np.ones(0, dtype=bool)  # the mask sight_frame is given when it keeps every obstacle (not read)
-
-
 def sightline_term(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig,
                ex: np.ndarray, ey: np.ndarray) -> np.ndarray | None:
     """S (capped; sloped when the config says so, see :mod:`.sightline_slope`) for prediction
@@ -129,13 +109,13 @@ def sightline_term(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapsho
     # (the slope reads obstacles up to the cap beyond: nearer than that, an open line is scored).
     slope = config.sightline_slope
     reach = config.reach_m + (config.sightline_cap_m if slope else 0.0)
-    keep, kept = snapshot.near_mask(pose.x_m, pose.y_m, reach, t_p, to_xy=q)
-    if not kept:
+    backend = config.backend
+    culled = backend.cull(snapshot, pose.x_m, pose.y_m, reach, t_p, to_xy=q)
+    if not culled.count:
         return None
-    depth = np.minimum(config.sightline_cap_m,
-                       _sightline_scores(ex, ey, q, t_p, snapshot, None if kept == len(keep) else keep))
+    keep = None if culled.count == len(culled.keep) else culled.keep
+    depth = np.minimum(config.sightline_cap_m, backend.sightline_depths(ex, ey, q, t_p, snapshot, keep))
     if not slope:
         return depth
-    near = snapshot.near(pose.x_m, pose.y_m, reach, t_p, to_xy=q)
-    gap = np.minimum(open_clearance(ex, ey, q, t_p, near), config.sightline_cap_m)
+    gap = np.minimum(backend.open_clearance(ex, ey, q, t_p, culled.subset()), config.sightline_cap_m)
     return np.where(depth > 0.0, depth, -np.maximum(gap, 0.0))

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from companion.planning.dwa import kernels
 from companion.planning.dwa.geometry import polygon_signed_distance
 from companion.planning.dwa.snapshot import ObstacleSnapshot
 
@@ -36,8 +35,6 @@ def open_clearance(ex: np.ndarray, ey: np.ndarray, q: tuple[float, float], t_s: 
     Between a segment and a polygon the nearest pair has a polygon vertex or a segment end in it,
     so vertices-to-segment and ends-to-polygon cover it; a circle is its centre's distance minus R.
     """
-    if kernels.open_clearance is not None:
-        return _compiled_open_clearance(ex, ey, q, t_s, snap)
     best = np.full(len(ex), np.inf)
     if snap.circle_ids:
         centres = snap.circle_xy_m + snap.circle_vel_m_s * t_s
@@ -50,11 +47,3 @@ def open_clearance(ex: np.ndarray, ey: np.ndarray, q: tuple[float, float], t_s: 
         ends = polygon_signed_distance(np.append(ex, q[0]), np.append(ey, q[1]), np.full(n_s + 1, t_s), snap)
         best = np.minimum(best, np.minimum(ends[:, :n_s].min(axis=0), float(ends[:, n_s].min())))
     return best
-
-
-
-def _compiled_open_clearance(ex: np.ndarray, ey: np.ndarray, q: tuple[float, float], t_s: float,
-                             snap: ObstacleSnapshot) -> np.ndarray:
-    return kernels.open_clearance(ex, ey, float(q[0]), float(q[1]), float(t_s), snap.circle_xy_m,
-                                  snap.circle_vel_m_s, snap.circle_radius_m, snap.poly_a_m, snap.poly_b_m,
-                                  snap.poly_d_m, snap.poly_inv_len2, snap.poly_dx_per_dy, snap.poly_vel_m_s)

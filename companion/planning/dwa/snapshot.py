@@ -7,8 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.planning.dwa import kernels
-from companion.planning.dwa.geometry import to_segment
+from companion.planning.dwa.geometry import one_layout, to_segment
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,7 +142,11 @@ class ObstacleSnapshot:
         """Only the obstacles whose inflated shape can come within ``reach_m`` of (x, y) during
         ``horizon_s`` at their predicted velocity; the others cannot touch any rollout. With
         ``to_xy``: within ``reach_m`` of the segment (x, y) -> to_xy (sight lines)."""
-        keep, kept = self.near_mask(x_m, y_m, reach_m, horizon_s, to_xy)
+        return self.subset(*self.near_mask(x_m, y_m, reach_m, horizon_s, to_xy))
+
+    def subset(self, keep: np.ndarray, kept: int) -> "ObstacleSnapshot":
+        """The obstacles where ``keep`` (circles, then polygons; ``kept`` of them) is true,
+        cached by mask: a culling's result (:meth:`near_mask`) as a snapshot."""
         if kept == len(keep):
             return self
         if not kept:
@@ -157,11 +160,8 @@ class ObstacleSnapshot:
     def near_mask(self, x_m: float, y_m: float, reach_m: float, horizon_s: float,
                   to_xy: tuple[float, float] | None = None) -> tuple[np.ndarray, int]:
         """What :meth:`near` keeps, as a mask over the obstacles (circles, then polygons), and
-        how many it keeps; for a caller that only indexes a few arrays."""
-        if kernels.near_mask is not None:
-            to_x, to_y = (x_m, y_m) if to_xy is None else to_xy
-            return kernels.near_mask(self.bound_xy_m, self.bound_radius_m, self.speed_m_s, x_m, y_m, reach_m,
-                                     horizon_s, float(to_x), float(to_y), to_xy is not None)
+        how many it keeps; for a caller that only indexes a few arrays. The compiled twin is
+        :func:`.geometry_jit.near_mask`."""
         bx, by = self.bound_xy_m[:, 0], self.bound_xy_m[:, 1]
         if to_xy is None:
             dx, dy = bx - x_m, by - y_m
@@ -170,6 +170,18 @@ class ObstacleSnapshot:
             d = to_segment(bx, by, x_m, y_m, to_xy)
         keep = d - self.bound_radius_m - self.speed_m_s * horizon_s <= reach_m
         return keep, int(np.count_nonzero(keep))
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """The arrays the compiled kernels read, as one plain tuple in :data:`ARRAY_FIELDS`' order,
+        each C-contiguous and writable (one compiled signature per layout: see
+        :func:`.geometry.one_layout`); made once per snapshot."""
+        cached = self._subsets.get(_ARRAYS)
+        if cached is None:
+            values = [getattr(self, name) for name in ARRAY_FIELDS]
+            if values[4].ndim != 3:  # no polygons at all: the shapes of the one signature
+                values[4:9] = [np.zeros((0, 0, 2))] * 3 + [np.zeros((0, 0))] * 2
+            cached = self._subsets[_ARRAYS] = tuple(one_layout(v) for v in values)
+        return cached
 
     def _take(self, keep: np.ndarray, key: bytes) -> "ObstacleSnapshot":
         """The obstacles where ``keep`` (circles, then polygons) is true; ``key`` is
@@ -187,7 +199,8 @@ class ObstacleSnapshot:
                     "poly_ids": tuple(i for i, k in zip(self.poly_ids, kp) if k), "_subsets": {}, "_shared": None}
 
         def subset(values: dict) -> "ObstacleSnapshot":
-            return assemble({**values, "polygons_move": bool(values["poly_vel_m_s"].any())})
+            # a cache of its own: ``values`` may come from a cache entry that other subsets share
+            return assemble({**values, "_subsets": {}, "polygons_move": bool(values["poly_vel_m_s"].any())})
 
         if self._shared is None:
             return subset({**pick(_ROW_FIELDS), **ids()})
@@ -244,6 +257,27 @@ def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float) -> Obst
         out = assemble(values)
     snapshot._subsets[key] = out
     return out
+
+
+# ObstacleSnapshot.arrays: circles (centre, velocity, true radius, margin), then polygons (edge
+# starts, ends, vectors, 1 / length^2, dx / dy; velocity, margin, bounding centre and radius).
+ARRAY_FIELDS = ("circle_xy_m", "circle_vel_m_s", "circle_radius_m", "circle_margin_m", "poly_a_m", "poly_b_m",
+                "poly_d_m", "poly_inv_len2", "poly_dx_per_dy", "poly_vel_m_s", "poly_margin_m", "poly_centre_m",
+                "poly_bound_m")
+_ARRAYS = "arrays"  # ObstacleSnapshot.arrays' key in a snapshot's cache (the masks' keys are bytes)
+
+
+@dataclass(frozen=True, slots=True)
+class Culled:
+    """The obstacles of ``snapshot`` a culling keeps: a mask (circles, then polygons) and how
+    many; :meth:`subset` as a snapshot, built (and cached) only when read."""
+
+    snapshot: ObstacleSnapshot
+    keep: np.ndarray
+    count: int
+
+    def subset(self) -> ObstacleSnapshot:
+        return self.snapshot.subset(self.keep, self.count)
 
 
 _AWAY_COS = 0.5  # with_turned_back: an obstacle within 60 deg of moving straight away

@@ -1,24 +1,25 @@
-"""plan_step: one BDWA decision, wiring rollouts, legality, critics and evaluation together."""
+"""plan_step: one BDWA decision, wiring rollouts, legality, critics and evaluation together; the
+kernels are the config's :class:`.Backend`."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from companion.planning.dwa import kernels
+from companion.planning.dwa.backend import DEFAULT
 from companion.planning.dwa.config import DwaConfig
-from companion.planning.dwa.distance import no_obstacle_in_reach, obstacle_and_distance
-from companion.planning.dwa.evaluate import choose, command_for, pick
-from companion.planning.dwa.geometry import inflated_clearance, one_layout
-from companion.planning.dwa.heading import heading_from_ends, single_target
+from companion.planning.dwa.distance import no_obstacle_in_reach
+from companion.planning.dwa.evaluate import Critics, command_for
+from companion.planning.dwa.heading import single_target
 from companion.planning.dwa.legality import (Rule, binding_uavs, fence_distance, fence_ok, legal_rollouts,
                                              separation_ok, turn_error)
 from companion.planning.dwa.recovery import no_legal_rollout
 from companion.planning.dwa.shapes import placement
-from companion.planning.dwa.sightline import sightline_scores, sightline_term
-from companion.planning.dwa.snapshot import ObstacleSnapshot, with_turned_back
+from companion.planning.dwa.sightline import sightline_term
+from companion.planning.dwa.snapshot import Culled, ObstacleSnapshot, with_turned_back
 from companion.planning.dwa.speed import reference_speed_m_s, speed_scores
 from companion.planning.dwa.types import Command, LocalGoals, NoLegalRollout, OtherUav, Pose
 
@@ -56,116 +57,153 @@ def _step(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: Obsta
     obstacles are predicted to be). ``cautious``: ``snapshot`` also has the receding obstacles
     turned back, a precaution only: when it leaves no legal move, None (the caller plans without
     it) rather than an escape from obstacles that are not coming, which can take the vehicle
-    into a static one."""
-    shape = (config.count, config.steps + 1)
-    reach = config.reach_m + config.distance_saturation_m
-    if kernels.obstacle_pass is not None and config.row_of is None:
-        # Compiled, the obstacle pass reads the snapshot through the culling mask: the culled
-        # subset (a new one each tick when a moving obstacle is in it) is built only if read.
-        keep, n_near = snapshot.near_mask(pose.x_m, pose.y_m, reach, config.horizon_s)
-        near = None
-    else:
-        near = snapshot.near(pose.x_m, pose.y_m, reach, config.horizon_s)
-        keep, n_near = None, near.count
-    if separate_from is None:
-        separate_from = () if other is None else (other,)
-    binding = binding_uavs(pose, separate_from, config)
-    fence_here = fence_distance(pose, config)
+    into a static one.
 
-    place = placement(pose)
-    origin = (pose.x_m, pose.y_m)
-    single = single_target(goals, config.end_reach_m, origin)
-    px = py = None  # (S, K + 1) each, when needed; column 0 is the pose itself
-    if n_near or binding or fence_here is not None or not single:
-        px, py, gx, gy = _placed(place, config, shape)
-        ex, ey = px[:, -1], py[:, -1]
-    else:
-        ex, ey = place @ config.end_hom_m  # the prediction points (S,) only
-
-    ok_by_rule: dict[Rule, np.ndarray] = {}  # (S, K + 1) per rule
-    clear = legal = None
-    if n_near:
-        if config.row_of is None:  # (O, S * (K + 1)); the rule per rollout too when compiled
-            clear, ok_by_rule[Rule.OBSTACLE], distance, legal = _obstacle_rule(px, py, snapshot, keep, near, config,
-                                                                                shape)
-        else:  # computed on the distinct rollouts only, then spread to all
-            ok_by_rule[Rule.OBSTACLE], distance, clear = _obstacle_terms(gx, gy, near, config)
-    else:
-        distance = no_obstacle_in_reach(config)
-    if binding:
-        ok_by_rule[Rule.SEPARATION] = separation_ok(px, py, config.times_s, pose, binding, config)
-    if fence_here is not None:
-        ok_by_rule[Rule.GEOFENCE] = fence_ok(px, py, config.fence_m, fence_here)
-
-    if legal is None or len(ok_by_rule) > 1:
-        legal = legal_rollouts(ok_by_rule, config)
-    if not np.count_nonzero(legal) or _only_hover(legal, config, scheduled_speed_m_s):
+    Reads as the algorithm: what can bind (culling), the window's rollouts, the rules, then the
+    critics and the pick; no legal rollout goes to :func:`.recovery.no_legal_rollout`."""
+    backend = config.backend
+    scene = _Scene.of(pose, goals, snapshot, config, separate_from if separate_from is not None
+                      else () if other is None else (other,))
+    window = _Window.of(pose, scene, config)
+    rules = _rules(pose, scene, window, config)
+    if not np.count_nonzero(rules.legal) or _only_hover(rules.legal, config, scheduled_speed_m_s):
         if cautious:
             return None
-        if near is None:
-            near = snapshot.near(pose.x_m, pose.y_m, reach, config.horizon_s)
-        if clear is not None and config.row_of is not None:  # the escape reads every rollout's
-            clear = clear.reshape(len(clear), *gx.shape)[:, config.row_of].reshape(len(clear), -1)
-        elif n_near and config.row_of is None and clear is None:  # the compiled pass left some out
-            clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)
-        final_heading = pose.heading_rad + config.final_dheading_rad
-        heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single, _soonest(config))
-        return no_legal_rollout(pose, goals, other, snapshot, near, config, ok_by_rule, heading, clear, separate_from)
+        return _recover(pose, goals, other, scene, window, rules, config)
+    critics = _critics(pose, goals, other, sighted, window, rules, config, scheduled_speed_m_s)
+    if scene.single:  # the heading critic, the choice and the command in one call
+        return backend.pick(config, critics, window.ex, window.ey, pose.heading_rad, goals.first_xy)
+    heading = backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad, goals,
+                                        (pose.x_m, pose.y_m), window.px, window.py, False, _soonest(config))
+    best, total, n_legal = backend.choose(config, critics, heading)
+    return command_for(config, best, heading, critics.distance, critics.sightline, total, n_legal)
 
-    sightline = _sightline(pose, other, sighted, config, ex, ey, None if px is None else (gx, gy))
+
+@dataclass(frozen=True, slots=True)
+class _Scene:
+    """What can bind this tick: the obstacles within reach, the UAVs whose separation can bind,
+    the pose's distance inside the fence (None: out of reach), and whether the heading critic
+    scores every rollout toward the first goal (:func:`.heading.single_target`)."""
+
+    culled: Culled
+    separate_from: Sequence[OtherUav]
+    binding: tuple[OtherUav, ...]
+    fence_here: float | None
+    single: bool
+
+    @classmethod
+    def of(cls, pose: Pose, goals: LocalGoals, snapshot: ObstacleSnapshot, config: DwaConfig,
+           separate_from: Sequence[OtherUav]) -> "_Scene":
+        reach = config.reach_m + config.distance_saturation_m
+        return cls(config.backend.cull(snapshot, pose.x_m, pose.y_m, reach, config.horizon_s), separate_from,
+                   binding_uavs(pose, separate_from, config), fence_distance(pose, config),
+                   single_target(goals, config.end_reach_m, (pose.x_m, pose.y_m)))
+
+
+@dataclass(frozen=True, slots=True)
+class _Window:
+    """The window's rollouts placed at the pose: the prediction points (ex, ey) (S,), and the
+    whole rollouts (px, py) (S, K + 1) with the distinct ones (gx, gy) (G, K + 1) only when a
+    rule or the goal window reads them (None otherwise: in open air only the S prediction
+    points are placed). Column 0 is the pose itself."""
+
+    ex: np.ndarray
+    ey: np.ndarray
+    px: np.ndarray | None
+    py: np.ndarray | None
+    gx: np.ndarray | None
+    gy: np.ndarray | None
+
+    @classmethod
+    def of(cls, pose: Pose, scene: _Scene, config: DwaConfig) -> "_Window":
+        place = placement(pose)
+        if scene.culled.count or scene.binding or scene.fence_here is not None or not scene.single:
+            px, py, gx, gy = _placed(place, config, (config.count, config.steps + 1))
+            return cls(px[:, -1], py[:, -1], px, py, gx, gy)
+        ex, ey = place @ config.end_hom_m
+        return cls(ex, ey, None, None, None, None)
+
+
+@dataclass(frozen=True, slots=True)
+class _Rules:
+    """The rules' verdicts: each rule's mask per rollout point (S, K + 1), the clearances to the
+    culled obstacles (None when none is in reach, or the compiled pass left out those that
+    cannot matter), D (S,), and which rollouts obey every rule (S,)."""
+
+    ok_by_rule: dict[Rule, np.ndarray]
+    clear: np.ndarray | None
+    distance: np.ndarray
+    legal: np.ndarray
+
+
+def _rules(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig) -> _Rules:
+    ok_by_rule: dict[Rule, np.ndarray] = {}
+    clear = legal = None
+    if scene.culled.count:
+        if config.row_of is None:  # (O, S * (K + 1)); the rule per rollout too when compiled
+            clear, ok_by_rule[Rule.OBSTACLE], distance, legal = config.backend.obstacle_rule(
+                window.px, window.py, scene.culled, config)
+        else:  # computed on the distinct rollouts only, then spread to all
+            ok_by_rule[Rule.OBSTACLE], distance, clear = _obstacle_terms(window.gx, window.gy, scene.culled.subset(),
+                                                                         config)
+    else:
+        distance = no_obstacle_in_reach(config)
+    if scene.binding:
+        ok_by_rule[Rule.SEPARATION] = separation_ok(window.px, window.py, config.times_s, pose, scene.binding, config)
+    if scene.fence_here is not None:
+        ok_by_rule[Rule.GEOFENCE] = fence_ok(window.px, window.py, config.fence_m, scene.fence_here)
+    if legal is None or len(ok_by_rule) > 1:
+        legal = legal_rollouts(ok_by_rule, config)
+    return _Rules(ok_by_rule, clear, distance, legal)
+
+
+def _recover(pose: Pose, goals: LocalGoals, other: OtherUav | None, scene: _Scene, window: _Window, rules: _Rules,
+             config: DwaConfig) -> NoLegalRollout:
+    """No legal rollout: the recovery reads every rollout's clearances and heading."""
+    near = scene.culled.subset()
+    clear = rules.clear
+    if clear is not None and config.row_of is not None:  # the escape reads every rollout's
+        clear = clear.reshape(len(clear), *window.gx.shape)[:, config.row_of].reshape(len(clear), -1)
+    elif scene.culled.count and config.row_of is None and clear is None:  # the compiled pass left some out
+        clear = config.backend.inflated_clearance(window.px.ravel(), window.py.ravel(), config.point_times_s, near)
+    heading = config.backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad,
+                                               goals, (pose.x_m, pose.y_m), window.px, window.py, scene.single,
+                                               _soonest(config))
+    return no_legal_rollout(pose, goals, other, scene.culled.snapshot, near, config, rules.ok_by_rule, heading, clear,
+                            scene.separate_from)
+
+
+def _critics(pose: Pose, goals: LocalGoals, other: OtherUav | None, sighted: ObstacleSnapshot, window: _Window,
+             rules: _Rules, config: DwaConfig, scheduled_speed_m_s: float | None) -> Critics:
+    """The critics besides the heading (which the pick may fuse with the choice), and the
+    turn-around preference."""
+    distinct = None if window.px is None else (window.gx, window.gy)
+    sightline = _sightline(pose, other, sighted, config, window.ex, window.ey, distinct)
     speed = None
     if config.count > config.samples:
         speed = speed_scores(config, reference_speed_m_s(pose, goals, config, scheduled_speed_m_s))
     turn = turn_error(pose, goals, config)
-    if _toward_only_hovers(legal, config, scheduled_speed_m_s, turn):
+    if _toward_only_hovers(rules.legal, config, scheduled_speed_m_s, turn):
         turn = math.nan  # the turn-around preference would leave only hovers: drop it
-    if single and kernels.pick is not None:  # the heading critic, the choice and the command in one call
-        return pick(config, legal, turn, ex, ey, pose.heading_rad, goals.first_xy,
-                    distance, sightline, speed)
-    final_heading = pose.heading_rad + config.final_dheading_rad
-    heading = heading_from_ends(ex, ey, final_heading, goals, origin, px, py, single, _soonest(config))
-    best, total, n_legal = choose(config, legal, turn, heading, distance, sightline, speed)
-    return command_for(config, best, heading, distance, sightline, total, n_legal)
+    return Critics(rules.legal, turn, rules.distance, sightline, speed)
 
 
 def _soonest(config: DwaConfig) -> float:
     return _SOONEST_DEG if config.count > config.samples else 0.0
 
 
-def _obstacle_rule(px: np.ndarray, py: np.ndarray, snapshot: ObstacleSnapshot, keep: np.ndarray | None,
-                   near: ObstacleSnapshot | None, config: DwaConfig,
-                   shape: tuple[int, int]) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray | None]:
-    """The clearances (O, S * (K + 1)) of the rollouts to the culled obstacles, the obstacle rule
-    (S, K + 1), the distance critic (S,), and, compiled, the rule per rollout (S,).
-
-    Compiled (:func:`kernels.obstacle_pass`): over the obstacles of ``snapshot`` that ``keep``
-    marks (circles, then polygons), and the clearances are None when the pass left out those
-    that cannot matter. Otherwise with numpy over ``near`` (the culled subset), and the rule per
-    rollout is None (legal_rollouts works it out)."""
-    if kernels.obstacle_pass is None:
-        clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, near)
-        ok, distance = obstacle_and_distance(clear, shape, config.distance_saturation_m)
-        return clear, ok.reshape(shape), distance, None
-    s = snapshot
-    clear, ok, distance, legal, exact = kernels.obstacle_pass(
-        one_layout(px.ravel()), one_layout(py.ravel()), config.point_times_s, s.circle_xy_m, s.circle_vel_m_s,
-        s.circle_radius_m, s.circle_margin_m, s.poly_a_m, s.poly_b_m, s.poly_d_m, s.poly_inv_len2, s.poly_dx_per_dy,
-        s.poly_vel_m_s, s.poly_margin_m, s.poly_centre_m, s.poly_bound_m, keep, shape[1], config.distance_saturation_m)
-    return clear if exact else None, ok.reshape(shape), distance, legal
-
-
-
 def warm_up_kernels() -> None:
     """Load (or compile) the compiled kernels of branches a throwaway tick at the station may not
     take: the heading critic over a goal window, the obstacle terms and the sight lines' frame,
     and the fused obstacle pass and choice near an obstacle, with the argument types a flight
-    passes them (see companion.app.warmup)."""
+    passes them (see companion.app.warmup), on the default backend (what a config gets)."""
     px = np.zeros((2, 3))
     goals = LocalGoals(np.array([[5.0, 0.0], [9.0, 0.0]]), (0.0, 0.0), 1.0, 1.0, ends_at_station=True)
-    heading_from_ends(px[:, -1], px[:, -1], np.zeros(2), goals, (0.0, 0.0), px, px, False, _SOONEST_DEG)
-    obstacle_and_distance(np.ones((1, 6)), (2, 3), 10.0)
+    DEFAULT.heading_from_ends(px[:, -1], px[:, -1], np.zeros(2), goals, (0.0, 0.0), px, px, False, _SOONEST_DEG)
+    DEFAULT.obstacle_and_distance(np.ones((1, 6)), (2, 3), 10.0)
     circle = ObstacleSnapshot.build([("c", 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)], [])
-    sightline_scores(np.zeros((2, 2)), (5.0, 5.0), 1.0, circle)
+    ends = np.zeros((2, 2))
+    DEFAULT.sightline_depths(ends[:, 0], ends[:, 1], (5.0, 5.0), 1.0, circle)
     config = DwaConfig(speed_m_s=10.0, max_yaw_rate_rad_s=0.3, samples=3, dt_s=0.5, prediction_time_s=1.0, w_h=1.0,
                        w_d=1.0, w_s=1.0, sightline_cap_m=50.0)
     plan_step(Pose(0.0, 0.0, 0.0), (100.0, 0.0), OtherUav(0.0, 50.0, 0.0, 0.0), ObstacleSnapshot.build(
@@ -226,8 +264,8 @@ def _obstacle_terms(gx: np.ndarray, gy: np.ndarray, near: ObstacleSnapshot,
     """The obstacle rule (S, K + 1) and the distance critic (S,), computed on the distinct
     rollouts (gx, gy) and spread to every rollout, and their clearances (O, G * (K + 1))."""
     g_shape = gx.shape
-    clear = inflated_clearance(gx.ravel(), gy.ravel(), config.geo_point_times_s, near)
-    ok, distance = obstacle_and_distance(clear, g_shape, config.distance_saturation_m)
+    clear = config.backend.inflated_clearance(gx.ravel(), gy.ravel(), config.geo_point_times_s, near)
+    ok, distance = config.backend.obstacle_and_distance(clear, g_shape, config.distance_saturation_m)
     row_of = config.row_of
     return ok.reshape(g_shape)[row_of], distance[row_of], clear
 
