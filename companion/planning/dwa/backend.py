@@ -19,13 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.planning.dwa import distance, evaluate, geometry, heading, sightline, sightline_slope
+from companion.planning.dwa import distance, evaluate, geometry, heading, recovery, sightline, sightline_slope
 from companion.planning.dwa.snapshot import Culled, ObstacleSnapshot
 
 try:
-    from companion.planning.dwa import distance_jit, evaluate_jit, geometry_jit, heading_jit, sightline_jit
+    from companion.planning.dwa import (distance_jit, evaluate_jit, geometry_jit, heading_jit, recovery_jit,
+                                        sightline_jit)
 except ImportError:  # numba is the ``fast`` extra: the numpy kernels run
-    distance_jit = evaluate_jit = geometry_jit = heading_jit = sightline_jit = None
+    distance_jit = evaluate_jit = geometry_jit = heading_jit = recovery_jit = sightline_jit = None
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,7 @@ class Backend:
     open_clearance: Callable = sightline_slope.open_clearance
     choose: Callable = evaluate.choose
     pick: Callable = evaluate.pick
+    spin_checks: Callable = recovery.spin_checks
 
     def cull(self, snapshot: ObstacleSnapshot, x_m: float, y_m: float, reach_m: float, horizon_s: float,
              to_xy: tuple[float, float] | None = None) -> Culled:
@@ -80,6 +82,7 @@ COMPILED = None if geometry_jit is None else Backend(
     open_clearance=sightline_jit.open_clearance,
     choose=evaluate_jit.choose,
     pick=evaluate_jit.pick,
+    spin_checks=recovery_jit.spin_checks,
 )
 
 DEFAULT = NUMPY if COMPILED is None else COMPILED

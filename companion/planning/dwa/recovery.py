@@ -25,18 +25,23 @@ what the recovery cannot promise on such a plant).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.evaluate import command_for, evaluate
+from companion.planning.dwa.geometry import inflated_clearance
 from companion.planning.dwa.legality import Rule, inside_fence_by, separation_limits2, uav_distance2
 from companion.planning.dwa.shapes import rotation
 from companion.planning.dwa.sightline import sightline_term
 from companion.planning.dwa.snapshot import ObstacleSnapshot
 from companion.planning.dwa.types import Command, LocalGoals, NoLegalRollout, OtherUav, Pose
+
+if TYPE_CHECKING:
+    from companion.planning.dwa.config import DwaConfig
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,13 +59,28 @@ class HoverCheck:
     sep_limit2: np.ndarray | None  # (N, 1, 1) the squared separation kept from each, when any
 
 
+@dataclass(frozen=True, eq=False)
+class Stuck:
+    """What the tick that found no legal rollout hands the recovery: each rule's mask per
+    rollout point (S, K + 1), the heading critic (S,), the obstacles within reach, and how to
+    work out the rollouts' clearances to them (O, S * (K + 1)): only the escape reads those, so
+    a vehicle that holds or recovers never pays for them."""
+
+    ok_by_rule: dict[Rule, np.ndarray]
+    heading: np.ndarray
+    near: ObstacleSnapshot
+    clearances: Callable[[], np.ndarray | None]
+
+    @cached_property
+    def clear(self) -> np.ndarray | None:
+        return self.clearances()
+
+
 def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
-                     near: ObstacleSnapshot, config: DwaConfig, ok_by_rule: dict[Rule, np.ndarray],
-                     heading: np.ndarray, clear: np.ndarray | None,
-                     separate_from: Sequence[OtherUav] | None = None) -> NoLegalRollout:
+                     config: DwaConfig, stuck: Stuck, separate_from: Sequence[OtherUav] | None = None) -> NoLegalRollout:
     """The four strategies of the module docstring, in order. ``other``: the sightline partner;
     ``separate_from``: every UAV kept separated from (None: ``other`` alone)."""
-    blocking = [rule for rule, ok in ok_by_rule.items() if not ok[:, 1:].all(axis=1).any()]
+    blocking = [rule for rule, ok in stuck.ok_by_rule.items() if not ok[:, 1:].all(axis=1).any()]
     what = ", ".join(blocking) if blocking else "no rollout satisfies all rules at once"
     reason = f"all {config.count} rollouts break a rule within {config.prediction_time_s:g} s ({what})"
     if separate_from is None:
@@ -74,7 +94,7 @@ def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snap
                     return NoLegalRollout(f"{reason}; holding: no heading has a legal rollout")
                 if config.tracking_lag_s > 0.0 and not hover.true[-1]:
                     # Stopping here will be hit: a lagging plant flies on rather than stop, yaw and restart.
-                    flying = escape(config, near, ok_by_rule, heading, clear, hover, reason, whole_horizon=True)
+                    flying = escape(config, stuck, hover, reason, whole_horizon=True)
                     if flying is not None:
                         return flying
                 continue
@@ -82,7 +102,7 @@ def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snap
                 return spin_recovery(pose, goals, other, snapshot, config, pts, legal, distance, f"{reason}; {how}")
     elif hover.inflated[-1]:
         return NoLegalRollout(reason)
-    return escape(config, near, ok_by_rule, heading, clear, hover, reason)
+    return escape(config, stuck, hover, reason)
 
 
 def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: ObstacleSnapshot,
@@ -107,16 +127,22 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
     hover_true = hover_inf.copy()
     floor_inf = floor_true = None
     if field_h.count:
+        # Only the obstacles that can come within 1 m of the braking segment are measured: the
+        # others stay clear of it, so their floors are 0 and they never bind.
+        close = config.backend.cull(field_h, pose.x_m, pose.y_m, config.stop_drift_m + 1.0, float(t_hover[-1]))
+        floor_inf, floor_true = np.zeros((field_h.count, 1)), np.zeros((field_h.count, 1))
+    if floor_inf is not None and close.count:
         ahead = np.linspace(0.0, config.stop_drift_m, 1 + math.ceil(config.stop_drift_m / _DRIFT_STEP_M))
         sx = np.repeat(pose.x_m + ahead * math.cos(pose.heading_rad), hover_steps + 1)
         sy = np.repeat(pose.y_m + ahead * math.sin(pose.heading_rad), hover_steps + 1)
-        hc = config.backend.inflated_clearance(sx, sy, np.tile(t_hover, len(ahead)), field_h)
+        hc = config.backend.inflated_clearance(sx, sy, np.tile(t_hover, len(ahead)), close.subset())
         if len(ahead) > 1:  # the worst point of the braking segment at each time; the floor is the pose's
             hc = np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(ahead), -1).min(axis=1)[:, 1:]], axis=1)
-        floor_inf = np.minimum(hc[:, 0:1], 0.0)
-        floor_true = np.minimum(hc[:, 0:1] + margins, 0.0)
-        hover_inf &= (hc >= floor_inf - 1e-9).all(axis=0)
-        hover_true &= (hc + margins >= floor_true - 1e-9).all(axis=0)
+        near_margins = margins[close.keep]
+        floor_inf[close.keep] = np.minimum(hc[:, 0:1], 0.0)
+        floor_true[close.keep] = np.minimum(hc[:, 0:1] + near_margins, 0.0)
+        hover_inf &= (hc >= floor_inf[close.keep] - 1e-9).all(axis=0)
+        hover_true &= (hc + near_margins >= floor_true[close.keep] - 1e-9).all(axis=0)
     sep_from = tuple(separate_from) if config.min_separation_m > 0 else ()
     sep_limit2 = None
     if sep_from:
@@ -142,16 +168,6 @@ def spin_candidates(pose: Pose, config: DwaConfig, hover: HoverCheck) -> tuple[n
     pts += (pose.x_m, pose.y_m)
     px, py = pts[..., 0], pts[..., 1]
     n_r = len(pts)
-    delay_k = np.rint((config.rec_delay_s + config.tracking_lag_s) / dt).astype(int)  # hovers until it gets going
-    ok_inf = hover.inflated[delay_k]
-    ok_true = hover.true[delay_k]
-    if hover.field.count:
-        rc = config.backend.inflated_clearance(px.ravel(), py.ravel(), config.rec_point_times_s, hover.field)
-        ok_inf = ok_inf & (rc >= hover.floor_inflated - 1e-9).all(axis=0).reshape(n_r, -1)[:, 1:].all(axis=1)
-        ok_true = ok_true & (rc + hover.margins >= hover.floor_true - 1e-9).all(axis=0).reshape(n_r, -1)[:, 1:].all(axis=1)
-        distance = np.clip(rc.min(axis=0).reshape(n_r, -1)[:, 1:].min(axis=1), 0.0, config.distance_saturation_m)
-    else:
-        distance = np.full(n_r, config.distance_saturation_m)
     rules = np.ones(px.shape, dtype=bool)
     if hover.sep_limit2 is not None:  # (N, R, K + 1) at once
         t = config.rec_point_times_s.reshape(n_r, -1)
@@ -162,7 +178,51 @@ def spin_candidates(pose: Pose, config: DwaConfig, hover: HoverCheck) -> tuple[n
         here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
         rules &= inside_fence_by(px, py, fence) >= min(here, 0.0) - 1e-9
     rules = rules[:, 1:].all(axis=1)
-    return pts, ok_inf & rules, ok_true & rules, distance
+    delay_k = np.rint((config.rec_delay_s + config.tracking_lag_s) / dt).astype(int)  # hovers until it gets going
+    ok_inf = hover.inflated[delay_k] & rules
+    ok_true = hover.true[delay_k] & rules
+    if not hover.field.count:
+        return pts, ok_inf, ok_true, np.full(n_r, config.distance_saturation_m)
+    return (pts, *config.backend.spin_checks(px, py, config, hover, ok_inf, ok_true))
+
+
+def spin_checks(px: np.ndarray, py: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: np.ndarray,
+                ok_true: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The obstacle rule on the recovery rollouts (px, py) (R, K + 1) against ``hover.field``:
+    ``ok_inf`` and ``ok_true`` (R,), which may still be legal on the inflated and on the true
+    footprints, narrowed to those that are, and the distance critic (R,), meaningful where
+    either is legal.
+
+    Point by point along the rollouts, over the ones still legal on either footprint only, and
+    against the obstacles that can come near those points (a point farther from an obstacle's
+    bounding disc than the saturation plus 1 m can neither break the rule nor set the critic):
+    when the vehicle is boxed in (every rollout breaks the rule a few points out) this stops
+    after a few points instead of measuring every point of every heading to every obstacle."""
+    field, times = hover.field, config.rec_point_times_s.reshape(px.shape)
+    limits = np.stack([hover.floor_inflated[:, 0], hover.floor_true[:, 0], hover.margins[:, 0]])  # (3, O)
+    beyond = max(config.distance_saturation_m, 0.0) + 1.0
+    ok_inf, ok_true = ok_inf.copy(), ok_true.copy()
+    lowest = np.full(len(px), np.inf)
+    alive = np.flatnonzero(ok_inf | ok_true)
+    for k in range(1, px.shape[1]):
+        if not len(alive):
+            break
+        x, y, t = px[alive, k], py[alive, k], times[alive, k]
+        # the obstacles whose bounding disc, moving at its speed, comes near the points' box
+        bx, by = field.bound_xy_m[:, 0], field.bound_xy_m[:, 1]
+        dx = np.maximum(np.maximum(x.min() - bx, bx - x.max()), 0.0)
+        dy = np.maximum(np.maximum(y.min() - by, by - y.max()), 0.0)
+        keep = np.hypot(dx, dy) <= field.bound_radius_m + field.speed_m_s * t.max() + beyond
+        count = int(np.count_nonzero(keep))
+        if not count:
+            continue
+        rc = inflated_clearance(x, y, t, field.subset(keep, count))  # (O', A)
+        floor_inf, floor_true, margins = limits[:, keep, None]
+        ok_inf[alive] &= (rc >= floor_inf - 1e-9).all(axis=0)
+        ok_true[alive] &= (rc + margins >= floor_true - 1e-9).all(axis=0)
+        lowest[alive] = np.minimum(lowest[alive], rc.min(axis=0))
+        alive = alive[ok_inf[alive] | ok_true[alive]]
+    return ok_inf, ok_true, np.clip(lowest, 0.0, config.distance_saturation_m)
 
 
 def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
@@ -182,13 +242,13 @@ def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapsho
     return NoLegalRollout(f"{reason}: yaw {math.degrees(turn):+.0f} deg in place", recovery=command)
 
 
-def escape(config: DwaConfig, near: ObstacleSnapshot, ok_by_rule: dict[Rule, np.ndarray], heading: np.ndarray,
-           clear: np.ndarray | None, hover: HoverCheck, reason: str,
+def escape(config: DwaConfig, stuck: Stuck, hover: HoverCheck, reason: str,
            whole_horizon: bool = False) -> NoLegalRollout | None:
     """Hovering will be hit and no heading helps: fly what stays clear of the true footprints
     longest (of those, the one keeping the most clearance), if that outlasts hovering; else hold.
     ``whole_horizon``: only a rollout clear of them for the whole horizon, else None."""
     dt, steps, hover_steps = config.dt_s, config.steps, hover.steps
+    ok_by_rule, heading, near, clear = stuck.ok_by_rule, stuck.heading, stuck.near, stuck.clear
     ok_pts = np.ones((config.count, steps + 1), dtype=bool)
     for rule, ok in ok_by_rule.items():
         if rule is not Rule.OBSTACLE:

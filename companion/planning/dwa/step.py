@@ -16,7 +16,7 @@ from companion.planning.dwa.evaluate import Critics, command_for
 from companion.planning.dwa.heading import single_target
 from companion.planning.dwa.legality import (Rule, binding_uavs, fence_distance, fence_ok, legal_rollouts,
                                              separation_ok, turn_error)
-from companion.planning.dwa.recovery import no_legal_rollout
+from companion.planning.dwa.recovery import Stuck, no_legal_rollout
 from companion.planning.dwa.shapes import placement
 from companion.planning.dwa.sightline import sightline_term
 from companion.planning.dwa.snapshot import Culled, ObstacleSnapshot, with_turned_back
@@ -159,18 +159,23 @@ def _rules(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig) -> _Ru
 
 def _recover(pose: Pose, goals: LocalGoals, other: OtherUav | None, scene: _Scene, window: _Window, rules: _Rules,
              config: DwaConfig) -> NoLegalRollout:
-    """No legal rollout: the recovery reads every rollout's clearances and heading."""
+    """No legal rollout: the recovery reads every rollout's heading, and the escape every
+    rollout's clearances (worked out only then)."""
     near = scene.culled.subset()
-    clear = rules.clear
-    if clear is not None and config.row_of is not None:  # the escape reads every rollout's
-        clear = clear.reshape(len(clear), *window.gx.shape)[:, config.row_of].reshape(len(clear), -1)
-    elif scene.culled.count and config.row_of is None and clear is None:  # the compiled pass left some out
-        clear = config.backend.inflated_clearance(window.px.ravel(), window.py.ravel(), config.point_times_s, near)
+
+    def clearances() -> np.ndarray | None:
+        clear = rules.clear
+        if clear is not None and config.row_of is not None:  # the escape reads every rollout's
+            return clear.reshape(len(clear), *window.gx.shape)[:, config.row_of].reshape(len(clear), -1)
+        if scene.culled.count and config.row_of is None and clear is None:  # the compiled pass left some out
+            return config.backend.inflated_clearance(window.px.ravel(), window.py.ravel(), config.point_times_s, near)
+        return clear
+
     heading = config.backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad,
                                                goals, (pose.x_m, pose.y_m), window.px, window.py, scene.single,
                                                _soonest(config))
-    return no_legal_rollout(pose, goals, other, scene.culled.snapshot, near, config, rules.ok_by_rule, heading, clear,
-                            scene.separate_from)
+    stuck = Stuck(rules.ok_by_rule, heading, near, clearances)
+    return no_legal_rollout(pose, goals, other, scene.culled.snapshot, config, stuck, scene.separate_from)
 
 
 def _critics(pose: Pose, goals: LocalGoals, other: OtherUav | None, sighted: ObstacleSnapshot, window: _Window,
