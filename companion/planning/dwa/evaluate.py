@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -14,8 +13,7 @@ from companion.planning.dwa.types import Command
 if TYPE_CHECKING:
     from companion.planning.dwa.config import DwaConfig
 
-@dataclass(frozen=True, slots=True)
-class Critics:
+class Critics(NamedTuple):
     """What the choice reads besides the heading critic: which rollouts are legal (S,), the
     goal's bearing off the nose when the turn-around preference applies (NaN when it does not:
     see :func:`.legality.turn_error`), D (S,), and S and V (S,) or None when off."""

@@ -4,6 +4,7 @@ merging (static + moving) and culling to what a rollout can reach."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -267,8 +268,7 @@ ARRAY_FIELDS = ("circle_xy_m", "circle_vel_m_s", "circle_radius_m", "circle_marg
 _ARRAYS = "arrays"  # ObstacleSnapshot.arrays' key in a snapshot's cache (the masks' keys are bytes)
 
 
-@dataclass(frozen=True, slots=True)
-class Culled:
+class Culled(NamedTuple):
     """The obstacles of ``snapshot`` a culling keeps: a mask (circles, then polygons) and how
     many; :meth:`subset` as a snapshot, built (and cached) only when read."""
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -79,8 +79,7 @@ def _step(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: Obsta
     return command_for(config, best, heading, critics.distance, critics.sightline, total, n_legal)
 
 
-@dataclass(frozen=True, slots=True)
-class _Scene:
+class _Scene(NamedTuple):
     """What can bind this tick: the obstacles within reach, the UAVs whose separation can bind,
     the pose's distance inside the fence (None: out of reach), and whether the heading critic
     scores every rollout toward the first goal (:func:`.heading.single_target`)."""
@@ -100,8 +99,7 @@ class _Scene:
                    single_target(goals, config.end_reach_m, (pose.x_m, pose.y_m)))
 
 
-@dataclass(frozen=True, slots=True)
-class _Window:
+class _Window(NamedTuple):
     """The window's rollouts placed at the pose: the prediction points (ex, ey) (S,), and the
     whole rollouts (px, py) (S, K + 1) with the distinct ones (gx, gy) (G, K + 1) only when a
     rule or the goal window reads them (None otherwise: in open air only the S prediction
@@ -124,8 +122,7 @@ class _Window:
         return cls(ex, ey, None, None, None, None)
 
 
-@dataclass(frozen=True, slots=True)
-class _Rules:
+class _Rules(NamedTuple):
     """The rules' verdicts: each rule's mask per rollout point (S, K + 1), the clearances to the
     culled obstacles (None when none is in reach, or the compiled pass left out those that
     cannot matter), D (S,), and which rollouts obey every rule (S,)."""
