@@ -19,9 +19,8 @@ if TYPE_CHECKING:
 
 def spin_checks(px: np.ndarray, py: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: np.ndarray,
                 ok_true: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`.recovery.spin_checks`, compiled: rollout by rollout, over the obstacles whose
-    bounding disc (moving at its speed) can come near the rollout's bounding box, point by point
-    until the rollout is illegal on both footprints."""
+    """:func:`.recovery.spin_checks`, compiled: rollout by rollout, point by point until the
+    rollout is illegal on both footprints, each point over the obstacles of its grid cell."""
     field = hover.field
     floors = (one_layout(hover.floor_inflated[:, 0]), one_layout(hover.floor_true[:, 0]),
               one_layout(hover.margins[:, 0]))
@@ -33,45 +32,67 @@ def spin_checks(px: np.ndarray, py: np.ndarray, config: DwaConfig, hover: HoverC
 
 
 @jit
+def _grid(px, py, bound_xy, reach, cell):
+    """The obstacles by grid cell over the points' box: cell c of the (nx, ny) grid of side
+    ``cell`` from (x0, y0) holds ``members[first[c]:first[c + 1]]``, every obstacle whose disc
+    (centre ``bound_xy``, radius ``reach``) overlaps the cell."""
+    x0, x1, y0, y1 = px.min(), px.max(), py.min(), py.max()
+    nx = int((x1 - x0) / cell) + 1
+    ny = int((y1 - y0) / cell) + 1
+    count = np.zeros(nx * ny + 1, dtype=np.int64)
+    span = np.empty((len(reach), 4), dtype=np.int64)
+    for o in range(len(reach)):
+        i0 = max(int(np.floor((bound_xy[o, 0] - reach[o] - x0) / cell)), 0)
+        i1 = min(int(np.floor((bound_xy[o, 0] + reach[o] - x0) / cell)), nx - 1)
+        j0 = max(int(np.floor((bound_xy[o, 1] - reach[o] - y0) / cell)), 0)
+        j1 = min(int(np.floor((bound_xy[o, 1] + reach[o] - y0) / cell)), ny - 1)
+        span[o, 0], span[o, 1], span[o, 2], span[o, 3] = i0, i1, j0, j1
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                count[i * ny + j + 1] += 1
+    first = np.cumsum(count)
+    members = np.empty(first[-1], dtype=np.int64)
+    fill = first[:-1].copy()
+    for o in range(len(reach)):
+        for i in range(span[o, 0], span[o, 1] + 1):
+            for j in range(span[o, 2], span[o, 3] + 1):
+                members[fill[i * ny + j]] = o
+                fill[i * ny + j] += 1
+    return first, members, x0, y0, ny
+
+
+@jit
 def _spin_checks(px, py, t_s, n_k, obstacles, limits, ok, saturation):
     """Narrows ``ok`` = (ok_inf, ok_true) (R,) in place to the rollouts of n_k points (px, py) at
     t_s that keep clear of every obstacle (inflated: no deeper than the floor; true: with the
     margin given back), points after the first only; returns the distance critic (R,).
 
     A point farther from an obstacle's bounding disc than the saturation plus 1 m can neither
-    break the rule (its clearance exceeds 1 m, the floors are <= 0) nor set the critic, and a
-    rollout whose bounding box is that far from the disc's reach over the rollout's time has no
-    such point: neither is measured."""
+    break the rule (its clearance exceeds 1 m, the floors are <= 0) nor set the critic: each
+    point is measured only to the obstacles of its grid cell, those whose bounding disc, moving
+    at its speed until the last point's time, comes that near the cell."""
     c_xy, c_vel, c_r, c_m, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy, p_vel, p_m, p_centre, p_bound = obstacles
     (floor_inf, floor_true, margins), (bound_xy, bound_r, speed) = limits
     ok_inf, ok_true = ok
-    n_c, n_o = len(c_r), len(bound_r)
+    n_c = len(c_r)
     n_r = len(px) // n_k
     beyond = (saturation if saturation > 0.0 else 0.0) + 1.0
     distance = np.full(n_r, saturation)
-    near = np.empty(n_o, dtype=np.int64)
+    reach = np.empty(len(bound_r))
+    t_end = t_s.max()
+    for o in range(len(bound_r)):
+        reach[o] = bound_r[o] + speed[o] * t_end + beyond
+    cell = max(_CELL_M, (max(px.max() - px.min(), py.max() - py.min()) + 1.0) / _CELLS_ACROSS)
+    first, members, x0, y0, ny = _grid(px, py, bound_xy, reach, cell)
     for r in range(n_r):
         a_inf, a_true = ok_inf[r], ok_true[r]
         if not (a_inf or a_true):
             continue
-        lo, hi = r * n_k + 1, (r + 1) * n_k
-        x0, x1, y0, y1 = px[lo], px[lo], py[lo], py[lo]
-        for n in range(lo + 1, hi):
-            x0, x1 = min(x0, px[n]), max(x1, px[n])
-            y0, y1 = min(y0, py[n]), max(y1, py[n])
-        t_end = t_s[hi - 1]
-        n_near = 0
-        for o in range(n_o):  # the disc's distance to the box, against its reach over the rollout
-            dx = max(x0 - bound_xy[o, 0], 0.0, bound_xy[o, 0] - x1)
-            dy = max(y0 - bound_xy[o, 1], 0.0, bound_xy[o, 1] - y1)
-            lim = bound_r[o] + speed[o] * t_end + beyond
-            if dx * dx + dy * dy <= lim * lim:
-                near[n_near] = o
-                n_near += 1
         lowest = np.inf
-        for n in range(lo, hi):
-            for j in range(n_near):
-                o = near[j]
+        for n in range(r * n_k + 1, (r + 1) * n_k):
+            c = int((px[n] - x0) / cell) * ny + int((py[n] - y0) / cell)
+            for m in range(first[c], first[c + 1]):
+                o = members[m]
                 if o < n_c:  # geometry_jit._circle_clearance's operations
                     dx = px[n] - c_xy[o, 0]
                     dy = py[n] - c_xy[o, 1]
@@ -105,3 +126,8 @@ def _spin_checks(px, py, t_s, n_k, obstacles, limits, ok, saturation):
         lowest = lowest if lowest > 0.0 else 0.0
         distance[r] = lowest if lowest < saturation else saturation
     return distance
+
+
+# The grid's cell: 20 m, coarser when the points span more than 64 cells across.
+_CELL_M = 20.0
+_CELLS_ACROSS = 64
