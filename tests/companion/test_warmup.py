@@ -25,13 +25,14 @@ SCRIPT = textwrap.dedent("""
     from companion.app.steering import clearance_here_m
     from companion.app.warmup import warm_up_planners
     from numba.core.dispatcher import Dispatcher
-    from companion.planning.dwa import distance_jit, evaluate_jit, geometry_jit, heading_jit, sightline_jit
+    from companion.planning.dwa import (distance_jit, evaluate_jit, geometry_jit, heading_jit, recovery_jit,
+                                        sightline_jit)
     from companion.planning.obstacle_field import ObstacleField
     from companion.planning.flight.headless import simulate
 
     def loaded():  # the DWA's compiled kernels: signatures per dispatcher
         return {f"{m.__name__}.{k}": len(v.signatures)
-                for m in (distance_jit, evaluate_jit, geometry_jit, heading_jit, sightline_jit)
+                for m in (distance_jit, evaluate_jit, geometry_jit, heading_jit, recovery_jit, sightline_jit)
                 for k, v in vars(m).items() if isinstance(v, Dispatcher)}
 
     mission = load_mission(sys.argv[1]).with_variant(sys.argv[2])

@@ -155,7 +155,8 @@ class DwaConfig:
             object.__setattr__(self, name, value)
         object.__setattr__(self, "choice_consts", (
             self.yaw_rates_rad_s, self.speeds_m_s, self.final_dheading_rad, self.weights,
-            float(self.distance_saturation_m), self.saturated_sums_m, bool(self.sightline_slope), bool(self.fixed_scale),
+            float(self.distance_saturation_m), self.saturated_sums_m, bool(self.sightline_slope),
+            bool(self.fixed_scale),
             float(self.sightline_cap_m)))
         object.__setattr__(self, "end_reach_m", float(np.hypot(body[:, -1, 0], body[:, -1, 1]).max()))
         object.__setattr__(self, "steps", steps)

@@ -77,7 +77,8 @@ class Stuck:
 
 
 def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
-                     config: DwaConfig, stuck: Stuck, separate_from: Sequence[OtherUav] | None = None) -> NoLegalRollout:
+                     config: DwaConfig, stuck: Stuck,
+                     separate_from: Sequence[OtherUav] | None = None) -> NoLegalRollout:
     """The four strategies of the module docstring, in order. ``other``: the sightline partner;
     ``separate_from``: every UAV kept separated from (None: ``other`` alone)."""
     blocking = [rule for rule, ok in stuck.ok_by_rule.items() if not ok[:, 1:].all(axis=1).any()]

@@ -211,6 +211,11 @@ def warm_up_kernels() -> None:
     plan_step(Pose(0.0, 0.0, 0.0), (100.0, 0.0), OtherUav(0.0, 50.0, 0.0, 0.0), ObstacleSnapshot.build(
         [("c", 10.0, 20.0, 5.0, 1.0, 0.0, 0.0)], [("p", np.array([[0.0, 30.0], [9.0, 30.0], [9.0, 40.0]]), 1.0, 0.0,
                                                   0.0)]), config)
+    # boxed in by a ring of circles and a polygon: the recovery's spin checks
+    ring = [(f"r{i}", 6.0 * math.cos(a), 6.0 * math.sin(a), 2.0, 0.5, 0.0, 0.0)
+            for i, a in enumerate(np.arange(12) / 2.0)]
+    plan_step(Pose(0.0, 0.0, 0.0), (100.0, 0.0), None, ObstacleSnapshot.build(
+        ring, [("p", np.array([[-9.0, -1.0], [-7.0, -1.0], [-7.0, 1.0]]), 0.5, 0.0, 0.0)]), config)
 
 
 # With a speed window, an arriving rollout loses up to this much heading score for arriving late
