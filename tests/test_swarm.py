@@ -9,13 +9,17 @@ flight takes seconds. A failure is a behaviour the planner lacks: it stays here,
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from companion.formations import corridor, crossing_lanes, ring
 from companion.planning.flight.headless import RunResult, simulate
 from companion.planning.metrics import Track
 from companion.testing.assertions import TelemetryAssertions
-from uav_model.mission import Mission, mission_from_data
+from uav_model.mission import load_mission, mission_from_data
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 class Flown(TelemetryAssertions):
@@ -74,9 +78,9 @@ def test_a_narrow_corridor_flown_both_ways_at_once():
 
 
 def test_two_assigned_pairs_among_eight_keep_their_sight_lines_blocked():
-    doc = ring(8, 600.0, hub_m=200.0, pairs=[["v4", "v0"], ["v2", "v6"]])
-    flown = fly(doc)
-    mission = flown.mission
+    """missions/ring8_two_pairs.yaml: eight on a ring around a hub, v4 hiding from v0, v6 from v2."""
+    mission = load_mission(ROOT / "missions" / "ring8_two_pairs.yaml")
+    flown = Flown(simulate(mission))
     assert mission.sight_pairs == (("v0", "v4"), ("v2", "v6"))  # higher priority first
     assert [v.name for v in mission.vehicles if mission.carries_sightline(v.name)] == ["v4", "v6"]
     assert_safe_arrivals(flown)

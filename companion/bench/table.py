@@ -290,6 +290,11 @@ def format_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
     for variant, s in summary.items():
         reasons = ", ".join(f"{k} {v}" for k, v in s["reasons"].items()) or "none"
         lines.append(f"failures {variant}: {reasons}")
+    for variant, s in summary.items():
+        pairs = s.get("sight_pairs") or {}
+        if pairs.get("scored"):
+            lines.append(f"sight pairs {variant}: blocked at closest approach in {pairs['occluded']} of "
+                         f"{pairs['scored']} scored pairs")
     if summary and any(sum(c.values()) for c in next(iter(summary.values()))["certificate"].values()):
         lines.append("")
         for variant, s in summary.items():
