@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from companion.bench.table import read_runs_csv, run_row, write_runs_csv
+from companion.cli.bench import run as bench_cli
 from companion.formations import ring
 from companion.planning.dwa import OtherUav
 from companion.planning.fleet import Neighbour, react_to
@@ -74,11 +75,15 @@ def test_a_pair_naming_a_vehicle_the_schema_refused_reports_the_vehicle_only():
     assert _problems(doc) == ["m: vehicles[3].speed_m_s: expected number, got str 'fast'"]
 
 
+def _companion(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "companion", *args], capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)}, cwd=cwd)
+
+
 def test_validate_refuses_bad_pairs_with_exit_2_one_line_each(tmp_path):
     path = tmp_path / "pairs.yaml"
     path.write_text(yaml.safe_dump(_four([["v0", "v9"], ["v2", "v2"], ["v0", "v1"], ["v1", "v0"]])))
-    proc = subprocess.run([sys.executable, "-m", "companion", "validate", str(path)], capture_output=True, text=True,
-                          timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)}, cwd=ROOT)
+    proc = _companion("validate", str(path))
     assert proc.returncode == 2 and proc.stdout == "" and "Traceback" not in proc.stderr
     lines = proc.stderr.splitlines()
     assert [line.split(": ", 2)[1] for line in lines] == ["sightline.pairs[0][1]", "sightline.pairs[1]",
@@ -140,3 +145,11 @@ def test_a_mission_of_33_vehicles_is_refused_at_the_schema_limit():
     doc = ring(33, 900.0)
     with pytest.raises(MissionError, match="vehicles: 33 items, more than the limit of 32"):
         parse_mission(yaml.safe_dump(doc), "m")
+
+
+@pytest.mark.parametrize("count", ["1", "33"])
+def test_the_bench_refuses_a_fleet_outside_2_to_32_before_flying(tmp_path, capsys, count):
+    assert bench_cli(["--vehicles", count, "--scenarios", "1", "--out", str(tmp_path / "out")]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.strip() == f"companion bench: vehicles: use 2 to 32 (got {count})"
+    assert not (tmp_path / "out" / "runs.csv").exists()
