@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Collection, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from companion.planning.dwa import OtherUav
 
@@ -62,11 +62,12 @@ def sightline_partner(x_m: float, y_m: float, rank: int, neighbours: Sequence[Ne
             neighbours, rank = assigned, math.inf  # every assigned partner counts as above it
     if len(neighbours) <= 1:
         return neighbours[0] if neighbours else None
-    by_distance = sorted(neighbours, key=lambda n: (math.hypot(n.uav.x_m - x_m, n.uav.y_m - y_m), n.rank))
-    for n in by_distance:
-        if n.rank < rank and not n.uav.arrived:
-            return n
-    return by_distance[0]
+
+    def nearest(n: Neighbour) -> tuple[float, int]:
+        return math.hypot(n.uav.x_m - x_m, n.uav.y_m - y_m), n.rank
+
+    above = [n for n in neighbours if n.rank < rank and not n.uav.arrived]
+    return min(above or neighbours, key=nearest)
 
 
 def react_to(x_m: float, y_m: float, rank: int, neighbours: Sequence[Neighbour],
@@ -81,6 +82,6 @@ def react_to(x_m: float, y_m: float, rank: int, neighbours: Sequence[Neighbour],
     partner = sightline_partner(x_m, y_m, rank, neighbours, partners)
     if len(neighbours) < 2:
         return Reaction(partner, tuple(n.uav for n in neighbours))
-    uavs = tuple(replace(n.uav, right_of_way=True) if n.rank < rank and not n.uav.arrived else n.uav
-                 for n in neighbours)
+    uavs = tuple(OtherUav(n.uav.x_m, n.uav.y_m, n.uav.vx_m_s, n.uav.vy_m_s, False, True)  # right of way
+                 if n.rank < rank and not n.uav.arrived else n.uav for n in neighbours)
     return Reaction(partner, uavs)
