@@ -34,7 +34,7 @@ from companion.planning.routes import Route, plan_routes
 from uav_model.world import Obstacle, Shuttle
 
 REFERENCE_SIDE_M = 4500.0 / math.sqrt(2.0)
-MAX_VEHICLES = 8  # the mission schema's maxItems
+MAX_VEHICLES = 32  # the mission schema's maxItems
 
 
 class ScenarioError(ValueError):
@@ -209,15 +209,21 @@ def fleet_layout(side: float, count: int) -> dict[str, Any]:
     along = {p: math.atan2(p[1] - side / 2.0, p[0] - side / 2.0) for p in points}
     first = along[points[0]]
     points.sort(key=lambda p: (along[p] - first) % (2.0 * math.pi))
-    name = {p: chr(ord("A") + k) for k, p in enumerate(points)}
+    name = {p: _label("A", k) for k, p in enumerate(points)}
     vehicles = []
     for i, (start, goal) in enumerate(zip(starts, goals)):
         start, goal = (_r(start[0]), _r(start[1])), (_r(goal[0]), _r(goal[1]))
         heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
-        vehicles.append({"name": chr(ord("a") + i), "start": name[start], "goal": name[goal], "speed_m_s": 10.0,
+        vehicles.append({"name": _label("a", i), "start": name[start], "goal": name[goal], "speed_m_s": 10.0,
                          "turn_radius_m": 30.0, "initial_heading_deg": _r(heading),
                          "battery_pct": 100.0 if i == 0 else 35.0})
     return {"stations": {name[p]: [p[0], p[1]] for p in points}, "vehicles": vehicles}
+
+
+def _label(first: str, k: int) -> str:
+    """The k-th name from letter ``first``: a..z, then a1..z1, a2...; A..Z, A1... for stations."""
+    letter = chr(ord(first) + k % 26)
+    return letter if k < 26 else f"{letter}{k // 26}"
 
 
 def swept_region(obstacle: Obstacle) -> BaseGeometry:

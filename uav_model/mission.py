@@ -31,6 +31,7 @@ from uav_model.mission_limits import MAX_GRID_CELLS, grid_shape
 from uav_model.mission_points import latlon_slips, localise
 from uav_model.mission_read import load_yaml, mission_error, read_text
 from uav_model.mission_schema import mission_schema, schema_default
+from uav_model.mission_sightline import assigned_pairs
 from uav_model.mission_validator import mission_validator
 from uav_model.mission_types import (VARIANTS, CoordinationSettings, Forecast, Mission, Normalisation, PlannerSettings,
                                      SafetySettings, SightlineCritic, SpawnHeading, Variant, VehicleSpec, shared_goals)
@@ -167,13 +168,16 @@ def _build(data: dict, source: str, root: yaml.Node | None, origin: GeoOrigin,
             report.add(["planner", "min_speed_m_s"],
                        f"{planner.min_speed_m_s:g} is above vehicle {v.name!r}'s speed_m_s ({v.speed_m_s:g})")
     _check_shared_goals(vehicles, safety, report)
+    named = {v.get("name") for v in data["vehicles"] if isinstance(v, dict)}  # a broken vehicle is no unknown name
+    pairs = None if {"vehicles", "sightline"} & broken else assigned_pairs(data.get("sightline"), vehicles, named,
+                                                                        report.add)
     if problems:
         return None
     return Mission(name=data.get("name", Path(source).stem), source=source,
                    description=data.get("description", ""), origin=origin, world=world,
                    stations=stations, vehicles=tuple(vehicles), planner=planner, safety=safety,
                    plant=Plant(data.get("plant", schema_default("plant"))),
-                   coordination=coordination)
+                   coordination=coordination, assigned_pairs=pairs)
 
 
 def _planner(planner_raw: dict, pdef: dict) -> PlannerSettings:

@@ -141,6 +141,31 @@ class Mission:
     safety: SafetySettings
     plant: Plant = Plant(schema_default("plant"))  # the dynamics the stub and the headless runner fly
     coordination: CoordinationSettings = CoordinationSettings()
+    # ``sightline.pairs`` as the file names them, each (higher priority, lower priority); None: the
+    # file names none, and the paper's pair (the first two in priority) is scored.
+    assigned_pairs: tuple[tuple[str, str], ...] | None = None
+
+    @property
+    def sight_pairs(self) -> tuple[tuple[str, str], ...]:
+        """The pairs whose sight line is scored, higher priority first in each: the assigned
+        pairs, or the paper's pair (the two vehicles first in priority; none with one vehicle)."""
+        if self.assigned_pairs is not None:
+            return self.assigned_pairs
+        order = self.by_priority
+        return ((order[0].name, order[1].name),) if len(order) >= 2 else ()
+
+    def hides_from(self, name: str) -> tuple[str, ...] | None:
+        """The vehicles that ``name`` hides from by assignment (the other member of each assigned
+        pair in which it is lower in priority), or None when the mission assigns no pairs (then
+        every vehicle but the first hides from the nearest vehicle above it still flying)."""
+        if self.assigned_pairs is None:
+            return None
+        return tuple(high for high, low in self.assigned_pairs if low == name)
+
+    def carries_sightline(self, name: str) -> bool:
+        """Whether the planner of ``name`` carries the sightline term: it hides from someone."""
+        partners = self.hides_from(name)
+        return self.by_priority[0].name != name if partners is None else bool(partners)
 
     @property
     def by_priority(self) -> tuple[VehicleSpec, ...]:

@@ -73,7 +73,8 @@ class Steering:
 
     def _reaction(self, pose: PoseSample) -> Reaction:
         """Whom the planner reacts to (fleet.react_to: separation from all, sightline to one)."""
-        return react_to(pose.x_east_m, pose.y_north_m, self.ctx.rank[self.name], self._neighbours(pose))
+        return react_to(pose.x_east_m, pose.y_north_m, self.ctx.rank[self.name], self._neighbours(pose),
+                        self.ctx.mission.hides_from(self.name))
 
     def _nearest_other(self, pose: PoseSample) -> tuple[str | None, OtherUav | None]:
         """The nearest other vehicle, from its own telemetry, extrapolated to this pose's time."""

@@ -68,7 +68,7 @@ def warm_up_planners(plan: FlightPlan) -> float:
         x, y = spec.start_enu_m
         others = [Neighbour(o.name, i, OtherUav(*o.start_enu_m, 0.0, 0.0))
                   for i, o in enumerate(order) if o.name != spec.name]
-        reaction = react_to(x, y, rank, others)
+        reaction = react_to(x, y, rank, others, mission.hides_from(spec.name))
         planner.tick(Pose(x, y, spec.initial_heading_rad), reaction.other, snapshot, 0.0, 0.0,
                      separate_from=reaction.separate_from)
         clearance_here_m(x, y, snapshot)  # the flight log's clearance: the kernels with other argument types

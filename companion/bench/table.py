@@ -40,7 +40,12 @@ RUN_COLUMNS: tuple[tuple[str, type], ...] = (
     # feasible / needs-hold / infeasible, and the least departure hold of the first vehicle.
     ("cert_whole_flight", str), ("cert_whole_flight_hold_s", float),
     ("cert_closest_approach", str), ("cert_closest_approach_hold_s", float),
+    # The scored sight-line pairs (the mission's sightline.pairs, or the paper's pair): how many,
+    # and at how many closest approaches the line was blocked; each pair's own in PAIR_COLUMNS.
+    ("sight_pairs", int), ("sight_pairs_occluded", int),
 )
+# Per scored pair, named <higher>-<lower>_<metric> (e.g. a-b_crossing_occluded), after the vehicles.
+PAIR_COLUMNS: tuple[tuple[str, type], ...] = (("los_blocked_fraction", float), ("crossing_occluded", bool))
 VEHICLE_COLUMNS: tuple[tuple[str, type], ...] = (
     ("arrived", bool), ("flight_time_s", float), ("path_length_m", float), ("lower_bound_s", float),
     ("ratio", float), ("min_obstacle_clearance_m", float), ("nodes_raw", int), ("nodes_sparse", int),
@@ -67,6 +72,12 @@ def run_row(seed: int, index: int, scenario: str, variant: str, summary: Mapping
     for name, metrics in summary.get("vehicles", {}).items():
         for key, _ in VEHICLE_COLUMNS:
             row[f"{name}_{key}"] = metrics.get(key)
+    sight = [p for p in summary.get("sight_pairs", ()) if p in summary.get("pairs", {})]
+    row["sight_pairs"] = len(sight)
+    row["sight_pairs_occluded"] = sum(1 for p in sight if summary["pairs"][p]["crossing_occluded"])
+    for pair in sight:
+        for key, _ in PAIR_COLUMNS:
+            row[f"{pair}_{key}"] = summary["pairs"][pair][key]
     return row
 
 
@@ -103,11 +114,23 @@ def vehicle_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
     return names
 
 
+def pair_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
+    """Scored sight-line pairs in order of first appearance (from ``<pair>_crossing_occluded``)."""
+    names: list[str] = []
+    for row in rows:
+        for key in row:
+            if key.endswith("_crossing_occluded") and key[:-len("_crossing_occluded")] not in names:
+                names.append(key[:-len("_crossing_occluded")])
+    return names
+
+
 def columns(rows: Sequence[Mapping[str, Any]]) -> list[str]:
-    """runs.csv's header: the run columns, the score weights when a sweep set them, per vehicle."""
+    """runs.csv's header: the run columns, the score weights when a sweep set them, per vehicle,
+    per scored sight-line pair."""
     weights = [k for k in WEIGHT_COLUMNS if any(k in r for r in rows)]
     return ([k for k, _ in RUN_COLUMNS] + weights
-            + [f"{n}_{k}" for n in vehicle_names(rows) for k, _ in VEHICLE_COLUMNS])
+            + [f"{n}_{k}" for n in vehicle_names(rows) for k, _ in VEHICLE_COLUMNS]
+            + [f"{p}_{k}" for p in pair_names(rows) for k, _ in PAIR_COLUMNS])
 
 
 def _cell(value: Any) -> str:
@@ -142,7 +165,7 @@ def _typed(kind: type, text: str) -> Any:
 def read_runs_csv(path: str | Path) -> list[dict[str, Any]]:
     """runs.csv back as typed rows (empty cells are None)."""
     kinds = {**dict(RUN_COLUMNS), **{k: float for k in WEIGHT_COLUMNS}}
-    suffix_kinds = dict(VEHICLE_COLUMNS)
+    suffix_kinds = {**dict(VEHICLE_COLUMNS), **dict(PAIR_COLUMNS)}
     with Path(path).open(newline="", encoding="utf-8") as fh:
         reader = csv.DictReader(fh)
         rows = []
@@ -208,6 +231,8 @@ def aggregate(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
             "los_blocked_fraction": _stats([r["los_blocked_fraction"] for r in ok
                                             if r.get("los_blocked_fraction") is not None]),
             "min_separation_m": _stats([r["min_separation_m"] for r in ok if r.get("min_separation_m") is not None]),
+            "sight_pairs": {"scored": sum(r.get("sight_pairs") or 0 for r in mine),
+                            "occluded": sum(r.get("sight_pairs_occluded") or 0 for r in mine)},
             "planner_ms_per_tick": round(statistics.fmean(ms), 4) if ms else None,
             "wall_s": round(sum(r["wall_s"] for r in mine), 3),
             **_certificate_summary(mine, names),
@@ -265,6 +290,11 @@ def format_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
     for variant, s in summary.items():
         reasons = ", ".join(f"{k} {v}" for k, v in s["reasons"].items()) or "none"
         lines.append(f"failures {variant}: {reasons}")
+    for variant, s in summary.items():
+        pairs = s.get("sight_pairs") or {}
+        if pairs.get("scored"):
+            lines.append(f"sight pairs {variant}: blocked at closest approach in {pairs['occluded']} of "
+                         f"{pairs['scored']} scored pairs")
     if summary and any(sum(c.values()) for c in next(iter(summary.values()))["certificate"].values()):
         lines.append("")
         for variant, s in summary.items():

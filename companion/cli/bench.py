@@ -95,7 +95,7 @@ def add_common_arguments(parser: argparse.ArgumentParser, *, scenarios: int, why
                         help="the scenarios' dynamics (default: the scenario config's, multicopter); "
                              "unicycle is the paper's ideal vehicle, for its Table IV")
     parser.add_argument("--vehicles", type=positive_int, default=None, metavar="N",
-                        help="vehicles per scenario, 2 to 8 (default: the scenario config's, 2)")
+                        help="vehicles per scenario, 2 to 32 (default: the scenario config's, 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--no-certificate", action="store_true",
                         help="skip each run's occlusion certificate (its cert_* columns stay empty; "

@@ -90,8 +90,9 @@ def format_summary(run) -> str:
     """A short human table of one headless run."""
     s = run.summary
     head = "SUCCESS" if s.success else f"FAILED ({s.reason} at {shown(s.failure_t_s)} s)"
-    strict = {True: "strict: yes", False: "strict: no (sight line open at closest approach)", None: ""}
-    lines = [f"{run.mission.name} [{run.variant}]: {head}  {strict[s.crossing_occluded] if s.success else ''}".rstrip(),
+    strict = "" if not (s.success and s.sight_pairs) else \
+        "strict: yes" if s.success_strict else "strict: no (sight line open at closest approach)"
+    lines = [f"{run.mission.name} [{run.variant}]: {head}  {strict}".rstrip(),
              f"{'vehicle':8} {'arrived':7} {'time_s':>7} {'bound_s':>7} {'ratio':>6} {'path_m':>7} "
              f"{'min clear (true) m':>18} {'nodes':>9} {'ms/tick':>7}"]
     for name, v in s.vehicles.items():
@@ -103,5 +104,9 @@ def format_summary(run) -> str:
         lines.append(f"min separation {s.min_separation_m:.0f} m, sight line blocked "
                      f"{100 * s.los_blocked_fraction:.1f} % of ticks, crossing occluded: "
                      f"{'yes' if s.crossing_occluded else 'no'}")
+    if len(s.sight_pairs) > 1:  # the headline above is the first pair's
+        lines.append("sight pairs: " + "; ".join(
+            f"{p} blocked {100 * s.pairs[p].los_blocked_fraction:.1f} %, at closest approach "
+            f"{'yes' if s.pairs[p].crossing_occluded else 'no'}" for p in s.sight_pairs))
     lines.append(f"{s.duration_s:.1f} s simulated in {run.wall_s:.2f} s wall ({run.speed_factor:.0f}x real time)")
     return "\n".join(lines)

@@ -138,6 +138,7 @@ class RunSummary:
     planner_ms_per_tick: float | None
     duration_s: float
     pairs: dict[str, "PairMetrics"] = field(default_factory=dict)  # every pair, higher priority first
+    sight_pairs: tuple[str, ...] = ()  # the keys of ``pairs`` whose sight line is scored (Mission.sight_pairs)
     planner: dict[str, PlannerCounts] = field(default_factory=dict)  # per vehicle (headless runs)
     schedule: ScheduleRecord | None = None  # headless runs
 
@@ -163,6 +164,7 @@ class RunSummary:
             "crossing_occluded": self.crossing_occluded,
             "planner_ms_per_tick": self.planner_ms_per_tick,
             "pairs": {name: {k: getattr(p, k) for k in PairMetrics.__slots__} for name, p in self.pairs.items()},
+            "sight_pairs": list(self.sight_pairs),
         }
         if self.planner:
             out.update({f"planner_{k}": {n: getattr(c, k) for n, c in self.planner.items()}
@@ -276,16 +278,20 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
 
     t_all = np.unique(np.concatenate([tracks[n].t_s for n in names]))
     min_sep = los_fraction = occluded = None
-    pairs = {}
+    pairs: dict[str, PairMetrics] = {}
+    sight: tuple[str, ...] = ()
     if len(names) >= 2:
         pairs, sep = _pair_metrics(geometry, names, {n: tracks[n].at(t_all) for n in names}, t_all)
         min_sep = float(sep.min())
         close = np.flatnonzero(sep < safety.min_separation_m)
         if close.size:
             events.append((float(t_all[min(close[0] + 1, len(t_all) - 1)]), 1, FailureReason.SEPARATION))
-        # The headline sight metrics are the paper's pair: the two vehicles first in priority.
-        headline = pairs[pair_name(names[0], names[1])]
-        los_fraction, occluded = headline.los_blocked_fraction, headline.crossing_occluded
+        # The headline sight metrics are the first assigned pair (by default the paper's pair, the
+        # two vehicles first in priority); strict success needs every assigned pair occluded.
+        sight = tuple(name for name in (pair_name(a, b) for a, b in mission.sight_pairs) if name in pairs)
+        if sight:
+            headline = pairs[sight[0]]
+            los_fraction, occluded = headline.los_blocked_fraction, headline.crossing_occluded
 
     reason = None
     fail_t = None
@@ -302,11 +308,11 @@ def summarize(mission: "Mission", tracks: Mapping[str, Track], *,
         reason = FailureReason.INCOMPLETE
     all_ms = [m for n in names if planner_ms and len(planner_ms.get(n, ())) for m in planner_ms[n]]
     return RunSummary(
-        success=success, success_strict=bool(success and (occluded is None or occluded)),
+        success=success, success_strict=bool(success and all(pairs[name].crossing_occluded for name in sight)),
         reason=reason, failure_t_s=fail_t, vehicles=per_vehicle, min_separation_m=min_sep,
         los_blocked_fraction=los_fraction, crossing_occluded=occluded,
         planner_ms_per_tick=float(np.mean(all_ms)) if all_ms else None,
-        duration_s=float(t_all[-1] - t_all[0]), pairs=pairs,
+        duration_s=float(t_all[-1] - t_all[0]), pairs=pairs, sight_pairs=sight,
     )
 
 

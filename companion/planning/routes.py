@@ -11,7 +11,9 @@ Discs of radius ``min_separation + 2 cells`` around the later vehicle's own star
 exempt: stations are shared, and meeting there is separated in time, which is the local
 planner's job. The line is geometric, so the direction each vehicle flies does not matter.
 
-With more than two vehicles no route is constrained (see plan_routes).
+With more than two vehicles no route is constrained (see plan_routes), except by assignment: a
+mission that names its sight-line pairs (``sightline.pairs``) keeps the lower vehicle of each
+pair to the other side of its partner's route, as the paper's pair does.
 
 If that makes the later route impossible, the constraint is relaxed, and the Route records what
 held:
@@ -88,7 +90,7 @@ def plan_routes(mission: Mission, *, max_expansions: int | None = None) -> dict[
     base = rasterise(world, resolution_m, keep_in_with=ends)
     routes: dict[str, Route] = {}
     for vehicle in mission.by_priority:
-        earlier = list(routes.values()) if priority_rule_applies(mission) else []
+        earlier = higher_routes(mission, routes, vehicle.name)
         failure: NoPath | None = None
         ladder = _constraint_ladder(earlier, (vehicle.start_enu_m, vehicle.goal_enu_m),
                                     mission.safety.min_separation_m, resolution_m, shapely.box(*keep_in_box(world)))
@@ -157,10 +159,11 @@ def priority_rule_applies(mission: Mission) -> bool:
 
 
 def higher_routes(mission: Mission, routes: Mapping[str, Route], name: str) -> list[Route]:
-    """The routes of the vehicles planned before ``name`` (higher priority), in that order; none
-    when the priority rule does not apply."""
+    """The routes that constrain ``name``'s: those of the vehicles planned before it (higher
+    priority), in that order, when the priority rule applies; otherwise those of the partners it
+    is assigned to hide from (``Mission.hides_from``; none without an assignment)."""
     if not priority_rule_applies(mission):
-        return []
+        return [routes[n] for n in mission.hides_from(name) or () if n in routes]
     order = [v.name for v in mission.by_priority]
     return [routes[n] for n in order[:order.index(name)] if n in routes]
 

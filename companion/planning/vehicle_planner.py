@@ -217,7 +217,7 @@ class VehiclePlanner:
         variant = variant or mission.planner.variant
         spec = VARIANTS[variant]
         goals_from = spec.goals
-        sightline = spec.sightline and mission.by_priority[0].name != vehicle.name
+        sightline = spec.sightline and mission.carries_sightline(vehicle.name)
         nodes = variant_nodes(variant, vehicle, route)
         # Keep-in box: the area, and of the geofence margin what keeps the braking distance and
         # the tracking lag from the uploaded fence (uav_model.fence_margin).

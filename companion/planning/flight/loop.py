@@ -124,6 +124,7 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
     names = [v.name for v in vehicles]
     others = {n: [m for m in names if m != n] for n in names}
     rank = {n: i for i, n in enumerate(names)}
+    hides = {n: mission.hides_from(n) for n in names}  # assigned sight-line partners (None: the nearest above)
     # rows[i] = every vehicle's (x, y) at t = i * dt; an arrived vehicle repeats its last row.
     rows = [[_xy(states[n]) for n in names]]
     last_row = {n: None for n in names}  # the row of arrival
@@ -159,7 +160,8 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
             if len(uavs) == 1:  # react_to's answer for one neighbour, without building it
                 other, separate_from = uavs[0], (uavs[0],)
             else:
-                reaction = react_to(x, y, rank[name], [Neighbour(n, rank[n], u) for n, u in zip(others[name], uavs)])
+                reaction = react_to(x, y, rank[name], [Neighbour(n, rank[n], u) for n, u in zip(others[name], uavs)],
+                                    hides[name])
                 other, separate_from = reaction.other, reaction.separate_from
             planner = planners[name]
             result = planner.tick(Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad)), other, snapshot, t,

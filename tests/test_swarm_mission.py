@@ -1,0 +1,155 @@
+"""Sight-line pairs by assignment (``sightline.pairs``) and fleets up to 32: what a mission may
+name, how it is refused, whom each planner hides from, and how runs.csv reports each pair."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from companion.bench.table import read_runs_csv, run_row, write_runs_csv
+from companion.cli.bench import run as bench_cli
+from companion.formations import ring
+from companion.planning.dwa import OtherUav
+from companion.planning.fleet import Neighbour, react_to
+from companion.planning.flight.headless import simulate
+from companion.planning.routes import higher_routes, plan_routes
+from companion.scenarios import ScenarioConfig, ScenarioError, generate_scenario
+from uav_model.mission import MissionError, mission_from_data, parse_mission
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _four(pairs) -> dict:
+    doc = ring(4, 500.0, hub_m=150.0)
+    doc["sightline"] = {"pairs": pairs}
+    return doc
+
+
+def _problems(doc) -> list[str]:
+    with pytest.raises(MissionError) as err:
+        mission_from_data(doc, "m")
+    return [str(p) for p in err.value.problems]
+
+
+def test_assigned_pairs_are_typed_higher_priority_first_and_name_who_hides():
+    mission = mission_from_data(_four([["v2", "v0"], ["v1", "v3"]]), "m")
+    assert mission.sight_pairs == (("v0", "v2"), ("v1", "v3"))
+    assert [mission.hides_from(v.name) for v in mission.vehicles] == [(), (), ("v0",), ("v1",)]
+    assert [mission.carries_sightline(v.name) for v in mission.vehicles] == [False, False, True, True]
+
+
+def test_without_a_sightline_section_the_papers_pair_is_scored_and_every_lower_vehicle_hides():
+    mission = mission_from_data(ring(4, 500.0), "m")
+    assert mission.assigned_pairs is None and mission.sight_pairs == (("v0", "v1"),)
+    assert [mission.hides_from(v.name) for v in mission.vehicles] == [None] * 4
+    assert [mission.carries_sightline(v.name) for v in mission.vehicles] == [False, True, True, True]
+
+
+@pytest.mark.parametrize("pairs, expected", [
+    ([["v0", "zz"]], ["m: sightline.pairs[0][1]: unknown vehicle 'zz'; vehicles are v0, v1, v2, v3"]),
+    ([["v1", "v1"]], ["m: sightline.pairs[0]: vehicle 'v1' is paired with itself; a pair names two vehicles"]),
+    ([["v0", "v1"], ["v1", "v0"]], ["m: sightline.pairs[1]: duplicate pair v1-v0 (already sightline.pairs[0])"]),
+    ([["v0", float("nan")]], ["m: sightline.pairs[0][1]: nan is not a finite number (NaN and infinity are refused "
+                              "everywhere)"]),
+    ([["v0", ["v1"]]], ["m: sightline.pairs[0][1]: expected string, got list ['v1']"]),
+    ([["v0", "v1", "v2"]], ["m: sightline.pairs[0]: 3 items, more than the limit of 2"]),
+    ([], ["m: sightline.pairs: 0 items; at least 1 needed"]),
+])
+def test_bad_pairs_are_refused_each_in_one_line(pairs, expected):
+    assert _problems(_four(pairs)) == expected
+
+
+def test_a_huge_name_is_echoed_in_at_most_200_characters():
+    (line,) = _problems(_four([["v0", "x" * 100_000]]))
+    assert "does not match" in line and len(line) < 300
+
+
+def test_a_pair_naming_a_vehicle_the_schema_refused_reports_the_vehicle_only():
+    doc = _four([["v0", "v3"]])
+    doc["vehicles"][3]["speed_m_s"] = "fast"
+    assert _problems(doc) == ["m: vehicles[3].speed_m_s: expected number, got str 'fast'"]
+
+
+def _companion(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "companion", *args], capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)}, cwd=cwd)
+
+
+def test_validate_refuses_bad_pairs_with_exit_2_one_line_each(tmp_path):
+    path = tmp_path / "pairs.yaml"
+    path.write_text(yaml.safe_dump(_four([["v0", "v9"], ["v2", "v2"], ["v0", "v1"], ["v1", "v0"]])))
+    proc = _companion("validate", str(path))
+    assert proc.returncode == 2 and proc.stdout == "" and "Traceback" not in proc.stderr
+    lines = proc.stderr.splitlines()
+    assert [line.split(": ", 2)[1] for line in lines] == ["sightline.pairs[0][1]", "sightline.pairs[1]",
+                                                          "sightline.pairs[3]"], proc.stderr
+    assert all(line.startswith(f"{path}:") and len(line) < 300 for line in lines)
+
+
+def _n(name: str, rank: int, x: float, arrived: bool = False) -> Neighbour:
+    return Neighbour(name, rank, OtherUav(x, 0.0, 0.0, 0.0, arrived=arrived))
+
+
+def test_an_assigned_vehicle_hides_from_its_nearest_partner_still_flying_not_the_nearest_above_it():
+    near_boss, partner_far, partner_parked = _n("a", 0, 100.0), _n("c", 5, 900.0), _n("d", 6, 200.0, arrived=True)
+    neighbours = [near_boss, partner_far, partner_parked]
+    assert react_to(0.0, 0.0, 3, neighbours).partner is near_boss  # no assignment: the nearest above
+    assert react_to(0.0, 0.0, 3, neighbours, ("c", "d")).partner is partner_far
+    assert react_to(0.0, 0.0, 3, neighbours, ("d",)).partner is partner_parked  # the only one, parked
+    # the separation set is every neighbour, whatever the assignment
+    assert len(react_to(0.0, 0.0, 3, neighbours, ("c",)).separate_from) == 3
+
+
+def test_the_lower_vehicle_of_an_assigned_pair_is_routed_against_its_partner_only():
+    mission = mission_from_data(ring(6, 600.0, hub_m=200.0, pairs=[["v0", "v3"]]), "m")
+    routes = plan_routes(mission)
+    assert [r.vehicle for r in higher_routes(mission, routes, "v3")] == ["v0"]
+    assert routes["v3"].constraint == "opposite-side"
+    assert {routes[n].constraint for n in ("v1", "v2", "v4", "v5")} == {"none"}
+
+
+def test_runs_csv_reports_each_assigned_pair_after_the_vehicles(tmp_path):
+    run = simulate(mission_from_data(ring(8, 600.0, hub_m=200.0, pairs=[["v0", "v4"], ["v2", "v6"]]), "m"))
+    row = run_row(1, 0, "m", run.variant, run.summary.summary_dict(), wall_s=run.wall_s)
+    path = write_runs_csv([row], tmp_path / "runs.csv")
+    header = path.read_text().splitlines()[0].split(",")
+    assert header[-4:] == ["v0-v4_los_blocked_fraction", "v0-v4_crossing_occluded",
+                           "v2-v6_los_blocked_fraction", "v2-v6_crossing_occluded"]
+    (back,) = read_runs_csv(path)
+    pairs = run.summary.pairs
+    assert back["sight_pairs"] == 2
+    assert back["sight_pairs_occluded"] == pairs["v0-v4"].crossing_occluded + pairs["v2-v6"].crossing_occluded
+    assert back["v2-v6_crossing_occluded"] is pairs["v2-v6"].crossing_occluded
+    assert back["v0-v4_los_blocked_fraction"] == pytest.approx(pairs["v0-v4"].los_blocked_fraction)
+    assert back["los_blocked_fraction"] == back["v0-v4_los_blocked_fraction"]  # the headline: the first pair
+
+
+def test_the_generator_names_32_vehicles_and_refuses_33():
+    cfg = ScenarioConfig(vehicles=32, side_m=1500.0, static_count=2, static_circumradius_m=(60.0, 120.0),
+                         moving_count=0, moving_path_m=(100.0, 200.0), station_clearance_m=80.0)
+    mission = generate_scenario(5, 0, cfg).mission
+    names = [v.name for v in mission.by_priority]
+    assert names[:26] == [chr(ord("a") + i) for i in range(26)] and names[26:] == ["a1", "b1", "c1", "d1", "e1", "f1"]
+    assert len({v.goal for v in mission.vehicles}) == 32 and all(len(s) <= 3 for s in mission.stations)
+    for bad in (1, 33):
+        with pytest.raises(ScenarioError, match=f"vehicles: use 2 to 32 \\(got {bad}\\)"):
+            ScenarioConfig(vehicles=bad)
+
+
+def test_a_mission_of_33_vehicles_is_refused_at_the_schema_limit():
+    doc = ring(33, 900.0)
+    with pytest.raises(MissionError, match="vehicles: 33 items, more than the limit of 32"):
+        parse_mission(yaml.safe_dump(doc), "m")
+
+
+@pytest.mark.parametrize("count", ["1", "33"])
+def test_the_bench_refuses_a_fleet_outside_2_to_32_before_flying(tmp_path, capsys, count):
+    assert bench_cli(["--vehicles", count, "--scenarios", "1", "--out", str(tmp_path / "out")]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.strip() == f"companion bench: vehicles: use 2 to 32 (got {count})"
+    assert not (tmp_path / "out" / "runs.csv").exists()
