@@ -50,8 +50,10 @@ def fly(mission: Path, sim_args: list[str], variant: str | None, timeout_s: floa
         wall, cpu = time.perf_counter() - t0, _children_cpu_s() - cpu0
         path = Path(out) / "summary.json"
         summary = json.loads(path.read_text()) if path.exists() else {"vehicles": {}, "success": False}
-    if proc.returncode != 0:
-        print(f"  {' '.join(sim_args[:2])}: exit {proc.returncode}: {proc.stderr.strip()[-300:]}", file=sys.stderr)
+    if proc.returncode != 0:  # why: the run's own last lines (its output folder is gone with the temp dir)
+        why = [line for line in proc.stdout.splitlines() if line.startswith(("run:", "why:", "failsafe:"))]
+        print(f"  {' '.join(sim_args[:2])}: exit {proc.returncode}: {' | '.join(why)} {proc.stderr.strip()[-300:]}",
+              file=sys.stderr, flush=True)
     return {"exit": proc.returncode, "wall_s": wall, "cpu_s": cpu, "success": summary.get("success"),
             "times": {n: v["flight_time_s"] for n, v in summary["vehicles"].items()}}
 
@@ -74,8 +76,7 @@ def main() -> None:
     for mission_path in args.missions:
         mission = load_mission(mission_path)
         name = mission.name
-        for plant in (None, "multicopter"):
-            m = with_plant(mission, plant)
+        for m in {p: with_plant(mission, p) for p in (mission.plant.value, "multicopter")}.values():  # each plant once
             t0, c0 = time.perf_counter(), time.process_time()
             run = simulate(m, args.variant)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0

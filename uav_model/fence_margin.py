@@ -2,6 +2,8 @@
 
     braking_distance_m(mission, vehicle)   v^2 / (2 a): how far the vehicle flies once it brakes
     fence_standoff_m(mission)              the largest of them: the fence's standoff
+    px4_braking_reach_m(speed_m_s)         PX4's own multicopter stopping distance (its predictive fence)
+    keep_in_standoff_m(mission)            how far the rollouts keep from the inclusion fence
     keep_in_box(world)                     the declared area: no route leaves it
     rollout_box(mission, vehicle)          where the local planner's rollouts may go: the area,
                                            or more of the geofence margin where it is wide
@@ -13,8 +15,15 @@ v^2 / (2 MPC_ACC_HOR) ahead) crosses the fence, and its Hold then brakes over th
 planner keeps out of the inflated obstacles and inside the area; the fence the companion uploads
 lies the standoff beyond both, so a flight that keeps to its plan never triggers it, predictive or
 not. The local planner's rollouts (11 s ahead in the paper's setting) may swing past a station on
-the area's edge into the geofence margin, but never closer to the fence than the standoff plus
-what the plant may stray from them (``TRACKING_LAG_S`` at cruise speed). ``a`` is the plant's braking acceleration: PX4's MPC_ACC_HOR (default 3 m/s^2) for the
+the area's edge into the geofence margin, but never closer to the inclusion fence than the
+keep-in standoff plus what the plant may stray from them (``TRACKING_LAG_S`` at cruise speed).
+
+The keep-in standoff of the multicopter is PX4's own stopping distance, the one its navigator
+tests ahead of the vehicle with GF_PREDICT 1: a jerk-limited stop (MPC_JERK_AUTO) at MPC_ACC_HOR
+from a vehicle still accelerating at MPC_ACC_HOR_MAX, plus one 0.2 s fence check at speed: 50.7 m
+at 10 m/s with PX4's defaults, three times v^2 / (2 MPC_ACC_HOR). Measured on PX4 SIH (GF_PREDICT
+0, its default), a vehicle circling a station on the area's corner flew 36 m past rollouts kept
+v^2 / (2 a) plus the lag from the fence, and met it. ``a`` is the plant's braking acceleration: PX4's MPC_ACC_HOR (default 3 m/s^2) for the
 multicopter, the mission's ``max_accel_m_s2`` for the unicycle (the stub's Hold brakes with the same).
 
 Where a margin is thinner than the standoff the fence does not move inside it: an obstacle's
@@ -25,8 +34,14 @@ exclusion is never smaller than its footprint, and the area's inclusion is the a
 from __future__ import annotations
 
 from uav_model.mission_types import Mission, VehicleSpec
-from uav_model.plant import TRACKING_LAG_S, limits_for
+from uav_model.plant import TRACKING_LAG_S, Plant, limits_for
 from uav_model.world import Obstacle, World
+
+# PX4's defaults for its multicopter stopping model (the navigator's predictive geofence)
+PX4_ACC_HOR = 3.0  # MPC_ACC_HOR, m/s^2: the braking deceleration
+PX4_ACC_HOR_MAX = 5.0  # MPC_ACC_HOR_MAX, m/s^2: the forward acceleration the stop starts from
+PX4_JERK_AUTO = 4.0  # MPC_JERK_AUTO, m/s^3
+PX4_FENCE_CHECK_S = 0.2  # the navigator checks its geofence every 200 ms
 
 
 def braking_distance_m(mission: Mission, vehicle: VehicleSpec) -> float:
@@ -41,6 +56,33 @@ def fence_standoff_m(mission: Mission) -> float:
     return max((braking_distance_m(mission, v) for v in mission.vehicles), default=0.0)
 
 
+def px4_braking_reach_m(speed_m_s: float, acc_hor_m_s2: float = PX4_ACC_HOR, acc_hor_max_m_s2: float = PX4_ACC_HOR_MAX,
+                        jerk_m_s3: float = PX4_JERK_AUTO) -> float:
+    """How far PX4 reckons a multicopter at ``speed_m_s`` flies before it stops: the acceleration
+    ramps with the jerk limit from +max(acc_hor, acc_hor_max) to -acc_hor, holds, and ramps back
+    to 0 as the speed reaches 0; then one fence check interval at the speed (PX4's navigator)."""
+    v, a0, a_max, j = float(speed_m_s), max(acc_hor_m_s2, acc_hor_max_m_s2), acc_hor_m_s2, jerk_m_s3
+    if v <= 0.0:
+        return 0.0
+    # the deceleration reached: a_max, or less when the speed runs out first (a triangular ramp)
+    a_peak = min(a_max, (j * v + 0.5 * a0 * a0) ** 0.5)
+    hold_s = max(0.0, (v + 0.5 * a0 * a0 / j - a_peak * a_peak / j) / a_max)
+    pos, vel, acc = 0.0, v, a0
+    for jerk, t in ((-j, (a0 + a_peak) / j), (0.0, hold_s), (j, a_peak / j)):
+        pos += vel * t + 0.5 * acc * t * t + jerk * t ** 3 / 6.0
+        vel += acc * t + 0.5 * jerk * t * t
+        acc += jerk * t
+    return pos + PX4_FENCE_CHECK_S * v
+
+
+def keep_in_standoff_m(mission: Mission) -> float:
+    """How far the local planner's rollouts keep from the inclusion fence, before the tracking lag:
+    PX4's stopping distance at cruise speed on the multicopter, the braking distance on the unicycle."""
+    if mission.plant is Plant.MULTICOPTER:
+        return max((px4_braking_reach_m(v.speed_m_s) for v in mission.vehicles), default=0.0)
+    return fence_standoff_m(mission)
+
+
 def keep_in_box(world: World) -> tuple[float, float, float, float]:
     """(x0, y0, x1, y1): the declared area, which routes and rollouts stay inside."""
     return world.x_min_m, world.y_min_m, world.x_max_m, world.y_max_m
@@ -48,8 +90,8 @@ def keep_in_box(world: World) -> tuple[float, float, float, float]:
 
 def rollout_box(mission: Mission, vehicle: VehicleSpec) -> tuple[float, float, float, float]:
     """(x0, y0, x1, y1): the keep-in grown into the geofence margin by what is left of it once
-    the standoff and the plant's tracking lag are kept from the fence (never less than the area)."""
-    grow = max(0.0, mission.world.geofence_margin_m - fence_standoff_m(mission)
+    the keep-in standoff and the plant's tracking lag are kept from the fence (never less than the area)."""
+    grow = max(0.0, mission.world.geofence_margin_m - keep_in_standoff_m(mission)
                - TRACKING_LAG_S[mission.plant] * vehicle.speed_m_s)
     x0, y0, x1, y1 = keep_in_box(mission.world)
     return x0 - grow, y0 - grow, x1 + grow, y1 + grow

@@ -68,6 +68,12 @@ def route_length_m(plan: FlightPlan, name: str) -> float:
     return float(np.sum(np.hypot(*np.diff(nodes, axis=0).T))) if len(nodes) > 1 else 0.0
 
 
+# Autopilots booted within a fraction of a second of each other (PX4 SITL instances a script starts
+# together) stamp clocks the detection cannot tell from one: it says so when it finds one clock.
+SAME_CLOCK_HINT = ("; separate autopilots booted together look the same: give --no-shared-clock if each "
+                   "vehicle has its own (--sim px4 knows it does)")
+
+
 async def detect_shared_clock(vehicles: Mapping[str, Vehicle]) -> bool:
     """True when every vehicle stamps with one sim clock (an external sim-bridge runs them all),
     False for independent autopilots (PX4 instances boot at different times). Each clock is
@@ -139,7 +145,8 @@ async def get_ready(plan: FlightPlan, vehicles: Mapping[str, Vehicle], settings:
         flown = FlightPlan(result.mission, plan.variant, plan.routes, geofence=plan.geofence)
     shared = settings.shared_clock if settings.shared_clock is not None else await detect_shared_clock(vehicles)
     report(f"clock: {'one sim clock for all vehicles' if shared else 'one clock per vehicle'}"
-           + (" (detected)" if settings.shared_clock is None else ""))
+           + (" (detected)" if settings.shared_clock is None else "")
+           + (SAME_CLOCK_HINT if shared and settings.shared_clock is None and len(vehicles) > 1 else ""))
     for spec in flown.mission.vehicles:  # take-off altitude before arming: nothing may stand between arm and take-off
         v = vehicles[spec.name]
         action = facts[spec.name].params.get("COM_OBL_RC_ACT")

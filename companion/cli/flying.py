@@ -23,7 +23,8 @@ from companion.app.preflight import PreflightSettings
 from companion.app.results import release_reserve
 from companion.app.live_run import RunResult, run_mission, save_run, summary_table
 from companion.cli.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput
-from companion.cli.options import (add_certificate_options, add_no_fence_option, add_variant_option, connect_pair,
+from companion.cli.options import (add_certificate_options, add_no_fence_option, add_plant_option, add_variant_option,
+                                   connect_pair,
                                    connections, output_dir, planned, positive, printer, quiet_mavsdk)
 from companion.cli.sim_options import add_sim_options, inprocess_options, px4_options
 from companion.errors import CompanionError, PreflightRefused
@@ -66,6 +67,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--connect", type=connect_pair, action="append", default=[], metavar="NAME=URL",
                    help="fly an external autopilot, e.g. a=udpin://0.0.0.0:14540 (one per vehicle)")
     add_variant_option(p)
+    add_plant_option(p, live=True)
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write summary.json, flight.csv, traffic.csv, trajectory.png (and the stub's .tlog) here")
     p.add_argument("--speedup", type=positive, default=None,

@@ -14,7 +14,11 @@ import threading
 
 
 def _watch_parent() -> None:
-    sys.stdin.buffer.read()  # returns at EOF: the parent is gone (or closed the pipe to stop us)
+    # Raw reads of fd 0 until EOF (the parent is gone, or closed the pipe to stop us). Not
+    # sys.stdin.buffer: a daemon thread blocked in it holds the reader's lock, and the interpreter's
+    # shutdown then aborted with "Fatal Python error: could not acquire lock for <stdin>".
+    while os.read(0, 4096):
+        pass
     os.kill(os.getpid(), signal.SIGTERM)
 
 

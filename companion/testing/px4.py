@@ -91,9 +91,10 @@ class Px4Sitl(Telemetry):
         return float(found[-1])
 
     def companion_args(self) -> list[str]:
-        """What ``companion run`` needs to fly these vehicles: their links, and that each PX4 runs
-        its own clock (instances booted together start with clocks the detection takes for one)."""
-        return [*self.connect_args(), "--no-shared-clock"]
+        """What ``companion run`` needs to fly these vehicles: their links, that each PX4 runs its
+        own clock (instances booted together start with clocks the detection takes for one), and
+        that they are multicopters (the planner's fence margins and tracking lag are the plant's)."""
+        return [*self.connect_args(), "--no-shared-clock", "--plant", "multicopter"]
 
     def send(self, name: str, msg) -> None:
         """Send one MAVLink message to vehicle ``name`` on its GCS link (commands, setpoints...)."""

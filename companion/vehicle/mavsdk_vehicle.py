@@ -52,7 +52,10 @@ T = TypeVar("T")
 COMMAND_TIMEOUT_S = 5.0  # wall; MAVSDK itself retries a COMMAND_LONG for ~0.5 s x 3
 # The pumped streams, in Hz of the vehicle's clock (SET_MESSAGE_INTERVAL): PX4 sends ATTITUDE at 100 Hz
 # of sim time (400/s of wall at 4x), more than MAVSDK's callback queue and a loaded loop keep up with.
-STREAM_RATE_HZ = 20.0  # the stub's rate: ten samples per planner step
+# 10 Hz: five samples per planner step (0.5 s). At 20 Hz PX4 at 4x still overflowed MAVSDK's callback
+# queue beside a loaded machine (load 10-11: "a subscriber is not keeping up" in flight); the stub at
+# 20x delivers 5 Hz of its clock anyway (its 100 Hz wall cap per stream).
+STREAM_RATE_HZ = 10.0
 STREAM_RATE_ATTEMPTS = 10  # a loaded machine loses acks, and MAVSDK refuses while it misses heartbeats
 STREAM_RATE_RETRY_S = 2.0  # wall, between attempts
 MISSION_TRANSFER_TIMEOUT_S = 30.0  # wall; the protocol has its own per-item timeouts

@@ -10,7 +10,8 @@ zone; a breach is reported once, as it begins (STATUSTEXT "Geofence: approaching
 geofence", as PX4's health checks send it), and while armed it takes GF_ACTION: 0 none,
 1 warning, 2 Hold, 3 Return, 4 terminate, 5 Land (PX4's default 2). The action is not undone by the stub: a client may switch mode again
 (PX4 lets the user take over a geofence Hold by a mode switch), and a new breach acts again.
-GF_PREDICT 1 also checks the braking point (PX4's experimental predictive trigger, default 0).
+GF_PREDICT 1 also checks the point PX4's navigator tests: its stopping distance ahead along the
+velocity (:func:`uav_model.fence_margin.px4_braking_reach_m`; PX4's experimental trigger, default 0).
 GF_MAX_HOR_DIST (> 0) is a circle around home, as PX4's ("Geofence: exceeding maximum distance to
 Home"), with the same action. While the vehicle is in the mode the action chose, its heartbeat
 says MAV_STATE_CRITICAL, as PX4's does in any failsafe. PX4 refuses to arm while the vehicle is outside its
@@ -30,6 +31,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from shapely.geometry import Polygon
 
 from uav_model import frames
+from uav_model.fence_margin import px4_braking_reach_m
 from sim_bridge.vehicle.mission_protocol import FENCE, MissionItem
 from sim_bridge.vehicle.px4 import FlightMode
 from sim_bridge.vehicle.types import Emit
@@ -182,8 +184,10 @@ class Geofence:
             return None
         s = v.state
         points = [(s.north_m, s.east_m)]
-        if v.params["GF_PREDICT"] >= 1:
-            points.append(v.modes.braking_point()[:2])
+        if v.params["GF_PREDICT"] >= 1 and s.ground_speed_m_s > 1e-3:
+            k = px4_braking_reach_m(s.ground_speed_m_s, v.params["MPC_ACC_HOR"], v.params["MPC_ACC_HOR_MAX"],
+                                    v.params["MPC_JERK_AUTO"]) / s.ground_speed_m_s
+            points.append((s.north_m + s.vn_m_s * k, s.east_m + s.ve_m_s * k))
         max_dist = float(v.params["GF_MAX_HOR_DIST"])
         home_n, home_e, _ = v.home_ned
         if max_dist > 0.0 and any(math.hypot(n - home_n, e - home_e) > max_dist for n, e in points):

@@ -180,6 +180,7 @@ PX4_PARAMS: tuple[ParamDef, ...] = (
     _f("MPC_XY_CRUISE", 5.0, 0.0, 100.0, "mission / RTL cruise speed, m/s"),
     _f("MPC_ACC_HOR", 3.0, 0.1, 100.0, "horizontal acceleration in position / offboard control, m/s^2"),
     _f("MPC_ACC_HOR_MAX", 5.0, 0.1, 100.0, "maximum horizontal acceleration, m/s^2"),
+    _f("MPC_JERK_AUTO", 4.0, 1.0, 80.0, "jerk limit in auto modes, m/s^3 (GF_PREDICT's stopping distance)"),
     _f("MC_YAWRATE_MAX", 200.0, 0.0, 1800.0, "yaw-rate limit for offboard / manual, deg/s"),
     _f("MPC_YAWRAUTO_MAX", 60.0, 0.0, 3600.0, "yaw-rate limit in auto modes, deg/s"),
     _f("MPC_Z_VEL_MAX_UP", 3.0, 0.1, 20.0, "climb-rate limit, m/s"),

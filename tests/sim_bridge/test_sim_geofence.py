@@ -107,11 +107,20 @@ def test_no_arming_outside_the_fence_and_a_disarmed_vehicle_takes_no_action(miss
     assert send_command(v, gcs, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == mavlink.MAV_RESULT_ACCEPTED
 
 
-def test_gf_predict_triggers_on_the_braking_point(mission, make_vehicle, gcs):
+def test_gf_predict_triggers_at_px4s_own_stopping_distance_ahead(mission, make_vehicle, gcs):
     v = make_vehicle(mission)
     store_fence(v, gcs, fence_items(mission))
-    v.state = replace(v.state, east_m=125.0, ve_m_s=8.0)  # 15 m short, braking needs 8^2 / (2 * 8) = 4 m
-    v.params.override("MPC_ACC_HOR", 1.0)  # now it needs 32 m
+    # 40 m short of the fence at 8 m/s: PX4's stopping distance (a stop at MPC_ACC_HOR 3 with jerk
+    # MPC_JERK_AUTO 4 from MPC_ACC_HOR_MAX 5 forward, and one 0.2 s check) is 39.0 m
+    v.state = replace(v.state, east_m=100.0, ve_m_s=8.0)
+    v.params.override("GF_PREDICT", 1)
+    assert not v.geofence.outside()
+    v.params.override("MPC_JERK_AUTO", 2.0)  # a softer jerk: a longer stop
+    assert v.geofence.outside()
+    v.params.override("GF_PREDICT", 0)  # PX4's default: only the position counts
+    assert not v.geofence.outside()
+    v.state = replace(v.state, east_m=125.0)  # 15 m short: v^2 / (2 MPC_ACC_HOR) is 10.7 m, PX4's 39 m
+    v.params.override("MPC_JERK_AUTO", 4.0)
     assert not v.geofence.outside()
     v.params.override("GF_PREDICT", 1)
     assert v.geofence.outside()

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
 import pytest
 
 from companion.cli import main
+from companion.cli.options import plant_flown
 from uav_model.mission import mission_schema
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -121,3 +123,13 @@ def test_an_unknown_plant_is_a_usage_error(capsys):
         main(["sweep", "table1", "--plant", "fixedwing"])
     assert exc.value.code == 2
     assert "--plant" in capsys.readouterr().err
+
+
+def test_run_on_px4_plans_for_a_multicopter_unless_told_otherwise():
+    # PX4 SIH flies a quadrotor whatever the mission file says: the planner's fence margins and
+    # tracking lag must be the multicopter's (the paper's reference is written for the unicycle).
+    assert plant_flown(argparse.Namespace(sim="px4", plant=None)) == "multicopter"
+    assert plant_flown(argparse.Namespace(sim="px4", plant="unicycle")) == "unicycle"
+    assert plant_flown(argparse.Namespace(sim="stub", plant=None)) is None  # the stub flies the mission's plant
+    assert plant_flown(argparse.Namespace(sim="stub", plant="multicopter")) == "multicopter"
+    assert plant_flown(argparse.Namespace()) is None  # validate, upload: the mission's

@@ -26,7 +26,8 @@ from companion.errors import GeofenceRefused
 from companion.sitl.inprocess import open_inprocess_fleet
 from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
 from companion.vehicle.port import GeoFenceZone
-from uav_model.fence_margin import exclusion_margin_m, fence_standoff_m, fence_warnings
+from uav_model.fence_margin import (exclusion_margin_m, fence_standoff_m, fence_warnings, keep_in_standoff_m,
+                                   px4_braking_reach_m, rollout_box)
 from uav_model.mission import parse_mission
 from sim_bridge.bridge import SimOptions
 from sim_bridge.vehicle.mission_protocol import FENCE
@@ -198,6 +199,37 @@ def test_the_standoff_puts_each_exclusion_inside_the_keep_out_and_never_inside_t
     assert len(ring.vertices_deg) == 4  # the barn's 5 m inflation is thinner than the standoff: its footprint
     assert [w for w in fence_warnings(mission) if "barn" in w] and not [w for w in fence_warnings(mission)
                                                                         if "hill" in w or "geofence_margin" in w]
+
+
+def _stop_by_steps(v: float, a0: float, a_max: float, jerk: float, dt: float = 1e-4) -> float:
+    """A jerk-limited stop flown in small steps: the deceleration ramps to a_max from a0 forward, and
+    back to nothing just as the speed runs out."""
+    x, acc = 0.0, a0
+    while v > 0.0:
+        acc = acc + jerk * dt if acc < 0.0 and v <= acc * acc / (2.0 * jerk) else max(acc - jerk * dt, -a_max)
+        v += acc * dt
+        x += v * dt
+    return x
+
+
+def test_the_rollouts_keep_px4s_own_stopping_distance_and_the_lag_from_the_inclusion_fence():
+    # PX4's navigator tests its fence at its own stopping distance ahead (GF_PREDICT 1); with its
+    # defaults (MPC_ACC_HOR 3, MPC_ACC_HOR_MAX 5, MPC_JERK_AUTO 4, one 0.2 s check) that is 50.7 m
+    # at 10 m/s, three times v^2 / (2 MPC_ACC_HOR).
+    for v in (0.5, 3.0, 10.0, 12.0):
+        assert px4_braking_reach_m(v) == pytest.approx(_stop_by_steps(v, 5.0, 3.0, 4.0) + 0.2 * v, abs=0.01), v
+    assert px4_braking_reach_m(10.0) == pytest.approx(50.74, abs=0.01)
+    assert px4_braking_reach_m(0.0) == 0.0
+    mission = parse_mission(MISSION_YAML.replace("geofence_margin_m: 50", "geofence_margin_m: 100"), "m.yaml")
+    assert keep_in_standoff_m(mission) == pytest.approx(px4_braking_reach_m(10.0))
+    grow = 100.0 - px4_braking_reach_m(10.0) - 2.0 * 10.0  # the multicopter trails its rollouts ~2 s
+    assert rollout_box(mission, mission.vehicles[0]) == pytest.approx((-grow, -grow, 400.0 + grow, 400.0 + grow))
+    # the paper's unicycle stops as it is told: the braking distance alone
+    ideal = parse_mission(MISSION_YAML.replace("geofence_margin_m: 50", "geofence_margin_m: 100") + "plant: unicycle\n",
+                          "m.yaml")
+    assert keep_in_standoff_m(ideal) == pytest.approx(fence_standoff_m(ideal))
+    # a margin thinner than the standoff and the lag: the rollouts keep to the area
+    assert rollout_box(parse_mission(MISSION_YAML, "m.yaml"), mission.vehicles[0]) == (0.0, 0.0, 400.0, 400.0)
 
 
 def _breach_texts(stub, name: str) -> list[str]:

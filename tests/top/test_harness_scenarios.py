@@ -75,6 +75,7 @@ def test_moving_obstacles_over_connect_without_the_clock_flag(sitl, companion, t
     out = tmp_path / "out"
     result = companion.cli("run", path, *stub.connect_args(), "--out", out, timeout_s=180)
     assert "clock: one sim clock for all vehicles (detected)" in result.stdout
+    assert "give --no-shared-clock if each vehicle has its own" in result.stdout  # what detection cannot tell
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     stub.assert_success()  # clearance is checked against the obstacles' TRUE motion
 

@@ -113,3 +113,5 @@ def test_the_embedded_stub_is_heard_on_loopback_only(companion, tmp_path):
     assert result.exit_code == 0, result.tail
     assert bound and all(ip == "127.0.0.1" for ip, _ in bound), bound
     assert json.loads((result.out_dir / "summary.json").read_text())["success"] is True
+    stub_log = (result.out_dir / "sim_bridge.log").read_text()
+    assert "sim_bridge stopped at sim t=" in stub_log and "Fatal Python error" not in stub_log  # it stopped cleanly
