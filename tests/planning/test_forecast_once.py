@@ -67,3 +67,16 @@ def test_companion_simulate_flies_the_first_vehicle_alone_once(monkeypatch, tmp_
     assert main(["simulate", str(SMALL), "--variant", "astar-bdwa-timed", "--out", str(tmp_path / "out")]) in (0, 1)
     assert flights == [load_mission(SMALL).by_priority[0].name]
     assert "occlusion certificate" in capsys.readouterr().out
+
+
+def test_variants_that_fly_the_first_vehicle_alike_share_its_forecast():
+    """The first in priority flies without the sightline term: bdwa's and dwa's forecasts are one
+    flight (the bench flies it once for both), and every other variant's is its own."""
+    mission = load_mission(SMALL)
+    keys = {v: forecast_module.forecast_key(mission.with_variant(v))
+            for v in ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa", "astar-bdwa-timed")}
+    assert keys["bdwa"] == keys["dwa"]
+    assert len(set(keys.values())) == 4
+    routes = plan_routes(mission)
+    bdwa, dwa = (forecast_module.first_forecast(mission.with_variant(v), routes) for v in ("bdwa", "dwa"))
+    assert np.array_equal(bdwa.t_s, dwa.t_s) and np.array_equal(bdwa.xy_enu_m, dwa.xy_enu_m)
