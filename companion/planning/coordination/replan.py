@@ -105,6 +105,7 @@ class ScheduleClocks:
     def __init__(self, mission: "Mission", routes: "dict[str, TimedRoute]", rule: ReplanRule = ReplanRule(), *,
                  grid=None, shadows: SightShadows | None = None, blocking: "dict[str, Blocking] | None" = None):
         self.mission = mission
+        self.coordination = mission.coordination  # read once: re-plans on or off, the first's forecast
         self.rule = rule
         self.order = [v.name for v in mission.by_priority if v.name in routes]
         self.routes = dict(routes)
@@ -154,7 +155,7 @@ class ScheduleClocks:
         approach (the schedule clock never runs back; a new plan starts its progress afresh). Only
         then is its progress along the plan followed, every tick."""
         return (name in self._ca_s and name not in self._done and name not in self._past_ca
-                and self.mission.coordination.replan and self.tries[name] < self.rule.most)
+                and self.coordination.replan and self.tries[name] < self.rule.most)
 
     def strayed(self, name: str, t_s: float) -> bool:
         """Whether lower vehicle ``name`` (observed this tick) is due for a re-plan at ``t_s``.
@@ -162,7 +163,7 @@ class ScheduleClocks:
         along it yet (live, adopted between two of its samples, after a re-plan that took longer
         than ``every_s`` of sim time). Never when the mission turns re-plans off
         (``coordination.replan: false``)."""
-        if not self.mission.coordination.replan or name not in self._ca_s or name in self._done \
+        if not self.coordination.replan or name not in self._ca_s or name in self._done \
                 or name not in self._along:
             return False
         if self.tries[name] >= self.rule.most or t_s - self._last.get(name, -np.inf) < self.rule.every_s:
@@ -262,7 +263,7 @@ class ScheduleClocks:
             return route  # still holding: it departs on its schedule (sim time)
         if other == self.order[0]:
             v = self.mission.vehicle(other)
-            if self.mission.coordination.forecast is Forecast.FLOWN:
+            if self.coordination.forecast is Forecast.FLOWN:
                 return forecast_along(route, tuple(self._xy[other]), t_s, v.speed_m_s)
             return forecast_from(other, route.path_xy, tuple(self._xy[other]), t_s, v.speed_m_s)
         return TimedRoute(other, route.t_s + (t_s - self.now(other, t_s)), route.xy_enu_m)
