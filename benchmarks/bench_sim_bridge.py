@@ -63,6 +63,9 @@ def child(args: argparse.Namespace) -> None:
     print(json.dumps(asyncio.run(main())), flush=True)
 
 
+_CONNECT_TIMEOUT_S = 30.0
+
+
 async def companion(url: str, stop: asyncio.Event, tick_wall_s: float) -> int:
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
     from mavsdk.asyncio.plugins.action import ActionAsync
@@ -71,7 +74,11 @@ async def companion(url: str, stop: asyncio.Event, tick_wall_s: float) -> int:
 
     async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as sdk:
         await sdk.add_any_connection(url)
-        system = await sdk.first_autopilot(timeout_s=10.0)
+        # None when no heartbeat came in time (the stub's process starts slowly on a busy machine):
+        # the plugins cannot be built on it, so say so instead of failing inside them.
+        system = await sdk.first_autopilot(timeout_s=_CONNECT_TIMEOUT_S)
+        if system is None:
+            raise RuntimeError(f"no autopilot heartbeat on {url} within {_CONNECT_TIMEOUT_S:g} s")
         tel, act, off = TelemetryAsync(system), ActionAsync(system), OffboardAsync(system)
         async with contextlib.aclosing(tel.subscribe_health_all_ok()) as health:
             async for ok in health:
@@ -171,7 +178,10 @@ def main() -> None:
     print(machine_line(), flush=True)
     results = []
     for i in range(args.runs):
-        r = asyncio.run(one_run(args))
+        try:
+            r = asyncio.run(one_run(args))
+        except RuntimeError as exc:
+            sys.exit(f"bench_sim_bridge: {exc}")
         results.append(r)
         print(f"run {i + 1}: cpu {r['cpu_fraction']:.3f} core total ({r['cpu_fraction'] / 2:.3f}/vehicle), "
               f"speed {r['speedup']:.2f}x, tx {r['tx_msg_s']:.0f} msg/s, rx {r['rx_msg_s']:.0f} msg/s, "

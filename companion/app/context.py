@@ -143,7 +143,7 @@ class FlightContext:
             return None
         first, *below = (v.name for v in self.mission.by_priority)
         return KeptHold(co.timed[first], {n: co.timed[n] for n in below if n in co.timed},
-                        self.mission.coordination.hold_s_max - co.hold_s)
+                        self.setup.coordination.hold_s_max - co.hold_s)
 
     def _held(self, first: str, t: float) -> float:
         """The first vehicle's schedule time, its hold kept against the lower vehicles (each

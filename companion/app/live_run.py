@@ -33,6 +33,7 @@ from companion.app.pilot import FlightContext, Pilot, PilotOutcome, RunSettings
 from companion.app.preflight import PreflightSettings
 from companion.app.readiness import get_ready
 from companion.app.results import SaveReport, save_results
+from companion.app.run_record import LinkRecord, LiveSchedule
 from companion.app.warmup import warm_up_planners
 from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
                               PreflightRefused, VehicleNotReady, primary_error)
@@ -68,7 +69,7 @@ async def _watch_stop(stop: asyncio.Event) -> None:
 
 async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings: RunSettings,
                       out_dir: Path | None, report: Callable[[str], None],
-                      stop: asyncio.Event | None = None, extra: Mapping[str, Any] | None = None,
+                      stop: asyncio.Event | None = None, link: LinkRecord | None = None,
                       open_vehicle: VehicleOpener | None = None,
                       checks: PreflightSettings = PreflightSettings()) -> RunResult:
     """Fly ``plan`` over the given MAVSDK connection URLs (vehicle name -> URL), or through
@@ -133,19 +134,11 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
             message = f"vehicle {open_.vehicle!r}: the autopilot's {open_.cause.value} failsafe ({open_.mode}) was not recovered"
 
         summary = _score(plan, log, outcomes, reason, shared_clock)
-        doc = _summary_doc(plan, summary, outcomes, reason, message, time.monotonic() - started, extra)
+        doc = _summary_doc(plan, summary, outcomes, reason, message, time.monotonic() - started, link)
         doc["failsafes"] = [e.summary_dict() for e in failsafes]  # recovered ones too: the run says what happened
-        if plan.coordinated is not None:  # the timed variant's schedule, and how far the flight fell behind it
-            doc["live"]["schedule"] = {"departure_hold_s": round(plan.coordinated.hold_s, 3),
-                                       "blocking": {n: b.value for n, b in plan.coordinated.blocking.items()},
-                                       "worst_lag_s": None if flight is None or flight.clocks is None
-                                       else round(flight.worst_lag_s, 3),
-                                       "departure_hold_extra_s": None if flight is None or flight.kept_hold is None
-                                       else round(flight.kept_hold.extra_s or 0.0, 3)}
-            if flight is not None and flight.clocks is not None:  # in-flight re-plans of a lagging vehicle
-                doc["live"]["schedule"].update(replans=dict(flight.clocks.replans),
-                                               replan_tries=dict(flight.clocks.tries),
-                                               replan_errors=flight.replan_errors)
+        schedule = LiveSchedule.of(plan, flight)  # the timed variant's schedule, and how far the flight fell behind it
+        if schedule is not None:
+            doc["live"]["schedule"] = schedule.summary_dict()
         # Seconds of pure numpy, once the vehicles are done with. Not in a worker thread: beside the
         # in-process fleet's busy loop, the GIL hand-offs of numpy calls stalled it for minutes.
         doc["occlusion_certificate"] = _certificate_doc(plan)
@@ -197,7 +190,7 @@ def _score(plan: FlightPlan, log: FlightLog, outcomes: Mapping[str, PilotOutcome
 
 def _summary_doc(plan: FlightPlan, summary: RunSummary | None, outcomes: Mapping[str, PilotOutcome],
                  reason: str | None, message: str | None, wall_s: float,
-                 extra: Mapping[str, Any] | None) -> dict[str, Any]:
+                 link: LinkRecord | None) -> dict[str, Any]:
     if summary is not None:
         doc = summary.summary_dict()
     else:
@@ -220,7 +213,7 @@ def _summary_doc(plan: FlightPlan, summary: RunSummary | None, outcomes: Mapping
                          "interventions": dict(o.interventions), "error": o.error,
                          "arrival_t_mission_s": o.arrival_t_mission_s}
                      for n, o in outcomes.items()},
-        **dict(extra or {}),
+        **({} if link is None else link.summary_dict()),
     }
     return doc
 

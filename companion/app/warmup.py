@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,17 +32,26 @@ from companion.planning.obstacle_field import ObstacleField
 from companion.planning.flight.headless import simulate
 from uav_model.mission import Mission
 
+if TYPE_CHECKING:
+    from companion.planning.routes import Route
+    from companion.planning.timed_route import TimedRoute
+
 _HEADLESS_WARM_TICKS = 3  # ticks of the throwaway flight: every vehicle plans against its route
 
 
-def warm_up_headless(mission: Mission, variant: str | None = None) -> float:
+def warm_up_headless(mission: Mission, variant: str | None = None, *,
+                     inputs: tuple[dict[str, Route], TimedRoute | None] | None = None) -> float:
     """Load the compiled code a headless flight of ``mission`` with ``variant`` calls: the
     branches of :func:`warm_up_kernels`, then the first ticks of a throwaway flight (its routes,
-    space-time plan, planners and plant). Returns the wall seconds it took."""
+    space-time plan, planners and plant). ``inputs``: the flight's routes and first vehicle's
+    forecast (:func:`flight_inputs`), which the flight that follows uses too: without them the
+    throwaway flight plans its own routes and flies the forecast, a whole flight of the first
+    vehicle. Returns the wall seconds it took."""
     started = time.monotonic()
     warm_up_kernels()
+    routes, first = (None, None) if inputs is None else inputs
     with contextlib.suppress(BudgetSpent, NoPath):  # NoPath: the flight itself says so
-        simulate(mission, variant, budget=WorkBudget(_HEADLESS_WARM_TICKS))
+        simulate(mission, variant, routes=routes, first=first, budget=WorkBudget(_HEADLESS_WARM_TICKS))
     # the sloped sightline critic (timed variants) once the other vehicle is near, which the first
     # ticks do not see; the flight passes the rollouts' ends as strided views
     ends = np.zeros((2, 2))[:, 0]

@@ -35,7 +35,7 @@ from companion.planning.errors import NoPath
 from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import variant_needs_route
 from companion.planning.metrics import FailureReason, vehicle_lower_bound_s
-from companion.planning.flight.forecast import first_forecast, mission_certificate
+from companion.planning.flight.forecast import first_forecast, forecast_key, mission_certificate
 from companion.planning.flight.headless import simulate
 from companion.scenarios import (ScenarioConfig, ScenarioError, generate_scenario, mission_yaml_text,
                                  with_variant)
@@ -90,7 +90,8 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
         mission = scenario.mission if weights is None else weights.apply(scenario.mission)
         routes = scenario.routes if variant in BASELINES or variant_needs_route(variant) else {}
         flies = ROUTE_VARIANT if variant in BASELINES else variant  # ORCA follows that variant's routes
-        first, cert = judged.of(mission.with_variant(flies), (flies, weights))
+        flown = mission.with_variant(flies)
+        first, cert = judged.of(flown, (forecast_key(flown), weights))
         row, result = _fly(task, scenario.doc["name"], mission, variant, routes, bounds, first)
         rows.append(_weighted({**row, **cert}, weights))
         if not task.artefacts:
@@ -106,8 +107,9 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
 
 class _Certificates:
     """Each run's occlusion certificate, of the forecast its own variant (and weights) fly: the
-    first vehicle flown alone once per forecast, shared with the timed run that plans against
-    it, and one certificate per distinct forecast."""
+    first vehicle flown alone once per forecast (variants that fly it alike share it:
+    :func:`forecast_key`), shared with the timed run that plans against it, and one certificate
+    per distinct forecast."""
 
     def __init__(self, scenario: Any, wanted: bool):
         self.scenario, self.wanted = scenario, wanted
@@ -116,7 +118,7 @@ class _Certificates:
 
     def of(self, mission: Any, key: Any) -> tuple[TimedRoute | None, dict[str, Any]]:
         """(the first vehicle's forecast as ``mission`` flies it, or None; its ``cert_*`` columns);
-        ``key`` names ``mission`` among the scenario's runs (its variant and weights)."""
+        ``key`` names the forecast among the scenario's runs (its :func:`forecast_key` and weights)."""
         if not self.wanted or len(mission.vehicles) < 2:
             return None, {}
         if key not in self._forecasts:

@@ -21,6 +21,7 @@ from companion.app.flight_plan import FlightPlan
 from companion.app.pilot import RunSettings
 from companion.app.preflight import PreflightSettings
 from companion.app.results import release_reserve
+from companion.app.run_record import LinkRecord
 from companion.app.live_run import RunResult, run_mission, save_run, summary_table
 from companion.cli.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput
 from companion.cli.options import (add_certificate_options, add_no_fence_option, add_plant_option, add_variant_option,
@@ -192,31 +193,30 @@ async def _run(plan: FlightPlan, conns: dict[str, str] | None, stub: StubOptions
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, on_signal, sig)
     try:
-        extra = {"connections": conns or "embedded", "speedup": None if stub is None else stub.speedup,
-                 "loss": None if stub is None else stub.loss,
-                 "latency_ms": None if stub is None else stub.latency_ms}
+        link = LinkRecord(conns or "embedded", *((None, None, None) if stub is None
+                                                  else (stub.speedup, stub.loss, stub.latency_ms)))
         if inproc is not None:
             from companion.sitl.inprocess import open_inprocess_fleet
-            extra.update(connections="in-process", speedup=inproc.speedup)
+            link = dataclasses.replace(link, connections="in-process", speedup=inproc.speedup)
             pace = "as fast as the loop turns" if inproc.speedup is None else f"at {inproc.speedup:g}x"
             report(f"flying in process (no stub process, no sockets), {pace}")
             async with open_inprocess_fleet(plan.mission, inproc) as fleet:
-                return await run_mission(plan, fleet.connections(), settings, out, report, stop, extra,
+                return await run_mission(plan, fleet.connections(), settings, out, report, stop, link,
                                          open_vehicle=fleet.open_vehicle, checks=checks)
         if px4 is not None:
-            extra.update(connections="px4", speedup=px4.speedup)
+            link = dataclasses.replace(link, connections="px4", speedup=px4.speedup)
             async with px4_sitl(plan.mission, px4, report) as px4_conns:
-                return await run_mission(plan, px4_conns, settings, out, report, stop, extra, checks=checks)
+                return await run_mission(plan, px4_conns, settings, out, report, stop, link, checks=checks)
         if stub is None:
             assert conns is not None
-            return await run_mission(plan, conns, settings, out, report, stop, extra, checks=checks)
+            return await run_mission(plan, conns, settings, out, report, stop, link, checks=checks)
         base, note = await choose_port_base(len(plan.mission.vehicles), stub.api_port_base, stub.gcs_port)
         if note:
             report(note)
         stub = dataclasses.replace(stub, api_port_base=base)
         report(f"starting the embedded sim_bridge at {stub.speedup:g}x on 127.0.0.1:{stub.api_port_base}+i")
         async with embedded_stub(plan.mission, stub, notices=stub_notices) as embedded_conns:
-            return await run_mission(plan, embedded_conns, settings, out, report, stop, extra, checks=checks)
+            return await run_mission(plan, embedded_conns, settings, out, report, stop, link, checks=checks)
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)

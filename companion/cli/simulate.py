@@ -29,7 +29,7 @@ def add_parser(sub) -> None:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from companion.app.results import save_results
     from companion.app.warmup import warm_up_headless
-    from companion.planning.flight.headless import simulate_certified
+    from companion.planning.flight.headless import flight_inputs, simulate_certified
     from companion.plots import save_trajectory
 
     try:
@@ -41,8 +41,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     made = not out_path.exists()
     out = output_dir(out_path)  # before flying: minutes lost otherwise
     try:
-        warm_up_headless(mission, args.variant)  # compiled code loaded before the clock: the speed is the flight's
-        run, certificate = simulate_certified(mission, args.variant)
+        mission = mission.with_variant(variant)
+        inputs = flight_inputs(mission)  # routes and the first vehicle's forecast: flown once, used twice
+        warm_up_headless(mission, inputs=inputs)  # compiled code loaded before the clock: the speed is the flight's
+        run, certificate = simulate_certified(mission, inputs=inputs)
     except (MissionError, NoPath) as exc:
         if made:  # bad input leaves nothing behind
             with contextlib.suppress(OSError):

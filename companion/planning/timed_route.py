@@ -39,9 +39,19 @@ class TimedRoute:
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(xy))) or np.any(np.diff(t) < 0):
             raise PlanningError(f"timed route of {self.vehicle!r}: times must be finite and non-decreasing")
         along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
-        for name, a in (("t_s", t), ("xy_enu_m", xy), ("_along_m", along)):
+        # Per segment, computed once: every tick reads them (the flight asks a few times a tick).
+        start, d = xy[:-1], np.diff(xy, axis=0)
+        len2 = np.einsum("ij,ij->i", d, d)
+        dt = np.diff(t)
+        speed = np.where(dt > 0, np.hypot(*d.T) / np.where(dt > 0, dt, 1.0), 0.0)
+        for name, a in (("t_s", t), ("xy_enu_m", xy), ("_along_m", along), ("_start", start), ("_d", d),
+                        ("_len2", len2), ("_len2_div", np.where(len2 > 0, len2, 1.0)), ("_len", np.sqrt(len2)),
+                        ("_speed", speed), ("_moving", dt > 0), ("_span_div", np.where(dt > 0, dt, 1.0))):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
+        last = np.flatnonzero(np.any(xy != xy[-1], axis=1))
+        object.__setattr__(self, "_arrival_s", float(t[last[-1] + 1]) if last.size else float(t[0]))
+        object.__setattr__(self, "_last_progress", {})  # (x, y, near_along_m) -> (along, off): a tick asks twice
 
     @property
     def path_xy(self) -> np.ndarray:
@@ -58,8 +68,7 @@ class TimedRoute:
     @property
     def arrival_s(self) -> float:
         """When the vehicle reaches its last point."""
-        last = np.flatnonzero(np.any(self.xy_enu_m != self.xy_enu_m[-1], axis=1))
-        return float(self.t_s[last[-1] + 1]) if last.size else float(self.t_s[0])
+        return self._arrival_s
 
     @property
     def length_m(self) -> float:
@@ -74,15 +83,13 @@ class TimedRoute:
         return float(dt[inside & (v < _WAIT_SPEED_M_S)].sum())
 
     def _segments(self) -> tuple[np.ndarray, np.ndarray]:
-        dt = np.diff(self.t_s)
-        d = np.hypot(*np.diff(self.xy_enu_m, axis=0).T)
-        return dt, np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
+        return np.diff(self.t_s), self._speed
 
     def _segment_index(self, t: np.ndarray) -> np.ndarray:
         """Index i of the segment [t_i, t_i+1] holding each t (clipped to the ends)."""
         if len(self.t_s) < 2:
             return np.zeros(t.shape, dtype=int)
-        return np.clip(np.searchsorted(self.t_s, t, side="right") - 1, 0, len(self.t_s) - 2)
+        return np.minimum(np.maximum(np.searchsorted(self.t_s, t, side="right") - 1, 0), len(self.t_s) - 2)
 
     def planned_position_at(self, t_s: np.ndarray | float) -> np.ndarray:
         """Planned positions (..., 2) at times ``t_s`` (...,)."""
@@ -90,24 +97,27 @@ class TimedRoute:
         if len(self.t_s) == 1:
             return np.broadcast_to(self.xy_enu_m[0], t.shape + (2,)).copy()
         i = self._segment_index(t)
-        t0, t1 = self.t_s[i], self.t_s[i + 1]
-        span = t1 - t0
-        u = np.clip(np.where(span > 0, (t - t0) / np.where(span > 0, span, 1.0), 1.0), 0.0, 1.0)
-        p0, p1 = self.xy_enu_m[i], self.xy_enu_m[i + 1]
-        return p0 + (p1 - p0) * u[..., None]
+        u = np.where(self._moving[i], (t - self.t_s[i]) / self._span_div[i], 1.0)
+        return self._start[i] + self._d[i] * np.minimum(np.maximum(u, 0.0), 1.0)[..., None]
 
     def planned_speed_at(self, t_s: np.ndarray | float) -> np.ndarray:
         """Speed (...,) of the plan itself at ``t_s``: 0 while waiting and outside the route."""
+        if isinstance(t_s, float) and len(self.t_s) > 1:  # one time (every tick): no arrays
+            if not self.t_s[0] <= t_s < self.t_s[-1]:
+                return np.float64(0.0)
+            i = int(np.searchsorted(self.t_s, t_s, side="right")) - 1
+            return self._speed[min(max(i, 0), len(self.t_s) - 2)]
         t = np.asarray(t_s, dtype=float)
         if len(self.t_s) == 1:
             return np.zeros(t.shape)
-        _, v = self._segments()
         inside = (t >= self.t_s[0]) & (t < self.t_s[-1])
-        return np.where(inside, v[self._segment_index(t)], 0.0)
+        return np.where(inside, self._speed[self._segment_index(t)], 0.0)
 
     def is_waiting_at(self, t_s: np.ndarray | float) -> np.ndarray:
         """Whether the plan holds the vehicle still at ``t_s`` (before departure included, after
         arrival excluded: an arrived vehicle is done, not waiting)."""
+        if isinstance(t_s, float):  # one time: the cheap test first
+            return np.bool_(t_s < self._arrival_s and self.planned_speed_at(t_s) < _WAIT_SPEED_M_S)
         t = np.asarray(t_s, dtype=float)
         return (self.planned_speed_at(t) < _WAIT_SPEED_M_S) & (t < self.arrival_s)
 
@@ -121,20 +131,42 @@ class TimedRoute:
         along the route the vehicle was last (see :func:`progress_window`): only the route within
         that window counts, so a path that passes near itself (out and back round a shadow, a wait
         beside a later leg) cannot throw the vehicle hundreds of metres ahead or behind."""
-        xy = np.asarray(xy_enu_m, dtype=float)[..., None, :]
+        point = np.asarray(xy_enu_m, dtype=float)
+        key = (float(point[0]), float(point[1]), near_along_m) if point.shape == (2,) else None
+        known = self._last_progress.get(key) if key is not None else None
+        if known is not None:
+            return known
+        found = self._progress(point[..., None, :], near_along_m)
+        if key is not None:
+            if len(self._last_progress) >= 4:
+                self._last_progress.clear()
+            self._last_progress[key] = found
+        return found
+
+    def _progress(self, xy: np.ndarray, near_along_m: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`progress_at` of ``xy`` (..., 1, 2), over the segments in the window only: the
+        window is a contiguous run of segments (``_along_m`` never decreases), found by bisection."""
         if len(self.t_s) == 1:
             return np.zeros(xy.shape[:-2]), np.hypot(*np.moveaxis(xy[..., 0, :] - self.xy_enu_m[0], -1, 0))
-        a, d = self.xy_enu_m[:-1], np.diff(self.xy_enu_m, axis=0)
-        len2 = np.einsum("ij,ij->i", d, d)
-        u = np.clip(np.einsum("...ij,ij->...i", xy - a, d) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
-        dist = np.hypot(*np.moveaxis(a + d * u[..., None] - xy, -1, 0))
+        lo_i, hi_i = 0, len(self._len2)
         if near_along_m is not None:
             lo, hi = progress_window(near_along_m)
-            inside = (self._along_m[1:] >= lo) & (self._along_m[:-1] <= hi)
-            if inside.any():
-                dist = np.where(inside, dist, np.inf)
+            first = int(np.searchsorted(self._along_m[1:], lo, side="left"))
+            end = int(np.searchsorted(self._along_m[:-1], hi, side="right"))
+            if first < end:  # some segment reaches into the window; else the whole route counts
+                lo_i, hi_i = first, end
+        a, d, len2 = self._start[lo_i:hi_i], self._d[lo_i:hi_i], self._len2_div[lo_i:hi_i]
+        if xy.shape == (1, 2):  # one position (every tick): the same arithmetic, fewer numpy calls
+            off = xy - a
+            u = np.minimum(np.maximum(np.einsum("ij,ij->i", off, d) / len2, 0.0), 1.0)
+            near = a + d * u[:, None] - xy
+            dist = np.hypot(near[:, 0], near[:, 1])
+            i = int(np.argmin(dist))
+            return self._along_m[lo_i + i] + u[i] * self._len[lo_i + i], dist[i]
+        u = np.clip(np.einsum("...ij,ij->...i", xy - a, d) / len2, 0.0, 1.0)
+        dist = np.hypot(*np.moveaxis(a + d * u[..., None] - xy, -1, 0))
         i = np.argmin(dist, axis=-1)[..., None]
-        along = self._along_m[:-1] + u * np.sqrt(len2)
+        along = self._along_m[lo_i:hi_i] + u * self._len[lo_i:hi_i]
         return np.take_along_axis(along, i, -1)[..., 0], np.take_along_axis(dist, i, -1)[..., 0]
 
     def lead_m(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, near_along_m: float | None = None) -> np.ndarray:
@@ -151,6 +183,9 @@ class TimedRoute:
         as the plan will be ``lookahead_s`` later (a scheduled wait, or running early: it waits
         for the plan, however far ahead it is). ``near_along_m`` as for :meth:`progress_at`."""
         along, off = self.progress_at(xy_enu_m, near_along_m)
+        if isinstance(t_s, float) and np.ndim(along) == 0:  # one position at one time
+            gap = self.planned_along_at(t_s + lookahead_s) - along
+            return np.minimum(np.hypot(gap, off) / lookahead_s, max_speed_m_s) if gap > 0 else np.float64(0.0)
         gap = self.planned_along_at(np.asarray(t_s, dtype=float) + lookahead_s) - along
         return np.where(gap > 0, np.minimum(np.hypot(gap, off) / lookahead_s, max_speed_m_s), 0.0)
 

@@ -305,7 +305,7 @@ class VehiclePlanner:
             # the tracker held it as the goal and b turned back to it, hovering 10 s or more near the
             # closest approach. The goal is past wherever b is along the path.
             self.tracker.advance_to(self._along_m)
-        held = bool(route.is_waiting_at(t_s)) or self.lead_m > 0.0
+        held = self.lead_m > 0.0 or bool(route.is_waiting_at(t_s))
         return speed, held
 
     @property

@@ -50,3 +50,33 @@ def test_a_timed_run_and_its_certificate_fly_the_first_vehicle_once(timed, monke
     run, certificate = simulate_certified(mission)
     assert flights == [mission.by_priority[0].name]
     assert certificate is not None and run.summary.duration_s > 0
+
+
+def test_companion_simulate_flies_the_first_vehicle_alone_once(monkeypatch, tmp_path, capsys):
+    """The warm-up before the clock and the timed flight share the forecast: no second flight."""
+    from companion.cli.app import main
+
+    flights = []
+    real = forecast_module.flown_forecast
+
+    def counted(*args, **kwargs):
+        flights.append(args[2])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(forecast_module, "flown_forecast", counted)
+    assert main(["simulate", str(SMALL), "--variant", "astar-bdwa-timed", "--out", str(tmp_path / "out")]) in (0, 1)
+    assert flights == [load_mission(SMALL).by_priority[0].name]
+    assert "occlusion certificate" in capsys.readouterr().out
+
+
+def test_variants_that_fly_the_first_vehicle_alike_share_its_forecast():
+    """The first in priority flies without the sightline term: bdwa's and dwa's forecasts are one
+    flight (the bench flies it once for both), and every other variant's is its own."""
+    mission = load_mission(SMALL)
+    keys = {v: forecast_module.forecast_key(mission.with_variant(v))
+            for v in ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa", "astar-bdwa-timed")}
+    assert keys["bdwa"] == keys["dwa"]
+    assert len(set(keys.values())) == 4
+    routes = plan_routes(mission)
+    bdwa, dwa = (forecast_module.first_forecast(mission.with_variant(v), routes) for v in ("bdwa", "dwa"))
+    assert np.array_equal(bdwa.t_s, dwa.t_s) and np.array_equal(bdwa.xy_enu_m, dwa.xy_enu_m)

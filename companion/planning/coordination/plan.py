@@ -48,13 +48,13 @@ def departure_hold(mission: "Mission", first: TimedRoute, grid: OccupancyGrid, s
     """The least hold of the first vehicle within ``coordination.hold_s_max`` that lets the
     second keep the line blocked the whole flight, else at closest approach (with the margin of
     :func:`search.near_margin_m`, then without), else 0."""
-    order = mission.by_priority
-    if len(order) < 2 or not mission.coordination.hold_s_max > 0:
+    order, limit_s = mission.by_priority, mission.coordination.hold_s_max
+    if len(order) < 2 or not limit_s > 0:
         return 0.0
     margin = near_margin_m(mission, order[1].name, order[0].speed_m_s)
     for blocking, margin_m in ((Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
                                (Blocking.CLOSEST_APPROACH, 0.0)):
-        found = least_hold(mission, first, blocking, mission.coordination.hold_s_max, grid, shadows, memo, margin_m)
+        found = least_hold(mission, first, blocking, limit_s, grid, shadows, memo, margin_m)
         if found is not None:
             return found
     return 0.0

@@ -105,6 +105,7 @@ class ScheduleClocks:
     def __init__(self, mission: "Mission", routes: "dict[str, TimedRoute]", rule: ReplanRule = ReplanRule(), *,
                  grid=None, shadows: SightShadows | None = None, blocking: "dict[str, Blocking] | None" = None):
         self.mission = mission
+        self.coordination = mission.coordination  # read once: re-plans on or off, the first's forecast
         self.rule = rule
         self.order = [v.name for v in mission.by_priority if v.name in routes]
         self.routes = dict(routes)
@@ -116,6 +117,7 @@ class ScheduleClocks:
         self._along: dict[str, float] = {}  # first seen: anywhere on its path; then near where it was
         self._seen_s: dict[str, float] = {}  # the time of each vehicle's newest position
         self._done: set[str] = set()
+        self._past_ca: set[str] = set()  # read past the planned closest approach: no re-plan until a new plan
         self._last: dict[str, float] = {}
         self._above: dict[str, dict[str, TimedRoute]] = {}  # what a re-plan was made against
         self.replans = {name: 0 for name in self.order}  # adopted re-plans per vehicle
@@ -127,7 +129,7 @@ class ScheduleClocks:
         self._xy[name] = np.asarray(xy_enu_m, dtype=float)
         self._seen_s[name] = t_s
         route = self.routes.get(name)
-        if route is not None:  # where it is along its path, windowed as the planner's own
+        if route is not None and self._may_stray(name):  # where it is along its path, windowed as the planner's own
             self._along[name] = float(route.progress_at(self._xy[name], self._along.get(name))[0])
         self.clocks.observe(name, xy_enu_m, t_s)
 
@@ -147,19 +149,28 @@ class ScheduleClocks:
         return {**self.routes, **self._above.get(name, {}), name: self.routes[name]}
 
     # -- re-planning -------------------------------------------------------------------------
+    def _may_stray(self, name: str) -> bool:
+        """Whether :meth:`strayed` can still hold for ``name`` on its current plan: never for the
+        first in priority, a vehicle done, re-plans off or used up, or a plan read past its closest
+        approach (the schedule clock never runs back; a new plan starts its progress afresh). Only
+        then is its progress along the plan followed, every tick."""
+        return (name in self._ca_s and name not in self._done and name not in self._past_ca
+                and self.coordination.replan and self.tries[name] < self.rule.most)
+
     def strayed(self, name: str, t_s: float) -> bool:
         """Whether lower vehicle ``name`` (observed this tick) is due for a re-plan at ``t_s``.
         Not before it has been observed on its current plan: a plan just adopted has no progress
         along it yet (live, adopted between two of its samples, after a re-plan that took longer
         than ``every_s`` of sim time). Never when the mission turns re-plans off
         (``coordination.replan: false``)."""
-        if not self.mission.coordination.replan or name not in self._ca_s or name in self._done \
+        if not self.coordination.replan or name not in self._ca_s or name in self._done \
                 or name not in self._along:
             return False
         if self.tries[name] >= self.rule.most or t_s - self._last.get(name, -np.inf) < self.rule.every_s:
             return False
         tau = self.now(name, t_s)
         if tau >= self._ca_s[name]:
+            self._past_ca.add(name)
             return False  # past the planned closest approach: re-plans from there cost more than they save
         return float(self.routes[name].planned_along_at(tau)) - self._along[name] > self.rule.lag_m
 
@@ -232,6 +243,7 @@ class ScheduleClocks:
                 continue
             self.routes[name], self.blocking[name] = new.route, new.level
             self._along.pop(name, None)
+            self._past_ca.discard(name)
             self._above[name] = new.above
             self.clocks.retime(name, new.above, job.t_s)
             self._ca_s[name] = self._closest_s(name)
@@ -251,7 +263,7 @@ class ScheduleClocks:
             return route  # still holding: it departs on its schedule (sim time)
         if other == self.order[0]:
             v = self.mission.vehicle(other)
-            if self.mission.coordination.forecast is Forecast.FLOWN:
+            if self.coordination.forecast is Forecast.FLOWN:
                 return forecast_along(route, tuple(self._xy[other]), t_s, v.speed_m_s)
             return forecast_from(other, route.path_xy, tuple(self._xy[other]), t_s, v.speed_m_s)
         return TimedRoute(other, route.t_s + (t_s - self.now(other, t_s)), route.xy_enu_m)

@@ -31,6 +31,7 @@ from companion.planning.routes import higher_routes
 from companion.planning.coordination.replan import ScheduleClocks
 from companion.planning.coordination.clocks import sight_near_m
 from companion.planning.vehicle_planner import VARIANTS, VehiclePlanner
+from uav_model.mission import CoordinationSettings
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -48,6 +49,7 @@ class FleetSetup:
     clocks: ScheduleClocks | None  # None: the variant flies no timed route
     timed: dict[str, TimedRoute]  # the timed routes flown (empty for the other variants)
     departure_hold_s: float | None = None  # the first vehicle's hold in the plan built here; None: none built
+    coordination: CoordinationSettings = CoordinationSettings()  # the mission's, as the fleet was built under
 
 
 def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | None = None,
@@ -75,4 +77,5 @@ def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | No
                                              timed_route=timed.get(v.name),
                                              sight_near_m=sight_near_m(mission, timed, v.name))
                 for v in mission.by_priority}
-    return FleetSetup(planners, ScheduleClocks(mission, timed, blocking=blocking) if timed_variant else None, timed, hold_s)
+    return FleetSetup(planners, ScheduleClocks(mission, timed, blocking=blocking) if timed_variant else None, timed, hold_s,
+                      mission.coordination)

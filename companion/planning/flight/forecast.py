@@ -32,6 +32,7 @@ from companion.planning.flight.fleet_setup import build_fleet
 from companion.planning.flight.loop import fly
 from companion.planning.routes import plan_routes
 from companion.planning.timed_route import TimedRoute
+from companion.planning.vehicle_planner import VARIANTS, VariantSpec
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -78,6 +79,14 @@ def first_forecast(mission: "Mission", routes: "Mapping[str, Route]", budget: "B
     if len(mission.vehicles) > 1 and mission.coordination.forecast is Forecast.FLOWN:
         return flown_forecast(mission, routes[top.name], top.name, budget)
     return route_forecast(mission, routes)
+
+
+def forecast_key(mission: "Mission") -> VariantSpec:
+    """What of the mission's variant its first vehicle's forecast depends on: the variant
+    without its sightline term, which the first in priority never flies with
+    (:meth:`VehiclePlanner.build`). Two variants with one key (``bdwa`` and ``dwa``) forecast the
+    same flight of the same mission, so a caller flying several may fly it once."""
+    return dataclasses.replace(VARIANTS[mission.planner.variant], sightline=False, sightline_gain=1.0)
 
 
 def mission_certificate(mission: "Mission", routes: "Mapping[str, Route] | None" = None,

@@ -59,14 +59,26 @@ def simulate(mission: Mission, variant: str | None = None, *,
     return fly(mission, fleet, routes, lower_bounds_s=lower_bounds_s, budget=budget, started=started)
 
 
-def simulate_certified(mission: Mission, variant: str | None = None) -> tuple[RunResult, OcclusionCertificate | None]:
-    """:func:`simulate`, and the occlusion certificate of the forecast that ``variant`` flies
-    (:func:`forecast.mission_certificate`): the first vehicle is flown alone once, for both."""
-    if variant is not None:
-        mission = mission.with_variant(variant)
+def flight_inputs(mission: Mission) -> tuple[dict[str, Route], TimedRoute | None]:
+    """What flying ``mission`` (its variant set) and certifying it both need, computed once: its
+    routes (none for the station-goal variants) and the first vehicle's forecast (None with one
+    vehicle, or when the first has no route). Pass them to :func:`simulate_certified` (and to a
+    warm-up flight before it), so that the first vehicle is flown alone once."""
     routes = plan_routes(mission) if variant_needs_route(mission.planner.variant) else {}
     first = None
     if len(mission.vehicles) > 1 and mission.by_priority[0].name in routes:
         first = first_forecast(mission, routes)
+    return routes, first
+
+
+def simulate_certified(mission: Mission, variant: str | None = None, *,
+                       inputs: tuple[dict[str, Route], TimedRoute | None] | None = None,
+                       ) -> tuple[RunResult, OcclusionCertificate | None]:
+    """:func:`simulate`, and the occlusion certificate of the forecast that ``variant`` flies
+    (:func:`forecast.mission_certificate`): the first vehicle is flown alone once, for both.
+    ``inputs``: :func:`flight_inputs` of this mission and variant, when the caller has them."""
+    if variant is not None:
+        mission = mission.with_variant(variant)
+    routes, first = flight_inputs(mission) if inputs is None else inputs
     run = simulate(mission, routes=routes, first=first)
     return run, mission_certificate(mission, routes, first=first)

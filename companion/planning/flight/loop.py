@@ -203,7 +203,7 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         recovery_ticks=sum(r.recovery_reason is not None for r in ticks[n]),
         stall_detours=planners[n].detours,
         timed_replans=0 if clocks is None else clocks.replans.get(n, 0)) for n in names},
-        schedule=ScheduleRecord(mission.coordination.hold_s_max, mission.coordination.forecast.value,
+        schedule=ScheduleRecord(fleet.coordination.hold_s_max, fleet.coordination.forecast.value,
                                 fleet.departure_hold_s))
     return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started)
 
