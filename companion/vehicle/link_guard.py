@@ -35,7 +35,7 @@ from companion.errors import LinkConflict
 from companion.vehicle.link_probe import frame_system_ids, probe_udpin, udpin_port
 
 LOOPBACK = "127.0.0.1"
-RELAY_BUFFER_BYTES = 1 << 20  # a burst (a parameter list at 20x) waits here while the relay thread waits for the GIL
+RELAY_BUFFER_BYTES = 4 << 20  # a burst (a parameter list at 20x) waits here while the process waits for a CPU
 MAX_DATAGRAM = 65535
 BURST = 64  # datagrams one side forwards before the other side's turn
 POLL_S = 0.05  # the relay thread's longest wait: how soon it sees a stop without a wake-up

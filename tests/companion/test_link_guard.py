@@ -18,7 +18,9 @@ from pymavlink.dialects.v20 import common as mavlink
 from companion.errors import LinkConflict
 from companion.vehicle.link_guard import LOOPBACK, guarded_port
 
-WAIT_S = 0.5
+WAIT_S = 0.5  # the least time the event loop stays blocked
+ARRIVAL_S = 2.0  # bounds a datagram that must arrive (a loaded machine); a free one takes microseconds
+SILENCE_S = 0.3  # how long a datagram that must not arrive is waited for
 
 
 def _heartbeat(system_id: int) -> bytes:
@@ -30,7 +32,7 @@ def _heartbeat(system_id: int) -> bytes:
 def _udp(port: int = 0) -> socket.socket:
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind((LOOPBACK, port))
-    sock.settimeout(WAIT_S)
+    sock.settimeout(ARRIVAL_S)
     return sock
 
 
@@ -39,7 +41,8 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _received(sock: socket.socket) -> tuple[bytes, tuple[str, int]] | None:
+def _received(sock: socket.socket, timeout_s: float = ARRIVAL_S) -> tuple[bytes, tuple[str, int]] | None:
+    sock.settimeout(timeout_s)
     try:
         return sock.recvfrom(65535)
     except TimeoutError:
@@ -72,7 +75,7 @@ async def _relay_while_the_loop_is_blocked() -> dict:
             spoofer.sendto(_heartbeat(1), (LOOPBACK, port))
             spoofer.sendto(_heartbeat(7), (LOOPBACK, port))  # another system id: relayed as before
             seen["from_spoofer"] = _received(mavsdk)
-            seen["after_spoof"] = _received(mavsdk)
+            seen["after_spoof"] = _received(mavsdk, SILENCE_S)
             seen["conflict"] = guard.conflict
             seen["event_during_block"] = guard.conflicted.is_set()
             _busy(max(0.0, WAIT_S - (time.monotonic() - started)))
@@ -111,7 +114,7 @@ def test_mavsdk_replies_go_to_the_autopilot_only_and_strangers_on_the_private_po
                 relay = _received(mavsdk)[1]
                 stranger.sendto(b"from a stranger", relay)
                 mavsdk.sendto(b"reply", relay)
-                return _received(autopilot), _received(autopilot)
+                return _received(autopilot), _received(autopilot, SILENCE_S)
 
     first, second = asyncio.run(main())
     assert first is not None and first[0] == b"reply"
