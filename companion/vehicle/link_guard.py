@@ -177,9 +177,11 @@ class LinkGuard:
         self.close()
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout_s
-        while self.running and loop.time() < deadline:
-            await asyncio.sleep(0.005)
-        self._close_sockets()
+        try:
+            while self.running and loop.time() < deadline:
+                await asyncio.sleep(0.005)
+        finally:
+            self._close_sockets()  # cancelled too: a thread still selecting sees them closed and ends
 
 
 def _free_loopback_port() -> int:
