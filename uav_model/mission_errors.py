@@ -15,13 +15,11 @@ from __future__ import annotations
 
 import math
 import reprlib
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jsonschema
 import yaml
 
-if TYPE_CHECKING:
-    from uav_model.mission_types import Mission
 
 ECHO_CHARS = 200
 SHOWN_PROBLEMS = 40

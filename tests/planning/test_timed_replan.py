@@ -17,9 +17,8 @@ from companion.planning.dwa import OtherUav, Pose
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.coordination.replan import ReplanRule, ScheduleClocks, closest_approach_s
 from companion.planning.routes import plan_routes
-from companion.planning.coordination.clocks import PriorityClocks, ScheduleClock, sight_near_m
+from companion.planning.coordination.clocks import PriorityClocks, ScheduleClock
 from companion.planning.coordination.timed import forecast
-from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import SIGHT_LAG_M, VehiclePlanner
 from uav_model.mission import load_mission
 

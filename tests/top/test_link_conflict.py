@@ -85,7 +85,7 @@ def test_a_spoofed_second_source_in_flight_is_a_named_link_conflict(sitl, compan
     summary = result.summary
     assert summary["reason"] == "link_conflict", result.tail
     message = summary["live"]["message"]
-    assert f"link conflict: system id 1 from two sources 127.0.0.1:" in message, message
+    assert "link conflict: system id 1 from two sources 127.0.0.1:" in message, message
     assert f"and {spoofer[0]}:{spoofer[1]}" in message, message
     assert "someone else" not in result.stdout + result.stderr
     assert "FAILED (link_conflict)" in result.stdout and "why: vehicle 'a': link conflict" in result.stdout
