@@ -104,24 +104,24 @@ def certificate_columns(cert: "OcclusionCertificate | None") -> dict[str, Any]:
             "cert_closest_approach_hold_s": cert.closest_approach_min_hold_s}
 
 
-def vehicle_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
-    """Vehicle names in order of first appearance (from ``<name>_arrived`` columns)."""
+def _column_prefixes(rows: Iterable[Mapping[str, Any]], suffix: str) -> list[str]:
+    """What precedes ``suffix`` in the rows' column names, in order of first appearance."""
     names: list[str] = []
     for row in rows:
         for key in row:
-            if key.endswith("_arrived") and key[:-len("_arrived")] not in names:
-                names.append(key[:-len("_arrived")])
+            if key.endswith(suffix) and key[:-len(suffix)] not in names:
+                names.append(key[:-len(suffix)])
     return names
+
+
+def vehicle_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
+    """Vehicle names in order of first appearance (from ``<name>_arrived`` columns)."""
+    return _column_prefixes(rows, "_arrived")
 
 
 def pair_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
     """Scored sight-line pairs in order of first appearance (from ``<pair>_crossing_occluded``)."""
-    names: list[str] = []
-    for row in rows:
-        for key in row:
-            if key.endswith("_crossing_occluded") and key[:-len("_crossing_occluded")] not in names:
-                names.append(key[:-len("_crossing_occluded")])
-    return names
+    return _column_prefixes(rows, "_crossing_occluded")
 
 
 def columns(rows: Sequence[Mapping[str, Any]]) -> list[str]:

@@ -37,33 +37,31 @@ def test_a_timed_fleet_without_the_forecast_says_what_it_needs(timed):
         build_fleet(mission, routes)
 
 
-def test_a_timed_run_and_its_certificate_fly_the_first_vehicle_once(timed, monkeypatch):
-    mission, _ = timed
-    flights = []
+@pytest.fixture
+def flights(monkeypatch):
+    """The vehicles the flown forecast flies, in order, as this test runs."""
+    flown = []
     real = forecast_module.flown_forecast
 
     def counted(*args, **kwargs):
-        flights.append(args[2])
+        flown.append(args[2])
         return real(*args, **kwargs)
 
     monkeypatch.setattr(forecast_module, "flown_forecast", counted)
+    return flown
+
+
+def test_a_timed_run_and_its_certificate_fly_the_first_vehicle_once(timed, flights):
+    mission, _ = timed
     run, certificate = simulate_certified(mission)
     assert flights == [mission.by_priority[0].name]
     assert certificate is not None and run.summary.duration_s > 0
 
 
-def test_companion_simulate_flies_the_first_vehicle_alone_once(monkeypatch, tmp_path, capsys):
+def test_companion_simulate_flies_the_first_vehicle_alone_once(flights, tmp_path, capsys):
     """The warm-up before the clock and the timed flight share the forecast: no second flight."""
     from companion.cli.app import main
 
-    flights = []
-    real = forecast_module.flown_forecast
-
-    def counted(*args, **kwargs):
-        flights.append(args[2])
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(forecast_module, "flown_forecast", counted)
     assert main(["simulate", str(SMALL), "--variant", "astar-bdwa-timed", "--out", str(tmp_path / "out")]) in (0, 1)
     assert flights == [load_mission(SMALL).by_priority[0].name]
     assert "occlusion certificate" in capsys.readouterr().out
