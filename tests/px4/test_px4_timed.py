@@ -5,7 +5,6 @@ sight line blocked at closest approach; the process exits by itself."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import pytest
@@ -51,7 +50,8 @@ def test_the_timed_small_reference_holds_a_as_certified_and_keeps_the_line_block
     assert "clock: one clock per vehicle" in run.stdout, run.tail
     extra = schedule["departure_hold_extra_s"]
     assert extra is not None and 0.0 <= extra <= HOLD_S_MAX - hold + 0.5, schedule
-    rows = [r for r in run.flight_log() if r["vehicle"] == "a" and r["x_m"] and r["t_plan_s"]]
-    x0, y0 = float(rows[0]["x_m"]), float(rows[0]["y_m"])
-    left = next(r for r in rows if math.hypot(float(r["x_m"]) - x0, float(r["y_m"]) - y0) > 5.0)
+    # a has left when it flies (over 2 m/s), not when its position has moved: hovering on PX4 SIH,
+    # a's estimated position wanders 5-6 m in 20 s (GPS noise through the EKF) at under 0.1 m/s.
+    rows = [r for r in run.flight_log() if r["vehicle"] == "a" and r["speed_m_s"] and r["t_plan_s"]]
+    left = next(r for r in rows if float(r["speed_m_s"]) > 2.0)
     assert hold - 8.0 < float(left["t_plan_s"]) < hold + 8.0, (left["t_plan_s"], hold)
