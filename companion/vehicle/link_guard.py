@@ -33,6 +33,7 @@ from contextlib import asynccontextmanager
 
 from companion.errors import LinkConflict
 from companion.vehicle.link_probe import frame_system_ids, probe_udpin, udpin_port
+from companion.vehicle.position_stamps import PositionStamps
 
 LOOPBACK = "127.0.0.1"
 RELAY_BUFFER_BYTES = 4 << 20  # a burst (a parameter list at 20x) waits here while the process waits for a CPU
@@ -73,6 +74,7 @@ class LinkGuard:
         self.conflicted = asyncio.Event()
         self.dropped = 0  # datagrams from a second source, never relayed
         self.relayed = 0  # datagrams forwarded either way
+        self.stamps = PositionStamps(system_id)  # the autopilot's time of each position MAVSDK reads
         self._loop: asyncio.AbstractEventLoop | None = None
         self._outer: socket.socket | None = None
         self._inner: socket.socket | None = None
@@ -97,6 +99,8 @@ class LinkGuard:
                                  f"{a[0]}:{a[1]} and {addr[0]}:{addr[1]}")
                 self._signal_conflict()
             return
+        if ours:
+            self.stamps.record(data)
         if self._inner is not None:
             _send(self._inner, data, (LOOPBACK, self.mavsdk_port))
             self.relayed += 1

@@ -12,6 +12,7 @@ import asyncio
 import errno
 import socket
 from collections import defaultdict
+from collections.abc import Iterator
 from urllib.parse import urlparse
 
 from companion.errors import LinkConflict
@@ -24,22 +25,29 @@ MAVLINK_IFLAG_SIGNED = 0x01
 SIGNATURE_BYTES = 13
 
 
-def frame_system_ids(datagram: bytes) -> list[int]:
-    """The system id of every MAVLink frame (v1 or v2) packed one after another in a datagram, as
-    far as the headers can be followed (an autopilot may send several messages in one datagram)."""
-    ids: list[int] = []
+def mavlink_frames(datagram: bytes) -> Iterator[tuple[int, int, bytes]]:
+    """``(system id, message id, payload)`` of every MAVLink frame (v1 or v2) packed one after
+    another in a datagram, as far as the headers can be followed (an autopilot may send several
+    messages in one datagram). A MAVLink 2 payload comes as sent: trailing zero bytes truncated."""
     i, n = 0, len(datagram)
     while i < n:
         if datagram[i] == MAVLINK_V2 and i + 10 <= n:
-            ids.append(datagram[i + 5])
+            length = datagram[i + 1]
+            msgid = datagram[i + 7] | datagram[i + 8] << 8 | datagram[i + 9] << 16
+            yield datagram[i + 5], msgid, datagram[i + 10:i + 10 + length]
             signed = datagram[i + 2] & MAVLINK_IFLAG_SIGNED
-            i += 12 + datagram[i + 1] + (SIGNATURE_BYTES if signed else 0)
+            i += 12 + length + (SIGNATURE_BYTES if signed else 0)
         elif datagram[i] == MAVLINK_V1 and i + 6 <= n:
-            ids.append(datagram[i + 3])
-            i += 8 + datagram[i + 1]
+            length = datagram[i + 1]
+            yield datagram[i + 3], datagram[i + 5], datagram[i + 6:i + 6 + length]
+            i += 8 + length
         else:
-            break  # not a frame start: the rest cannot be followed
-    return ids
+            return  # not a frame start: the rest cannot be followed
+
+
+def frame_system_ids(datagram: bytes) -> list[int]:
+    """The system id of every MAVLink frame in a datagram (:func:`mavlink_frames`)."""
+    return [system_id for system_id, _, _ in mavlink_frames(datagram)]
 
 
 def sender_system_id(datagram: bytes) -> int | None:

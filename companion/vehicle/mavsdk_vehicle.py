@@ -8,8 +8,8 @@ Conversions happen here and only through :mod:`uav_model.frames`: GLOBAL_POSITIO
 becomes mission ENU (one frame for every vehicle, whatever their homes); NED yaw becomes an ENU
 heading; an ENU yaw rate becomes PX4's clockwise yawspeed. The vehicle's sim clock is the
 ATTITUDE ``time_boot_ms`` that MAVSDK passes on as ``EulerAngle.timestamp_us``; position
-messages carry no stamp in MAVSDK's API, so a position is paired with the attitude stamp that
-came with it (see ``_maybe_emit``).
+messages carry no stamp in MAVSDK's API: the link guard reads each one's ``time_boot_ms`` on its
+way (:mod:`companion.vehicle.position_stamps`); without a guard, the newest attitude's stamp.
 """
 
 from __future__ import annotations
@@ -27,8 +27,7 @@ from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync, MissionRawError
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError
 from mavsdk.asyncio.plugins.param import ParamAsync
-from mavsdk.asyncio.plugins.telemetry import FlightMode as MavFlightMode
-from mavsdk.asyncio.plugins.telemetry import LandedState as MavLandedState
+from mavsdk.asyncio.plugins.telemetry import FlightMode as MavFlightMode, LandedState as MavLandedState
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync, TelemetryError
 from mavsdk.asyncio.plugins.transponder import TransponderAsync
 from mavsdk.exceptions import MavsdkError
@@ -78,9 +77,11 @@ _LANDED = {
 class MavsdkVehicle(BoardReaders):
     """One autopilot over its own Mavsdk instance. Build with :func:`open_mavsdk_vehicle`."""
 
-    def __init__(self, name: str, system_id: int, system, origin: frames.GeoOrigin, guard: LinkGuard | None = None):
+    def __init__(self, name: str, system_id: int, system, origin: frames.GeoOrigin, guard: LinkGuard | None = None,
+                 telemetry_hz: float = STREAM_RATE_HZ):
         self._name = name
         self._guard = guard
+        self._telemetry_hz = telemetry_hz  # attitude, position and velocity, of the vehicle's clock
         self._system_id = system_id
         self._origin = origin
         self._board = VehicleBoard(name)
@@ -216,10 +217,10 @@ class MavsdkVehicle(BoardReaders):
         await self._command("land", self._action.land)
 
     # -- pumps ----------------------------------------------------------------------------
-    async def _limit_stream_rates(self, rate_hz: float = STREAM_RATE_HZ) -> None:
-        """Ask for the pumped streams at ``rate_hz``, again while the answer may change; an autopilot
+    async def _limit_stream_rates(self) -> None:
+        """Ask for the pumped streams at ``telemetry_hz``, again while the answer may change; an autopilot
         that refuses keeps its own rates. Runs beside the pumps: a slow answer delays nothing."""
-        t = self._telemetry
+        t, rate_hz = self._telemetry, self._telemetry_hz
         for what, call in (("attitude", t.set_rate_attitude_euler), ("position", t.set_rate_position),
                            ("velocity", t.set_rate_velocity_ned)):
             for attempt in range(1, STREAM_RATE_ATTEMPTS + 1):
@@ -275,6 +276,10 @@ class MavsdkVehicle(BoardReaders):
             x, y, _ = frames.geodetic_to_local(self._origin, p.latitude_deg, p.longitude_deg)
             self._pos = (x, y, float(p.relative_altitude_m))
             self._pos_fresh = True
+            stamp = None if self._guard is None else self._guard.stamps.lookup(
+                p.latitude_deg, p.longitude_deg, p.relative_altitude_m)
+            if stamp is not None and self._att is not None:  # the position's own time (position_stamps)
+                self._att, self._att_fresh = (stamp, self._att[1]), True
             await self._maybe_emit()
 
     async def _pump_velocity(self) -> None:
@@ -336,17 +341,19 @@ class MavsdkVehicle(BoardReaders):
 
 @asynccontextmanager
 async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frames.GeoOrigin, *,
-                              connect_timeout_s: float = 15.0) -> AsyncIterator[MavsdkVehicle]:
+                              connect_timeout_s: float = 15.0, telemetry_hz: float = STREAM_RATE_HZ
+                              ) -> AsyncIterator[MavsdkVehicle]:
     """Connect to the autopilot on ``url`` and run its telemetry pumps while the context is open.
     A ``udpin://`` port is held by a :class:`LinkGuard` that sees each datagram's source."""
     async with guarded_link(url, system_id, name) as (mavsdk_url, guard):
-        async with _open(name, system_id, url, mavsdk_url, guard, origin, connect_timeout_s) as vehicle:
+        async with _open(name, system_id, url, mavsdk_url, guard, origin, connect_timeout_s, telemetry_hz) as vehicle:
             yield vehicle
 
 
 @asynccontextmanager
 async def _open(name: str, system_id: int, url: str, mavsdk_url: str, guard: LinkGuard | None,
-                origin: frames.GeoOrigin, connect_timeout_s: float) -> AsyncIterator[MavsdkVehicle]:
+                origin: frames.GeoOrigin, connect_timeout_s: float, telemetry_hz: float,
+                ) -> AsyncIterator[MavsdkVehicle]:
     sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
     try:
         try:
@@ -367,7 +374,7 @@ async def _open(name: str, system_id: int, url: str, mavsdk_url: str, guard: Lin
         if got != system_id:
             raise LinkError(f"the autopilot on {url} has system id {got}, the mission expects {system_id}",
                             vehicle=name)
-        vehicle = MavsdkVehicle(name, system_id, system, origin, guard)
+        vehicle = MavsdkVehicle(name, system_id, system, origin, guard, telemetry_hz)
         try:
             async with asyncio.TaskGroup() as tg:
                 pumps = vehicle.start_pumps(tg)
