@@ -38,7 +38,7 @@ from companion.app.warmup import warm_up_planners
 from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
                               PreflightRefused, VehicleNotReady, primary_error)
 from uav_model.mission import VehicleSpec
-from companion.planning.metrics import RunSummary, Track, summarize
+from companion.planning.metrics import RunSummary, Track, summarize, until_last_arrival
 from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
 from companion.vehicle.port import Vehicle
 
@@ -94,7 +94,7 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
                     url = connections[spec.name]
                     opened = (open_vehicle(spec, url) if open_vehicle is not None else open_mavsdk_vehicle(
                         spec.name, spec.system_id, url, mission.origin,
-                        connect_timeout_s=settings.connect_timeout_s))
+                        connect_timeout_s=settings.connect_timeout_s, telemetry_hz=settings.telemetry_hz))
                     vehicles[spec.name] = await stack.enter_async_context(opened)
                     report(f"{spec.name}: connected on {url} (system id {spec.system_id})")
                 ready = await get_ready(plan, vehicles, settings, checks, report)
@@ -172,7 +172,7 @@ def _tracks(log: FlightLog) -> dict[str, Track]:
 
 def _score(plan: FlightPlan, log: FlightLog, outcomes: Mapping[str, PilotOutcome],
            reason: str | None, shared_clock: bool) -> RunSummary | None:
-    tracks = _tracks(log)
+    tracks = until_last_arrival(plan.mission, _tracks(log))
     if len(tracks) < len(plan.mission.vehicles):
         return None  # some vehicle never departed: nothing was flown to score
     failure_t = max(float(tr.t_s[-1]) for tr in tracks.values()) if reason else None

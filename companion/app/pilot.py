@@ -357,11 +357,14 @@ class Pilot(Departure, Steering):
     async def _finish(self) -> None:
         """Hold at the station, then land. The flight has succeeded by now (SPEC §2 asks for the
         arrival): a refused landing is reported, and leaves the vehicle holding, not a failure."""
+        recorder = asyncio.create_task(self._record_until_landed(), name=f"{self.name}:track after arrival")
         try:
             await self._hold_and_land()
         except CompanionError as exc:
             self.outcome.error = str(exc)
             self.ctx.report(f"{self.name}: after arrival: {exc}; left in {self.vehicle.status().mode.value}")
+        finally:
+            recorder.cancel()
 
     async def _hold_and_land(self) -> None:
         await self._retry("hold", self.vehicle.hold)

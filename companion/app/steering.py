@@ -16,7 +16,8 @@ from companion.planning.dwa import OtherUav, Pose, inflated_clearance
 from companion.planning.fleet import Neighbour, Reaction, react_to
 from companion.planning.obstacle_field import ObstacleSnapshot, ObstacleTrack
 from companion.planning.vehicle_planner import TickResult
-from companion.vehicle.port import HOVER, PoseSample, TrafficReport, VelocityYawRateSetpoint
+from companion.errors import TelemetryLost
+from companion.vehicle.port import HOVER, LandedState, PoseSample, TrafficReport, VelocityYawRateSetpoint
 
 if TYPE_CHECKING:
     from uav_model.mission import VehicleSpec
@@ -172,6 +173,21 @@ class Steering:
     def _record(self, pose: PoseSample) -> None:
         if pose.plausible:  # a sample that jumped (another system's, on a shared id) is no path flown
             self.ctx.log.track(self.name).add(self.ctx.track_time(self, pose.t_sim_s), pose.x_east_m, pose.y_north_m)
+
+    async def _record_until_landed(self) -> None:
+        """Go on recording the track after the arrival, until the vehicle is on the ground: it
+        brakes in HOLD (PX4's stopping distance, 15-50 m from cruise) and lands, and separation
+        and clearance are judged where it flew, not where it crossed the arrival radius."""
+        seq = -1
+        while self.vehicle.status().landed is not LandedState.ON_GROUND:
+            pose = self.vehicle.latest_pose()
+            if pose is not None and pose.seq != seq:
+                seq = pose.seq
+                self._record(pose)
+            try:
+                await self.vehicle.wait_until(lambda st, p: p is not None and p.seq != seq, 1.0, "position")
+            except TelemetryLost:
+                continue  # the hold or the landing goes on; a dead link is the landing's to report
 
     def _remaining_m(self, pose: PoseSample) -> float:
         nodes = self.planner.tracker.nodes

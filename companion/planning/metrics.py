@@ -350,6 +350,23 @@ def _pair_metrics(geometry: TruthGeometry, names: Sequence[str], xy: Mapping[str
     return pairs, np.min(np.stack(sep_steps), axis=0)
 
 
+def until_last_arrival(mission: "Mission", tracks: Mapping[str, Track]) -> dict[str, Track]:
+    """The tracks up to the last vehicle's arrival (the first sample at or after it), when every
+    vehicle arrived: the mission's metrics end there. Up to then they keep what each vehicle flew
+    after its own arrival (braking in HOLD, landing), so that separation and clearance are judged
+    where it was; a vehicle that never arrived keeps its whole track, and so do the others."""
+    radius = mission.safety.arrival_radius_m
+    ends = [arrival(tr, mission.vehicle(n).goal_enu_m, radius)[0] for n, tr in tracks.items()]
+    if not ends or any(t is None for t in ends):
+        return dict(tracks)
+    t_end = max(ends)
+    out = {}
+    for name, tr in tracks.items():
+        n = min(int(np.searchsorted(tr.t_s, t_end, side="left")) + 1, len(tr))
+        out[name] = Track(tr.t_s[:n], tr.x_m[:n], tr.y_m[:n])
+    return out
+
+
 def vehicle_lower_bound_s(mission: "Mission", name: str) -> float | None:
     """Vehicle ``name``'s lower bound on flight time (SPEC §2), or None when there is none
     (no static route exists). It depends on the geometry only, not on the planner variant: a

@@ -15,11 +15,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from uav_model.frames import geodetic_to_local
 from uav_model.mission import Mission
-from companion.planning.metrics import RunSummary, Track, arrival, summarize
+from companion.planning.metrics import RunSummary, Track, summarize, until_last_arrival
 from companion.testing.assertions import TelemetryAssertions
 from companion.testing.recorder import TelemetryRecorder, VehicleLog
 from companion.vehicle.port import GeoWaypoint
@@ -170,15 +168,4 @@ class Telemetry(TelemetryAssertions):
         was recorded) until the last vehicle arrived, as ``companion simulate`` scores a flight.
         """
         tracks = {v.name: self.track(v.name, since_mode) for v in self.mission.vehicles}
-        ends = [arrival(tr, self.mission.vehicle(n).goal_enu_m, self.mission.safety.arrival_radius_m)[0]
-                for n, tr in tracks.items()]
-        if all(t is not None for t in ends):
-            t_end = max(ends)  # landing after arrival is not part of the mission's metrics
-            tracks = {n: _cut(tr, t_end) for n, tr in tracks.items()}
-        return summarize(self.mission, tracks)
-
-
-def _cut(track: Track, t_end: float) -> Track:
-    """The track up to the first sample at or after ``t_end``."""
-    n = min(int(np.searchsorted(track.t_s, t_end, side="left")) + 1, len(track))
-    return Track(track.t_s[:n], track.x_m[:n], track.y_m[:n])
+        return summarize(self.mission, until_last_arrival(self.mission, tracks))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from uav_model.mission import parse_mission
-from companion.planning.metrics import Track, TruthGeometry, summarize
+from companion.planning.metrics import Track, TruthGeometry, summarize, until_last_arrival
 
 ONE_DISK = """
 area: {x_min_m: 0, y_min_m: 0, x_max_m: 1000, y_max_m: 1000, geofence_margin_m: 100}
@@ -150,3 +150,32 @@ def test_summary_dict_has_the_issue_keys_and_is_json():
     for key in ("flight_time_s", "path_length_m", "lower_bound_s", "arrived", "min_obstacle_clearance_m",
                 "nodes_raw", "nodes_sparse"):
         assert key in d["vehicles"]["a"]
+
+
+def _concat(*tracks: Track) -> Track:
+    return Track(np.concatenate([t.t_s for t in tracks]), np.concatenate([t.x_m for t in tracks]),
+                 np.concatenate([t.y_m for t in tracks]))
+
+
+def test_what_a_vehicle_flies_after_its_arrival_counts_until_the_last_arrival():
+    # a arrives at B (t ~ 104, around the disk to the north) and brakes 45 m on past it, toward b,
+    # which comes down from the north and turns for A, arriving at t ~ 199; a lands further on,
+    # after that last arrival.
+    a = _concat(detour(north=True), line(107.0, 116.0, (1001.0, 510.0), (1010.0, 545.0)),
+                line(201.0, 210.0, (1011.0, 546.0), (1020.0, 600.0)))
+    b = _concat(line(0.0, 107.0, (1010.0, 900.0), (1010.0, 560.0)),
+                line(108.0, 150.0, (1005.0, 560.0), (500.0, 700.0)), line(151.0, 200.0, (495.0, 700.0), (0.0, 505.0)))
+    cut = until_last_arrival(M, {"a": a, "b": b})
+    assert cut["a"].t_s[-1] == pytest.approx(201.0) and cut["b"].t_s[-1] == pytest.approx(199.0)  # first samples after
+    s = summarize(M, cut)
+    assert s.reason == "separation" and s.min_separation_m < 50.0  # a, braking past B, met b
+    assert s.vehicles["a"].flight_time_s == pytest.approx(104.16, abs=0.01)  # the flight still ends at the arrival
+    # Cut at a's own arrival instead, the meeting is never seen.
+    assert summarize(M, {"a": detour(north=True), "b": b}).success
+
+
+def test_a_vehicle_that_never_arrives_keeps_every_track_whole():
+    a = line(0.0, 100.0, (0.0, 500.0), (500.0, 900.0))
+    b = line(0.0, 100.0, (1000.0, 500.0), (0.0, 500.0))
+    cut = until_last_arrival(M, {"a": a, "b": b})
+    assert len(cut["a"]) == len(a) and len(cut["b"]) == len(b)
