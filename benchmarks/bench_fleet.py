@@ -13,6 +13,8 @@ System per vehicle on ports 14540+i) ``--repeats`` times against the 8-vehicle m
 No pass/fail: on a shared machine the figures move with the load; quote medians.
 
     python benchmarks/bench_fleet.py [--mission missions/eight_vehicles.yaml] [--speedup 20] [--repeats 3]
+                                     [--telemetry-hz 10]
+    python benchmarks/bench_fleet.py --mission missions/ring16.yaml --speedup 8 --telemetry-hz 5
 """
 
 from __future__ import annotations
@@ -40,12 +42,12 @@ def _cpu_s(proc: psutil.Process) -> float:
     return t.user + t.system  # not children_*: the stub, once reaped, would count twice
 
 
-def run_once(mission: Path, speedup: float, count: int, seed: int) -> dict[str, float]:
+def run_once(mission: Path, speedup: float, count: int, seed: int, telemetry_hz: float) -> dict[str, float]:
     """One ``companion run``; CPU seconds of the companion and the stub, wall and sim seconds."""
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "companion", "run", str(mission), "--speedup", f"{speedup:g}",
                "--out", tmp, "--port-base", str(free_udp_port_block(count)), "--gcs-port", str(free_udp_ports(1)[0]),
-               "--seed", str(seed), "--progress-every", "1000"]
+               "--seed", str(seed), "--progress-every", "1000", "--telemetry-hz", f"{telemetry_hz:g}"]
         started = time.perf_counter()
         child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         proc = psutil.Process(child.pid)
@@ -65,7 +67,8 @@ def run_once(mission: Path, speedup: float, count: int, seed: int) -> dict[str, 
     stub = sum(v for pid, v in cpu.items() if pid != child.pid)
     return {"exit": child.returncode, "success": summary["success"], "companion_cpu_s": companion,
             "stub_cpu_s": stub, "wall_s": wall, "sim_s": summary["duration_s"],
-            "speed_factor": summary.get("speed_factor") or 0.0,
+            "speed_factor": summary.get("speed_factor") or 0.0, "reason": summary.get("reason"),
+            "min_separation_m": summary.get("min_separation_m") or 0.0,
             "reentries": sum(v["offboard_reentries"] for v in summary["live"]["vehicles"].values())}
 
 
@@ -74,14 +77,16 @@ def main() -> None:
     p.add_argument("--mission", type=Path, default=ROOT / "missions" / "eight_vehicles.yaml")
     p.add_argument("--speedup", type=float, default=20.0)
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--telemetry-hz", type=float, default=10.0, help="companion run --telemetry-hz")
     args = p.parse_args()
     print(machine_line(), flush=True)
     count = len(load_mission(args.mission).vehicles)
     runs = []
     for i in range(args.repeats):
-        r = run_once(args.mission, args.speedup, count, i)
+        r = run_once(args.mission, args.speedup, count, i, args.telemetry_hz)
         runs.append(r)
-        print(f"run {i + 1}: exit {r['exit']}, success {r['success']}, wall {r['wall_s']:.1f} s, "
+        print(f"run {i + 1}: exit {r['exit']}, success {r['success']} ({r['reason'] or 'ok'}), "
+              f"min separation {r['min_separation_m']:.1f} m, wall {r['wall_s']:.1f} s, "
               f"sim {r['sim_s']:.1f} s, speed factor {r['speed_factor']:.1f}x, companion CPU {r['companion_cpu_s']:.1f} s, "
               f"stub CPU {r['stub_cpu_s']:.1f} s, offboard re-entries {r['reentries']}", flush=True)
 
@@ -89,7 +94,8 @@ def main() -> None:
         return statistics.median(r[key] for r in runs)
 
     total = med("companion_cpu_s") + med("stub_cpu_s")
-    print(f"\n{args.mission.name}: {count} vehicles at {args.speedup:g}x, {sum(r['success'] for r in runs)}/"
+    print(f"\n{args.mission.name}: {count} vehicles at {args.speedup:g}x, telemetry {args.telemetry_hz:g} Hz, "
+          f"{sum(r['success'] for r in runs)}/"
           f"{len(runs)} succeeded (medians over {len(runs)} runs)")
     print(f"achieved speed factor: {med('speed_factor'):.1f}x (mission sim s / wall s); "
           f"whole run {statistics.median(r['sim_s'] / r['wall_s'] for r in runs):.1f}x incl. connect and landing")

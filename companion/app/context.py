@@ -32,6 +32,7 @@ class RunSettings:
 
     shared_clock: bool | None = None  # one sim clock for all vehicles; None: detect it at connect
     connect_timeout_s: float = 15.0  # wall
+    telemetry_hz: float = 10.0  # attitude, position and velocity asked of each autopilot, of its own clock
     ready_timeout_s: float = 30.0  # wall
     command_attempts: int = 5  # retryable answers only (TIMEOUT, BUSY): a loaded machine times MAVSDK transfers out
     progress_every_s: float = 20.0  # sim

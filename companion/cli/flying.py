@@ -50,6 +50,16 @@ def _probability(text: str) -> float:
     return value
 
 
+TELEMETRY_HZ = (2.0, 50.0)  # under 2 Hz a position is older than the stale bound allows; over 50, PX4's own rates
+
+
+def _telemetry_hz(text: str) -> float:
+    value = float(text)
+    if not TELEMETRY_HZ[0] <= value <= TELEMETRY_HZ[1]:
+        raise argparse.ArgumentTypeError(f"{text}: must be {TELEMETRY_HZ[0]:g} to {TELEMETRY_HZ[1]:g} Hz")
+    return value
+
+
 def _blackout(text: str) -> str:
     from sim_bridge.faults import Blackout, FaultSpecError
     try:
@@ -103,6 +113,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--station-tolerance", type=positive, default=None, metavar="M",
                    help="how far a vehicle may be from its mission station (default: twice the arrival radius)")
     p.add_argument("--connect-timeout", type=positive, default=15.0, metavar="S", help="wall seconds (default 15)")
+    p.add_argument("--telemetry-hz", type=_telemetry_hz, default=RunSettings.telemetry_hz, metavar="HZ",
+                   help="attitude, position and velocity rate asked of each autopilot, per second of its clock "
+                        f"({TELEMETRY_HZ[0]:g}-{TELEMETRY_HZ[1]:g}, default %(default)g); lower it for many vehicles "
+                        "or a high --speedup")
     p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
                    help="MAVLink 2 signing: refused, because MAVSDK (the companion's MAVLink library) has no signing "
                         "API; see docs/companion.md, 'Links and signing'")
@@ -131,7 +145,8 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     # The embedded stub runs one clock; the PX4 instances --sim px4 starts run one each.
     shared_clock = True if conns is None and px4 is None else False if px4 is not None else None
     settings = RunSettings(shared_clock=shared_clock if args.shared_clock is None else args.shared_clock,
-                           connect_timeout_s=args.connect_timeout, progress_every_s=args.progress_every,
+                           connect_timeout_s=args.connect_timeout, telemetry_hz=args.telemetry_hz,
+                           progress_every_s=args.progress_every,
                            land=not args.no_land, failsafe_hold=not args.keep_failsafe)
     checks = PreflightSettings(station_tolerance_m=args.station_tolerance, plan_from_current=args.plan_from_current,
                                set_failsafe_hold=not args.keep_failsafe)
