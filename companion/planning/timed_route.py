@@ -51,6 +51,7 @@ class TimedRoute:
             object.__setattr__(self, name, a)
         last = np.flatnonzero(np.any(xy != xy[-1], axis=1))
         object.__setattr__(self, "_arrival_s", float(t[last[-1] + 1]) if last.size else float(t[0]))
+        object.__setattr__(self, "_last_feet", [None])  # see _feet
         object.__setattr__(self, "_last_progress", {})  # (x, y, near_along_m) -> (along, off): a tick asks twice
 
     @property
@@ -155,19 +156,30 @@ class TimedRoute:
             end = int(np.searchsorted(self._along_m[:-1], hi, side="right"))
             if first < end:  # some segment reaches into the window; else the whole route counts
                 lo_i, hi_i = first, end
+        if xy.shape == (1, 2):  # one position (every tick): its feet on every segment, found once
+            u, dist = self._feet(xy)
+            i = lo_i + int(np.argmin(dist[lo_i:hi_i]))
+            return self._along_m[i] + u[i] * self._len[i], dist[i]
         a, d, len2 = self._start[lo_i:hi_i], self._d[lo_i:hi_i], self._len2_div[lo_i:hi_i]
-        if xy.shape == (1, 2):  # one position (every tick): the same arithmetic, fewer numpy calls
-            off = xy - a
-            u = np.minimum(np.maximum(np.einsum("ij,ij->i", off, d) / len2, 0.0), 1.0)
-            near = a + d * u[:, None] - xy
-            dist = np.hypot(near[:, 0], near[:, 1])
-            i = int(np.argmin(dist))
-            return self._along_m[lo_i + i] + u[i] * self._len[lo_i + i], dist[i]
         u = np.clip(np.einsum("...ij,ij->...i", xy - a, d) / len2, 0.0, 1.0)
         dist = np.hypot(*np.moveaxis(a + d * u[..., None] - xy, -1, 0))
         i = np.argmin(dist, axis=-1)[..., None]
         along = self._along_m[lo_i:hi_i] + u * self._len[lo_i:hi_i]
         return np.take_along_axis(along, i, -1)[..., 0], np.take_along_axis(dist, i, -1)[..., 0]
+
+    def _feet(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For one position ``xy`` (1, 2): the fraction along each segment (S,) of the segment's
+        point nearest it, and its distance from there (S,). A tick asks for the progress of one
+        position two or three times, each over its own window (the schedule clocks, the
+        planner's progress, its target speed): the last position's are kept, and each window
+        reads its slice. Elementwise, so a slice holds the bits a window of its own would."""
+        key = (float(xy[0, 0]), float(xy[0, 1]))
+        last = self._last_feet[0]  # read and replaced whole: a worker thread may ask meanwhile
+        if last is None or last[0] != key:
+            u = np.minimum(np.maximum(np.einsum("ij,ij->i", xy - self._start, self._d) / self._len2_div, 0.0), 1.0)
+            near = self._start + self._d * u[:, None] - xy
+            last = self._last_feet[0] = (key, u, np.hypot(near[:, 0], near[:, 1]))
+        return last[1], last[2]
 
     def lead_m(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, near_along_m: float | None = None) -> np.ndarray:
         """How far (m, ...) a vehicle at ``xy_enu_m`` is ahead of the plan at ``t_s`` along the
