@@ -14,6 +14,7 @@ positions), so a dynamic window can score a whole batch of rollouts against the 
 
 from __future__ import annotations
 
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,6 +53,8 @@ class TimedRoute:
         last = np.flatnonzero(np.any(xy != xy[-1], axis=1))
         object.__setattr__(self, "_arrival_s", float(t[last[-1] + 1]) if last.size else float(t[0]))
         object.__setattr__(self, "_last_feet", [None])  # see _feet
+        object.__setattr__(self, "_t_list", t.tolist())  # for scalar bisections (every tick)
+        object.__setattr__(self, "_along_list", along.tolist())
         object.__setattr__(self, "_last_progress", {})  # (x, y, near_along_m) -> (along, off): a tick asks twice
 
     @property
@@ -106,7 +109,7 @@ class TimedRoute:
         if isinstance(t_s, float) and len(self.t_s) > 1:  # one time (every tick): no arrays
             if not self.t_s[0] <= t_s < self.t_s[-1]:
                 return np.float64(0.0)
-            i = int(np.searchsorted(self.t_s, t_s, side="right")) - 1
+            i = bisect_right(self._t_list, t_s) - 1
             return self._speed[min(max(i, 0), len(self.t_s) - 2)]
         t = np.asarray(t_s, dtype=float)
         if len(self.t_s) == 1:
@@ -152,14 +155,15 @@ class TimedRoute:
         lo_i, hi_i = 0, len(self._len2)
         if near_along_m is not None:
             lo, hi = progress_window(near_along_m)
-            first = int(np.searchsorted(self._along_m[1:], lo, side="left"))
-            end = int(np.searchsorted(self._along_m[:-1], hi, side="right"))
+            along = self._along_list  # a scalar bisection on a list: no numpy call
+            first = bisect_left(along, lo, 1) - 1
+            end = bisect_right(along, hi, 0, len(along) - 1)
             if first < end:  # some segment reaches into the window; else the whole route counts
                 lo_i, hi_i = first, end
-        if xy.shape == (1, 2):  # one position (every tick): its feet on every segment, found once
-            u, dist = self._feet(xy)
-            i = lo_i + int(np.argmin(dist[lo_i:hi_i]))
-            return self._along_m[i] + u[i] * self._len[i], dist[i]
+        if xy.shape == (1, 2):  # one position (every tick): its feet on the segments near, found once
+            u, dist, first = self._feet(xy, lo_i, hi_i)
+            i = lo_i + int(np.argmin(dist[lo_i - first:hi_i - first]))
+            return self._along_m[i] + u[i - first] * self._len[i], dist[i - first]
         a, d, len2 = self._start[lo_i:hi_i], self._d[lo_i:hi_i], self._len2_div[lo_i:hi_i]
         u = np.clip(np.einsum("...ij,ij->...i", xy - a, d) / len2, 0.0, 1.0)
         dist = np.hypot(*np.moveaxis(a + d * u[..., None] - xy, -1, 0))
@@ -167,19 +171,23 @@ class TimedRoute:
         along = self._along_m[lo_i:hi_i] + u * self._len[lo_i:hi_i]
         return np.take_along_axis(along, i, -1)[..., 0], np.take_along_axis(dist, i, -1)[..., 0]
 
-    def _feet(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """For one position ``xy`` (1, 2): the fraction along each segment (S,) of the segment's
-        point nearest it, and its distance from there (S,). A tick asks for the progress of one
-        position two or three times, each over its own window (the schedule clocks, the
-        planner's progress, its target speed): the last position's are kept, and each window
-        reads its slice. Elementwise, so a slice holds the bits a window of its own would."""
+    def _feet(self, xy: np.ndarray, lo_i: int, hi_i: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """For one position ``xy`` (1, 2) and the segments ``lo_i`` to ``hi_i`` (at least): the
+        fraction along each segment of its point nearest ``xy``, its distance from there, and
+        the first segment they start at. A tick asks for the progress of one position two or
+        three times, each over its own window a few metres on (the schedule clocks, the
+        planner's progress, its target speed): the last position's are kept, worked out a few
+        segments either side of the window asked, and each window reads its slice. Elementwise,
+        so a slice holds the bits a window of its own would."""
         key = (float(xy[0, 0]), float(xy[0, 1]))
         last = self._last_feet[0]  # read and replaced whole: a worker thread may ask meanwhile
-        if last is None or last[0] != key:
-            u = np.minimum(np.maximum(np.einsum("ij,ij->i", xy - self._start, self._d) / self._len2_div, 0.0), 1.0)
-            near = self._start + self._d * u[:, None] - xy
-            last = self._last_feet[0] = (key, u, np.hypot(near[:, 0], near[:, 1]))
-        return last[1], last[2]
+        if last is None or last[0] != key or lo_i < last[1] or hi_i > last[2]:
+            lo, hi = max(lo_i - _FEET_BACK, 0), min(hi_i + _FEET_AHEAD, len(self._len2))
+            a, d = self._start[lo:hi], self._d[lo:hi]
+            u = np.minimum(np.maximum(np.einsum("ij,ij->i", xy - a, d) / self._len2_div[lo:hi], 0.0), 1.0)
+            near = a + d * u[:, None] - xy
+            last = self._last_feet[0] = (key, lo, hi, u, np.hypot(near[:, 0], near[:, 1]))
+        return last[3], last[4], last[1]
 
     def lead_m(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, near_along_m: float | None = None) -> np.ndarray:
         """How far (m, ...) a vehicle at ``xy_enu_m`` is ahead of the plan at ``t_s`` along the
@@ -202,6 +210,7 @@ class TimedRoute:
         return np.where(gap > 0, np.minimum(np.hypot(gap, off) / lookahead_s, max_speed_m_s), 0.0)
 
 
+_FEET_BACK, _FEET_AHEAD = 4, 12  # segments beyond a progress window its position's feet cover (see _feet)
 PROGRESS_BACK_M, PROGRESS_AHEAD_M = 30.0, 60.0  # a vehicle flies ~5 m a tick; see progress_window
 
 
