@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.planning.errors import PlanningError
+from companion.planning.timed_route_jit import latest_near
 
 _WAIT_SPEED_M_S = 1e-6  # slower than this, a planned segment is a wait
 
@@ -103,6 +104,20 @@ class TimedRoute:
         i = self._segment_index(t)
         u = np.where(self._moving[i], (t - self.t_s[i]) / self._span_div[i], 1.0)
         return self._start[i] + self._d[i] * np.minimum(np.maximum(u, 0.0), 1.0)[..., None]
+
+    def latest_near_s(self, xy_enu_m, t0_s: float, offsets_s: np.ndarray, tolerance_m: float) -> float:
+        """Of the times ``t0_s + offsets_s`` (non-decreasing), the latest at which the plan is
+        within ``tolerance_m`` of its least distance to ``xy_enu_m`` over those times: the latest
+        plan time a vehicle seen there is consistent with (:class:`.clocks.ScheduleClock`).
+        Compiled when numba is installed (:mod:`.timed_route_jit`, the same bits)."""
+        x, y = float(xy_enu_m[0]), float(xy_enu_m[1])
+        if latest_near is not None and len(self.t_s) > 1:
+            return float(latest_near(self.t_s, self._start, self._d, self._moving, self._span_div, float(t0_s),
+                                     offsets_s, x, y, float(tolerance_m)))
+        times = t0_s + offsets_s
+        p = self.planned_position_at(times)
+        d = np.hypot(p[:, 0] - x, p[:, 1] - y)
+        return float(times[np.flatnonzero(d <= d.min() + tolerance_m)[-1]])
 
     def planned_speed_at(self, t_s: np.ndarray | float) -> np.ndarray:
         """Speed (...,) of the plan itself at ``t_s``: 0 while waiting and outside the route."""

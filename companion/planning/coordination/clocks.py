@@ -55,9 +55,7 @@ class ScheduleClock:
         key = (route, self._reach[name], self._window)
         latest = None if found is None else found.get(key)
         if latest is None:
-            times = self._reach[name] + self._offsets
-            d = np.hypot(*(route.planned_position_at(times) - np.asarray(xy_enu_m, dtype=float)).T)
-            latest = float(times[np.flatnonzero(d <= d.min() + self.tolerance_m)[-1]])
+            latest = route.latest_near_s(xy_enu_m, self._reach[name], self._offsets, self.tolerance_m)
             if found is not None:
                 found[key] = latest
         self._reach[name] = max(self._reach[name], latest)
