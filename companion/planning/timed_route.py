@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.planning.errors import PlanningError
-from companion.planning.timed_route_jit import latest_near
+from companion.planning.timed_route_jit import latest_near, progress_in
 
 _WAIT_SPEED_M_S = 1e-6  # slower than this, a planned segment is a wait
 
@@ -175,6 +175,10 @@ class TimedRoute:
             end = bisect_right(along, hi, 0, len(along) - 1)
             if first < end:  # some segment reaches into the window; else the whole route counts
                 lo_i, hi_i = first, end
+        if xy.shape == (1, 2) and progress_in is not None:  # one position (every tick): one compiled call
+            along, off = progress_in(self._start, self._d, self._len2_div, self._along_m, self._len,
+                                     float(xy[0, 0]), float(xy[0, 1]), lo_i, hi_i)
+            return np.float64(along), np.float64(off)
         if xy.shape == (1, 2):  # one position (every tick): its feet on the segments near, found once
             u, dist, first = self._feet(xy, lo_i, hi_i)
             i = lo_i + int(np.argmin(dist[lo_i - first:hi_i - first]))

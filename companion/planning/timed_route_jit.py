@@ -1,11 +1,14 @@
-""":meth:`.TimedRoute.latest_near_s` compiled (numba), when numba is installed (the ``fast``
-extra); ``latest_near`` is None otherwise and the numpy query runs.
+"""The per-tick queries of a :class:`.TimedRoute` compiled (numba), when numba is installed (the
+``fast`` extra): :meth:`.TimedRoute.latest_near_s` (``latest_near``) and the progress of one
+position (``progress_in``); None otherwise, and the numpy queries run.
 
-Each schedule clock asks it for every vehicle above it, every tick (:mod:`.coordination.clocks`):
-as numpy, some twenty calls on arrays of 121 times; compiled, one. It does per element exactly
-the floating-point operations of the numpy query, in the same order (the times in order, so the
-segment index is a cursor instead of a bisection), and calls the C library's ``hypot`` as numpy
-does, so both return the same bits: ``tests/planning/test_timed_route_jit.py`` holds them to it.
+Each schedule clock asks the first for every vehicle above it, every tick
+(:mod:`.coordination.clocks`), and each timed vehicle the second two or three times a tick: as
+numpy, some ten to twenty calls on small arrays each; compiled, one. Each does per element
+exactly the floating-point operations of its numpy twin, in the same order (the times in order,
+so the segment index is a cursor instead of a bisection; the first least distance, as argmin
+takes it), and calls the C library's ``hypot`` as numpy does, so both return the same bits:
+``tests/planning/test_timed_route_jit.py`` holds them to it.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ except ImportError:  # the numpy query runs instead
     numba = None
 
 if numba is None:
-    latest_near = None
+    latest_near = progress_in = None
 else:
     @numba.njit(cache=True, nogil=True, error_model="numpy")
     def latest_near(t_s, start, d, moving, span_div, t0_s, offsets_s, x_m, y_m, tolerance_m):  # pragma: no cover
@@ -45,3 +48,18 @@ else:
             if dist[k] <= limit:
                 return times[k]
         return times[m - 1]
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def progress_in(start, d, len2_div, along_m, seg_len, x_m, y_m, lo, hi):  # pragma: no cover
+        """(along, off): the point of segments ``lo`` to ``hi`` (at least one) nearest (x, y),
+        how far along the route it is and how far (x, y) is from it."""
+        best = np.inf
+        at = lo
+        at_u = 0.0
+        for i in range(lo, hi):
+            u = ((x_m - start[i, 0]) * d[i, 0] + (y_m - start[i, 1]) * d[i, 1]) / len2_div[i]
+            u = min(max(u, 0.0), 1.0)
+            dist = np.hypot(start[i, 0] + d[i, 0] * u - x_m, start[i, 1] + d[i, 1] * u - y_m)
+            if dist < best:
+                best, at, at_u = dist, i, u
+        return along_m[at] + at_u * seg_len[at], best

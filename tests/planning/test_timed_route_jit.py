@@ -1,6 +1,7 @@
-"""The compiled schedule-clock query (:mod:`companion.planning.timed_route_jit`) gives bit for bit
-the numpy query's answer, over random timed routes (waits, holds, times before and after the
-route), and both find the time a vehicle seen on the plan is at."""
+"""The compiled queries of a timed route (:mod:`companion.planning.timed_route_jit`: the schedule
+clocks' reach, one position's progress) give bit for bit the numpy queries' answers, over random
+timed routes (waits, holds, times before and after the route, windows anywhere along it), and
+both find the time a vehicle seen on the plan is at."""
 
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ from hypothesis import strategies as st
 
 from companion.planning import timed_route
 from companion.planning.timed_route import TimedRoute
-from companion.planning.timed_route_jit import latest_near
+from companion.planning.timed_route_jit import latest_near, progress_in
 
-needs_numba = pytest.mark.skipif(latest_near is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+needs_numba = pytest.mark.skipif(latest_near is None or progress_in is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 OFFSETS = np.arange(0.0, 60.0 + 0.25, 0.5)  # a ScheduleClock's default window
 
 
@@ -60,3 +61,19 @@ def test_a_vehicle_on_its_plan_is_found_at_its_planned_time(compiled, monkeypatc
     # waiting at the corner from 10 s to 40 s: the latest time it is still there counts
     assert route.latest_near_s((100.0, 0.0), 0.0, OFFSETS, 1.0) == 40.0
     assert route.latest_near_s((100.0, 50.0), 20.0, OFFSETS, 1.0) == 45.0
+
+
+@needs_numba
+@settings(max_examples=300, deadline=None)
+@given(routes(), st.floats(-450.0, 450.0), st.floats(-450.0, 450.0),
+       st.one_of(st.none(), st.floats(-100.0, 3000.0)))
+def test_compiled_progress_gives_the_numpy_bits(route, x, y, near):
+    mp = pytest.MonkeyPatch()
+    try:
+        mp.setattr(timed_route, "progress_in", None)
+        expected = route.progress_at(np.array([x, y]), near)
+    finally:
+        mp.undo()
+    route._last_progress.clear()  # asked afresh, compiled
+    found = route.progress_at(np.array([x, y]), near)
+    assert (float(found[0]), float(found[1])) == (float(expected[0]), float(expected[1]))
