@@ -30,11 +30,11 @@ from companion.planning.dwa.step import warm_up_kernels
 from companion.planning.fleet import Neighbour, react_to
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.flight.headless import simulate
+from companion.planning.timed_route import TimedRoute
 from uav_model.mission import Mission
 
 if TYPE_CHECKING:
     from companion.planning.routes import Route
-    from companion.planning.timed_route import TimedRoute
 
 _HEADLESS_WARM_TICKS = 3  # ticks of the throwaway flight: every vehicle plans against its route
 
@@ -82,4 +82,6 @@ def warm_up_planners(plan: FlightPlan) -> float:
         planner.tick(Pose(x, y, spec.initial_heading_rad), reaction.other, snapshot, 0.0, 0.0,
                      separate_from=reaction.separate_from)
         clearance_here_m(x, y, snapshot)  # the flight log's clearance: the kernels with other argument types
+    # the schedule clocks' query (timed variants), which the flight's context asks every tick
+    TimedRoute("warm", np.array([0.0, 1.0]), np.zeros((2, 2))).latest_near_s((0.0, 0.0), 0.0, np.zeros(1), 1.0)
     return time.monotonic() - started

@@ -14,11 +14,13 @@ positions), so a dynamic window can score a whole batch of rollouts against the 
 
 from __future__ import annotations
 
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
 
 import numpy as np
 
 from companion.planning.errors import PlanningError
+from companion.planning.timed_route_jit import latest_near, progress_in
 
 _WAIT_SPEED_M_S = 1e-6  # slower than this, a planned segment is a wait
 
@@ -51,6 +53,9 @@ class TimedRoute:
             object.__setattr__(self, name, a)
         last = np.flatnonzero(np.any(xy != xy[-1], axis=1))
         object.__setattr__(self, "_arrival_s", float(t[last[-1] + 1]) if last.size else float(t[0]))
+        object.__setattr__(self, "_last_feet", [None])  # see _feet
+        object.__setattr__(self, "_t_list", t.tolist())  # for scalar bisections (every tick)
+        object.__setattr__(self, "_along_list", along.tolist())
         object.__setattr__(self, "_last_progress", {})  # (x, y, near_along_m) -> (along, off): a tick asks twice
 
     @property
@@ -100,12 +105,26 @@ class TimedRoute:
         u = np.where(self._moving[i], (t - self.t_s[i]) / self._span_div[i], 1.0)
         return self._start[i] + self._d[i] * np.minimum(np.maximum(u, 0.0), 1.0)[..., None]
 
+    def latest_near_s(self, xy_enu_m, t0_s: float, offsets_s: np.ndarray, tolerance_m: float) -> float:
+        """Of the times ``t0_s + offsets_s`` (non-decreasing), the latest at which the plan is
+        within ``tolerance_m`` of its least distance to ``xy_enu_m`` over those times: the latest
+        plan time a vehicle seen there is consistent with (:class:`.clocks.ScheduleClock`).
+        Compiled when numba is installed (:mod:`.timed_route_jit`, the same bits)."""
+        x, y = float(xy_enu_m[0]), float(xy_enu_m[1])
+        if latest_near is not None and len(self.t_s) > 1:
+            return float(latest_near(self.t_s, self._start, self._d, self._moving, self._span_div, float(t0_s),
+                                     offsets_s, x, y, float(tolerance_m)))
+        times = t0_s + offsets_s
+        p = self.planned_position_at(times)
+        d = np.hypot(p[:, 0] - x, p[:, 1] - y)
+        return float(times[np.flatnonzero(d <= d.min() + tolerance_m)[-1]])
+
     def planned_speed_at(self, t_s: np.ndarray | float) -> np.ndarray:
         """Speed (...,) of the plan itself at ``t_s``: 0 while waiting and outside the route."""
         if isinstance(t_s, float) and len(self.t_s) > 1:  # one time (every tick): no arrays
             if not self.t_s[0] <= t_s < self.t_s[-1]:
                 return np.float64(0.0)
-            i = int(np.searchsorted(self.t_s, t_s, side="right")) - 1
+            i = bisect_right(self._t_list, t_s) - 1
             return self._speed[min(max(i, 0), len(self.t_s) - 2)]
         t = np.asarray(t_s, dtype=float)
         if len(self.t_s) == 1:
@@ -151,23 +170,43 @@ class TimedRoute:
         lo_i, hi_i = 0, len(self._len2)
         if near_along_m is not None:
             lo, hi = progress_window(near_along_m)
-            first = int(np.searchsorted(self._along_m[1:], lo, side="left"))
-            end = int(np.searchsorted(self._along_m[:-1], hi, side="right"))
+            along = self._along_list  # a scalar bisection on a list: no numpy call
+            first = bisect_left(along, lo, 1) - 1
+            end = bisect_right(along, hi, 0, len(along) - 1)
             if first < end:  # some segment reaches into the window; else the whole route counts
                 lo_i, hi_i = first, end
+        if xy.shape == (1, 2) and progress_in is not None:  # one position (every tick): one compiled call
+            along, off = progress_in(self._start, self._d, self._len2_div, self._along_m, self._len,
+                                     float(xy[0, 0]), float(xy[0, 1]), lo_i, hi_i)
+            return np.float64(along), np.float64(off)
+        if xy.shape == (1, 2):  # one position (every tick): its feet on the segments near, found once
+            u, dist, first = self._feet(xy, lo_i, hi_i)
+            i = lo_i + int(np.argmin(dist[lo_i - first:hi_i - first]))
+            return self._along_m[i] + u[i - first] * self._len[i], dist[i - first]
         a, d, len2 = self._start[lo_i:hi_i], self._d[lo_i:hi_i], self._len2_div[lo_i:hi_i]
-        if xy.shape == (1, 2):  # one position (every tick): the same arithmetic, fewer numpy calls
-            off = xy - a
-            u = np.minimum(np.maximum(np.einsum("ij,ij->i", off, d) / len2, 0.0), 1.0)
-            near = a + d * u[:, None] - xy
-            dist = np.hypot(near[:, 0], near[:, 1])
-            i = int(np.argmin(dist))
-            return self._along_m[lo_i + i] + u[i] * self._len[lo_i + i], dist[i]
         u = np.clip(np.einsum("...ij,ij->...i", xy - a, d) / len2, 0.0, 1.0)
         dist = np.hypot(*np.moveaxis(a + d * u[..., None] - xy, -1, 0))
         i = np.argmin(dist, axis=-1)[..., None]
         along = self._along_m[lo_i:hi_i] + u * self._len[lo_i:hi_i]
         return np.take_along_axis(along, i, -1)[..., 0], np.take_along_axis(dist, i, -1)[..., 0]
+
+    def _feet(self, xy: np.ndarray, lo_i: int, hi_i: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """For one position ``xy`` (1, 2) and the segments ``lo_i`` to ``hi_i`` (at least): the
+        fraction along each segment of its point nearest ``xy``, its distance from there, and
+        the first segment they start at. A tick asks for the progress of one position two or
+        three times, each over its own window a few metres on (the schedule clocks, the
+        planner's progress, its target speed): the last position's are kept, worked out a few
+        segments either side of the window asked, and each window reads its slice. Elementwise,
+        so a slice holds the bits a window of its own would."""
+        key = (float(xy[0, 0]), float(xy[0, 1]))
+        last = self._last_feet[0]  # read and replaced whole: a worker thread may ask meanwhile
+        if last is None or last[0] != key or lo_i < last[1] or hi_i > last[2]:
+            lo, hi = max(lo_i - _FEET_BACK, 0), min(hi_i + _FEET_AHEAD, len(self._len2))
+            a, d = self._start[lo:hi], self._d[lo:hi]
+            u = np.minimum(np.maximum(np.einsum("ij,ij->i", xy - a, d) / self._len2_div[lo:hi], 0.0), 1.0)
+            near = a + d * u[:, None] - xy
+            last = self._last_feet[0] = (key, lo, hi, u, np.hypot(near[:, 0], near[:, 1]))
+        return last[3], last[4], last[1]
 
     def lead_m(self, xy_enu_m: np.ndarray, t_s: np.ndarray | float, near_along_m: float | None = None) -> np.ndarray:
         """How far (m, ...) a vehicle at ``xy_enu_m`` is ahead of the plan at ``t_s`` along the
@@ -190,6 +229,7 @@ class TimedRoute:
         return np.where(gap > 0, np.minimum(np.hypot(gap, off) / lookahead_s, max_speed_m_s), 0.0)
 
 
+_FEET_BACK, _FEET_AHEAD = 4, 12  # segments beyond a progress window its position's feet cover (see _feet)
 PROGRESS_BACK_M, PROGRESS_AHEAD_M = 30.0, 60.0  # a vehicle flies ~5 m a tick; see progress_window
 
 

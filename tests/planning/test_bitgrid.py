@@ -89,8 +89,11 @@ def test_compiled_distance_masks_and_nearest_cells_equal_the_numpy_ones(cells, q
     d2 = float(np.quantile(bitgrid.distance2(xs, ys, points[0]), q))  # a threshold some cells tie with
     with _numpy_paths():
         want_far = bitgrid.farther(xs, ys, points[0], d2, strict)
+        want_within = bitgrid.within(xs, ys, points[0], d2)
     got_far = bitgrid.farther(xs, ys, points[0], d2, strict)
     assert got_far.dtype == want_far.dtype and np.array_equal(got_far, want_far)
+    got_within = bitgrid.within(xs, ys, points[0], d2)
+    assert got_within.dtype == want_within.dtype and np.array_equal(got_within, want_within)
     rng = np.random.default_rng(seed)
     bits = bitgrid.pack(rng.random((len(ys), len(xs))) < rng.choice([0.01, 0.3, 1.0]))
     if not bits.any():

@@ -57,6 +57,17 @@ def farther(xs: np.ndarray, ys: np.ndarray, xy: tuple[float, float], d2: float, 
     return pack(d > d2 if strict else d >= d2)
 
 
+def within(xs: np.ndarray, ys: np.ndarray, xy: tuple[float, float], d2: float) -> np.ndarray:
+    """Packed: the cells whose :func:`distance2` to ``xy`` is at most ``d2`` (those not
+    :func:`farther`, strictly)."""
+    if _farther_jit is None:
+        return pack(distance2(xs, ys, xy) <= d2)
+    out = ~_farther_jit(xs, ys, float(xy[0]), float(xy[1]), float(d2), True)
+    if len(xs) % 64:  # no bits beyond the grid
+        out[:, -1] &= (np.uint64(1) << np.uint64(len(xs) % 64)) - np.uint64(1)
+    return out
+
+
 def nearest(bits: np.ndarray, xs: np.ndarray, ys: np.ndarray,
             points: list[tuple[float, float]]) -> tuple[float, tuple[int, int]]:
     """The least :func:`distance2` to the nearest of ``points`` over the cells of packed ``bits``
@@ -167,22 +178,51 @@ _farther_jit = _nearest_jit = None
 if numba is not None:
     @numba.njit(cache=True, nogil=True, error_model="numpy")
     def _farther_jit(xs, ys, x, y, d2, strict):
+        # xs ascend (cell centres), so (xs - x) ** 2 falls over xs < x and rises after (rounding is
+        # monotone), and so does each row's sum: the cells farther are a prefix and a suffix of
+        # the row, found by bisection with the very sums a cell-by-cell test compares.
         nx = len(xs)
         out = np.zeros((len(ys), -(-nx // 64)), dtype=np.uint64)
         ax = (xs - x) ** 2
-        full = np.full(out.shape[1], ~np.uint64(0), dtype=np.uint64)
-        if nx % 64:
-            full[-1] = (np.uint64(1) << np.uint64(nx % 64)) - np.uint64(1)
+        centre = np.searchsorted(xs, x)
         for iy in range(len(ys)):
             ay = (ys[iy] - y) ** 2
-            if ay > d2:  # every cell of the row: its sum is ay or more (ax >= 0, rounding is monotone)
-                out[iy] = full
-                continue
-            for ix in range(nx):
-                d = ax[ix] + ay
+            a, b = 0, centre  # the first cell before the centre that is not farther
+            while a < b:
+                m = (a + b) // 2
+                d = ax[m] + ay
                 if d > d2 if strict else d >= d2:
-                    out[iy, ix >> 6] |= np.uint64(1) << np.uint64(ix & 63)
+                    a = m + 1
+                else:
+                    b = m
+            _set_bits(out[iy], 0, a)
+            a, b = centre, nx  # the first cell from the centre on that is farther
+            while a < b:
+                m = (a + b) // 2
+                d = ax[m] + ay
+                if d > d2 if strict else d >= d2:
+                    b = m
+                else:
+                    a = m + 1
+            _set_bits(out[iy], a, nx)
         return out
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _set_bits(row, a, b):
+        """Bits a to b - 1 of the packed row set."""
+        if a >= b:
+            return
+        full = ~np.uint64(0)
+        wa, wb = a >> 6, (b - 1) >> 6
+        lo = full << np.uint64(a & 63)
+        hi = full >> np.uint64(63 - ((b - 1) & 63))
+        if wa == wb:
+            row[wa] |= lo & hi
+            return
+        row[wa] |= lo
+        for w in range(wa + 1, wb):
+            row[w] = full
+        row[wb] |= hi
 
     @numba.njit(cache=True, nogil=True, error_model="numpy")
     def _nearest_jit(bits, xs, ys, points):

@@ -38,20 +38,27 @@ class ScheduleClock:
         self.routes = dict(routes)
         self.slack_s, self.max_lag_s, self.tolerance_m = slack_s, max_lag_s, tolerance_m
         self._offsets = np.arange(0.0, window_s + step_s / 2, step_s)
+        self._window = (window_s, step_s, tolerance_m)  # what a reach found depends on, besides the route
         self._reach = {name: start_s for name in self.routes}  # start_s: a clock started mid-flight
         self._done: set[str] = set()
         self._tau = start_s
         self.worst_lag_s = 0.0  # how far behind sim time the schedule fell, at most
 
-    def observe(self, name: str, xy_enu_m, t_s: float) -> None:
-        """Vehicle ``name`` is at ``xy_enu_m`` at sim time ``t_s`` (since the common departure)."""
+    def observe(self, name: str, xy_enu_m, t_s: float, found: dict | None = None) -> None:
+        """Vehicle ``name`` is at ``xy_enu_m`` at sim time ``t_s`` (since the common departure).
+        ``found``: the reaches other clocks found for this observation, by (route, reach from,
+        window): the clocks of the vehicles below one vehicle all follow it along the same route
+        from the same reach (unless one was re-timed), so one of them works it out for all."""
         route = self.routes.get(name)
         if route is None:
             return
-        times = self._reach[name] + self._offsets
-        d = np.hypot(*(route.planned_position_at(times) - np.asarray(xy_enu_m, dtype=float)).T)
-        latest = times[np.flatnonzero(d <= d.min() + self.tolerance_m)[-1]]
-        self._reach[name] = max(self._reach[name], float(latest))
+        key = (route, self._reach[name], self._window)
+        latest = None if found is None else found.get(key)
+        if latest is None:
+            latest = route.latest_near_s(xy_enu_m, self._reach[name], self._offsets, self.tolerance_m)
+            if found is not None:
+                found[key] = latest
+        self._reach[name] = max(self._reach[name], latest)
 
     def done(self, name: str) -> None:
         """The vehicle has arrived: it no longer holds the clock back."""
@@ -99,8 +106,9 @@ class PriorityClocks:
         self._clocks[name] = clock
 
     def observe(self, name: str, xy_enu_m, t_s: float) -> None:
+        found: dict = {}
         for clock in self._clocks.values():
-            clock.observe(name, xy_enu_m, t_s)
+            clock.observe(name, xy_enu_m, t_s, found)
 
     def done(self, name: str) -> None:
         self._done.add(name)

@@ -22,7 +22,6 @@ import math
 
 import numpy as np
 
-from companion.planning.coordination import bitgrid
 from companion.planning.coordination.spacetime import AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, stay_from
 
 
@@ -40,7 +39,7 @@ class _Witness:
             p = self.problem
             within = np.zeros_like(p.free_bits)
             for xy in p.positions(k):
-                within |= bitgrid.pack(p.distance2(xy) <= self.near2_m2)
+                within |= p.within_bits(xy, self.near2_m2)
             mask = self._masks[k] = p.blocked_by_all(k) & within
         return mask
 

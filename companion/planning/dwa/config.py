@@ -99,6 +99,8 @@ class DwaConfig:
     saturated_sums: tuple[float, ...] = field(init=False, repr=False)  # [n]: numpy's sum of n of them
     saturated_sums_m: np.ndarray = field(init=False, repr=False)  # the same as an array (compiled choice)
     weights: np.ndarray = field(init=False, repr=False)  # (w_h, w_d, w_s, w_v)
+    moving_rollouts: np.ndarray = field(init=False, repr=False)  # (S,) the rollouts that do not hover
+    slowest_move_m_s: float = field(init=False, repr=False)  # the least speed of those (inf: none)
     # What the compiled choice reads of the config, as one tuple (see evaluate_jit): rates, speeds,
     # final_dheading_rad, weights, saturation, saturated_sums_m, sightline_slope, fixed_scale, cap.
     choice_consts: tuple = field(init=False, repr=False)
@@ -149,7 +151,9 @@ class DwaConfig:
             value.setflags(write=False)
             object.__setattr__(self, name, value)
         object.__setattr__(self, "saturated_sums", tuple(float(self.saturated_m[:n].sum()) for n in range(len(w) + 1)))
-        for name, value in (("saturated_sums_m", np.array(self.saturated_sums)),
+        moving = self.speeds_m_s > 0.0
+        object.__setattr__(self, "slowest_move_m_s", float(self.speeds_m_s[moving].min()) if moving.any() else np.inf)
+        for name, value in (("saturated_sums_m", np.array(self.saturated_sums)), ("moving_rollouts", moving),
                             ("weights", np.array([self.w_h, self.w_d, self.w_s, self.w_v], dtype=float))):
             value.setflags(write=False)
             object.__setattr__(self, name, value)

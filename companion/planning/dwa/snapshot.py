@@ -219,7 +219,8 @@ class ObstacleSnapshot:
         return subset({**fixed, **pick(moving_fields)})
 
 
-def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float) -> ObstacleSnapshot:
+def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float,
+                     among: np.ndarray | None = None) -> ObstacleSnapshot:
     """``snapshot`` plus each moving obstacle that moves away from (x, y) (within 60 deg of
     straight away) once more, at the same place, predicted with its velocity reversed: a rollout
     is legal only if it keeps clear of both. A shuttle turns back at its lane's end, and a
@@ -227,14 +228,25 @@ def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float) -> Obst
     window) otherwise trails a moving obstacle down its lane just beyond the margin at its pace
     and has no room when it turns back into it. Obstacles crossing or coming closer are left
     as they are: reversing every moving obstacle also holds vehicles off lanes they must cross,
-    and costs the sight line its block at the closest approach."""
+    and costs the sight line its block at the closest approach.
+
+    ``among``: a mask (circles, then polygons) of the only obstacles to consider, those a culling
+    keeps (:meth:`ObstacleSnapshot.near_mask`): a turned-back copy has its original's bounding
+    disc and speed, so the same culling keeps it exactly when it keeps the original, and a copy
+    culled away changes nothing."""
     n_c = len(snapshot.circle_ids)
-    vel = np.concatenate([snapshot.circle_vel_m_s, snapshot.poly_vel_m_s])
-    away = np.einsum("ij,ij->i", vel, snapshot.bound_xy_m - (x_m, y_m))
-    dist = np.hypot(snapshot.bound_xy_m[:, 0] - x_m, snapshot.bound_xy_m[:, 1] - y_m)
-    moving = (snapshot.speed_m_s > 0.0) & (away > _AWAY_COS * snapshot.speed_m_s * dist)
-    if not moving.any():
+    moves = snapshot.speed_m_s > 0.0
+    away = []  # rows of the moving obstacles that move away; a few of many, so one by one (every tick)
+    for i in np.flatnonzero(moves if among is None else moves & among).tolist():
+        vx, vy = (snapshot.circle_vel_m_s[i] if i < n_c else snapshot.poly_vel_m_s[i - n_c]).tolist()
+        dx, dy = float(snapshot.bound_xy_m[i, 0]) - x_m, float(snapshot.bound_xy_m[i, 1]) - y_m
+        along = vx * dx + vy * dy
+        if along > 0.0 and along > _AWAY_COS * float(snapshot.speed_m_s[i]) * float(np.hypot(dx, dy)):
+            away.append(i)
+    if not away:
         return snapshot
+    moving = np.zeros(len(snapshot.speed_m_s), dtype=bool)
+    moving[away] = True
     key = _TURNED_BACK + moving.tobytes()  # both vehicles often reverse the same ones in a tick
     cached = snapshot._subsets.get(key)
     if cached is not None:
@@ -246,18 +258,46 @@ def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float) -> Obst
                      *(-snapshot.poly_vel_m_s[i])) for i in np.flatnonzero(moving[n_c:])]
         out = snapshot.merged(ObstacleSnapshot.build(circles, polygons))
     else:  # moving circles only: their rows once more, after the circles (this runs every tick)
-        rows = np.flatnonzero(moving)
-        values = {**snapshot.__dict__, "_subsets": {}, "_shared": None,
-                  "circle_ids": snapshot.circle_ids + tuple(snapshot.circle_ids[i] for i in rows)}
-        for name in ("circle_xy_m", "circle_radius_m", "circle_margin_m"):
-            values[name] = np.concatenate([getattr(snapshot, name), getattr(snapshot, name)[rows]])
-        values["circle_vel_m_s"] = np.concatenate([snapshot.circle_vel_m_s, -snapshot.circle_vel_m_s[rows]])
-        for name in ("bound_xy_m", "bound_radius_m", "speed_m_s"):
-            a = getattr(snapshot, name)
-            values[name] = np.concatenate([a[:n_c], a[rows], a[n_c:]])
-        out = assemble(values)
+        out = _circles_turned_back(snapshot, moving)
     snapshot._subsets[key] = out
     return out
+
+
+def _circles_turned_back(snapshot: ObstacleSnapshot, moving: np.ndarray) -> ObstacleSnapshot:
+    """:func:`with_turned_back` when only circles turn back: their rows once more, after the
+    circles. What does not move between ticks (ids, radii, margins) is joined once per set of
+    rows turned back and kept in the cache the headless runner's snapshots share, and so is the
+    turned-back snapshots' own shared cache (their moving rows, and the reversed ones): culling
+    one of them then indexes only what moves, as culling a tick's snapshot does (:meth:`_take`)."""
+    n_c = len(snapshot.circle_ids)
+    rows = np.flatnonzero(moving)
+    fixed = None
+    if snapshot._shared is not None:
+        moving_rows, moving_fields, cache = snapshot._shared
+        fixed = cache.get((_TURNED_BACK, moving.tobytes()))
+        if fixed is None:
+            shared = (np.concatenate([moving_rows[:n_c], np.ones(len(rows), dtype=bool), moving_rows[n_c:]]),
+                      moving_fields, {})
+            fixed = cache[(_TURNED_BACK, moving.tobytes())] = _turned_back_fixed(snapshot, rows, shared)
+    values = {**snapshot.__dict__, **(fixed or _turned_back_fixed(snapshot, rows, None))}
+    values["circle_xy_m"] = np.concatenate([snapshot.circle_xy_m, snapshot.circle_xy_m[rows]])
+    values["circle_vel_m_s"] = np.concatenate([snapshot.circle_vel_m_s, -snapshot.circle_vel_m_s[rows]])
+    for name in ("bound_xy_m", "speed_m_s"):
+        a = getattr(snapshot, name)
+        values[name] = np.concatenate([a[:n_c], a[rows], a[n_c:]])
+    values["_subsets"] = {}
+    return assemble(values)
+
+
+def _turned_back_fixed(snapshot: ObstacleSnapshot, rows: np.ndarray, shared) -> dict:
+    """The fields of :func:`_circles_turned_back` that only the circles turned back decide."""
+    n_c = len(snapshot.circle_ids)
+    values = {"_shared": shared, "circle_ids": snapshot.circle_ids + tuple(snapshot.circle_ids[i] for i in rows)}
+    for name in ("circle_radius_m", "circle_margin_m"):
+        values[name] = np.concatenate([getattr(snapshot, name), getattr(snapshot, name)[rows]])
+    a = snapshot.bound_radius_m
+    values["bound_radius_m"] = np.concatenate([a[:n_c], a[rows], a[n_c:]])
+    return values
 
 
 # ObstacleSnapshot.arrays: circles (centre, velocity, true radius, margin), then polygons (edge

@@ -40,30 +40,33 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     """
     if not isinstance(goals, LocalGoals):
         goals = LocalGoals.single(goals)
+    culled = None
     if config.count > config.samples:  # a speed window: keep clear of receding obstacles turning back too
-        cautious = with_turned_back(snapshot, pose.x_m, pose.y_m)
+        culled = _cull(pose, snapshot, config)  # only those in reach can bind, turned back or not
+        cautious = with_turned_back(snapshot, pose.x_m, pose.y_m, culled.keep)
         if cautious is not snapshot:
             found = _step(pose, goals, other, cautious, snapshot, config, scheduled_speed_m_s, separate_from,
                           cautious=True)
             if found is not None:
                 return found
-    return _step(pose, goals, other, snapshot, snapshot, config, scheduled_speed_m_s, separate_from)
+    return _step(pose, goals, other, snapshot, snapshot, config, scheduled_speed_m_s, separate_from, culled=culled)
 
 
 def _step(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
           sighted: ObstacleSnapshot, config: DwaConfig, scheduled_speed_m_s: float | None,
-          separate_from: Sequence[OtherUav] | None, cautious: bool = False) -> Command | NoLegalRollout | None:
+          separate_from: Sequence[OtherUav] | None, cautious: bool = False,
+          culled: Culled | None = None) -> Command | NoLegalRollout | None:
     """:func:`plan_step` against ``snapshot``; the sightline term reads ``sighted`` (where the
     obstacles are predicted to be). ``cautious``: ``snapshot`` also has the receding obstacles
     turned back, a precaution only: when it leaves no legal move, None (the caller plans without
     it) rather than an escape from obstacles that are not coming, which can take the vehicle
-    into a static one.
+    into a static one. ``culled``: ``snapshot``'s culling, when the caller has it.
 
     Reads as the algorithm: what can bind (culling), the window's rollouts, the rules, then the
     critics and the pick; no legal rollout goes to :func:`.recovery.no_legal_rollout`."""
     backend = config.backend
-    scene = _Scene.of(pose, goals, snapshot, config, separate_from if separate_from is not None
-                      else () if other is None else (other,))
+    scene = _Scene.of(pose, goals, snapshot if culled is None else culled, config,
+                      separate_from if separate_from is not None else () if other is None else (other,))
     window = _Window.of(pose, scene, config)
     rules = _rules(pose, scene, window, config)
     if not np.count_nonzero(rules.legal) or _only_hover(rules.legal, config, scheduled_speed_m_s):
@@ -91,12 +94,19 @@ class _Scene(NamedTuple):
     single: bool
 
     @classmethod
-    def of(cls, pose: Pose, goals: LocalGoals, snapshot: ObstacleSnapshot, config: DwaConfig,
+    def of(cls, pose: Pose, goals: LocalGoals, snapshot: ObstacleSnapshot | Culled, config: DwaConfig,
            separate_from: Sequence[OtherUav]) -> "_Scene":
-        reach = config.reach_m + config.distance_saturation_m
-        return cls(config.backend.cull(snapshot, pose.x_m, pose.y_m, reach, config.horizon_s), separate_from,
+        """``snapshot``: the obstacles, or their culling already made (:func:`_cull`)."""
+        return cls(snapshot if isinstance(snapshot, Culled) else _cull(pose, snapshot, config), separate_from,
                    binding_uavs(pose, separate_from, config), fence_distance(pose, config),
                    single_target(goals, config.end_reach_m, (pose.x_m, pose.y_m)))
+
+
+def _cull(pose: Pose, snapshot: ObstacleSnapshot, config: DwaConfig) -> Culled:
+    """The obstacles a rollout of the window can reach, or come within the distance critic's
+    saturation of, over the horizon."""
+    return config.backend.cull(snapshot, pose.x_m, pose.y_m, config.reach_m + config.distance_saturation_m,
+                               config.horizon_s)
 
 
 class _Window(NamedTuple):
@@ -230,10 +240,9 @@ def _only_hover(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_s: float
     its timed route holds it still, that is no legal rollout: recover as the paper's window does."""
     if config.speed_samples == 1 or config.min_speed_m_s > 0.0:  # every rollout moves (cruise > 0)
         return False
-    moving = config.speeds_m_s > 0.0
-    if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * float(config.speeds_m_s[moving].min()):
+    if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * config.slowest_move_m_s:
         return False  # the plan asks for a wait here
-    return not np.count_nonzero(legal & moving)
+    return not np.count_nonzero(legal & config.moving_rollouts)
 
 
 def _toward_only_hovers(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_s: float | None,
@@ -246,8 +255,8 @@ def _toward_only_hovers(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_
     other side were legal throughout. Unless its timed route holds it still."""
     if math.isnan(turn_error_rad) or config.speed_samples == 1 or config.min_speed_m_s > 0.0:
         return False
-    moving = config.speeds_m_s > 0.0
-    if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * float(config.speeds_m_s[moving].min()):
+    moving = config.moving_rollouts
+    if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * config.slowest_move_m_s:
         return False
     toward = config.yaw_rates_rad_s * turn_error_rad >= 0.0
     return not np.count_nonzero(legal & moving & toward) and bool(np.count_nonzero(legal & moving))

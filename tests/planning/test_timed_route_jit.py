@@ -1,0 +1,79 @@
+"""The compiled queries of a timed route (:mod:`companion.planning.timed_route_jit`: the schedule
+clocks' reach, one position's progress) give bit for bit the numpy queries' answers, over random
+timed routes (waits, holds, times before and after the route, windows anywhere along it), and
+both find the time a vehicle seen on the plan is at."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from companion.planning import timed_route
+from companion.planning.timed_route import TimedRoute
+from companion.planning.timed_route_jit import latest_near, progress_in
+
+needs_numba = pytest.mark.skipif(latest_near is None or progress_in is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+OFFSETS = np.arange(0.0, 60.0 + 0.25, 0.5)  # a ScheduleClock's default window
+
+
+@st.composite
+def routes(draw) -> TimedRoute:
+    """2-12 points up to 400 m apart, some repeated (a wait), at times 0-30 s apart."""
+    n = draw(st.integers(2, 12))
+    xy = [(draw(st.floats(-400.0, 400.0)), draw(st.floats(-400.0, 400.0)))]
+    for _ in range(n - 1):
+        xy.append(xy[-1] if draw(st.booleans()) and draw(st.booleans()) else
+                  (draw(st.floats(-400.0, 400.0)), draw(st.floats(-400.0, 400.0))))
+    gaps = draw(st.lists(st.one_of(st.just(0.0), st.floats(0.1, 30.0)), min_size=n - 1, max_size=n - 1))
+    return TimedRoute("v", np.concatenate([[draw(st.floats(0.0, 50.0))], gaps]).cumsum(), np.array(xy))
+
+
+def _numpy(route: TimedRoute, xy, t0: float, tol: float, monkeypatch) -> float:
+    with monkeypatch.context() as m:
+        m.setattr(timed_route, "latest_near", None)
+        return route.latest_near_s(xy, t0, OFFSETS, tol)
+
+
+@needs_numba
+@settings(max_examples=300, deadline=None)
+@given(routes(), st.floats(-20.0, 200.0), st.floats(-450.0, 450.0), st.floats(-450.0, 450.0),
+       st.sampled_from([0.0, 1.0, 5.0]))
+def test_compiled_query_gives_the_numpy_bits(route, t0, x, y, tol):
+    mp = pytest.MonkeyPatch()
+    try:
+        expected = _numpy(route, (x, y), t0, tol, mp)
+    finally:
+        mp.undo()
+    assert route.latest_near_s((x, y), t0, OFFSETS, tol) == expected
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_vehicle_on_its_plan_is_found_at_its_planned_time(compiled, monkeypatch):
+    if compiled and latest_near is None:
+        pytest.skip("needs the fast extra (numba)")
+    if not compiled:
+        monkeypatch.setattr(timed_route, "latest_near", None)
+    route = TimedRoute("v", np.array([0.0, 10.0, 40.0, 50.0]), np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 0.0],
+                                                                          [100.0, 100.0]]))
+    assert route.latest_near_s((50.0, 0.0), 0.0, OFFSETS, 1.0) == 5.0  # halfway along the first leg
+    # waiting at the corner from 10 s to 40 s: the latest time it is still there counts
+    assert route.latest_near_s((100.0, 0.0), 0.0, OFFSETS, 1.0) == 40.0
+    assert route.latest_near_s((100.0, 50.0), 20.0, OFFSETS, 1.0) == 45.0
+
+
+@needs_numba
+@settings(max_examples=300, deadline=None)
+@given(routes(), st.floats(-450.0, 450.0), st.floats(-450.0, 450.0),
+       st.one_of(st.none(), st.floats(-100.0, 3000.0)))
+def test_compiled_progress_gives_the_numpy_bits(route, x, y, near):
+    mp = pytest.MonkeyPatch()
+    try:
+        mp.setattr(timed_route, "progress_in", None)
+        expected = route.progress_at(np.array([x, y]), near)
+    finally:
+        mp.undo()
+    route._last_progress.clear()  # asked afresh, compiled
+    found = route.progress_at(np.array([x, y]), near)
+    assert (float(found[0]), float(found[1])) == (float(expected[0]), float(expected[1]))
