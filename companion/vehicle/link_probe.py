@@ -18,28 +18,32 @@ from companion.errors import LinkConflict
 
 PROBE_S = 0.6  # wall; PX4 streams ATTITUDE at 100 Hz and the stub at 20 Hz: plenty of datagrams
 MAVLINK_V1, MAVLINK_V2 = 0xFE, 0xFD
-
-
 MAVLINK_IFLAG_SIGNED = 0x01
 SIGNATURE_BYTES = 13
+
+
+def frame_spans(datagram: bytes) -> list[tuple[int, int]]:
+    """(start, end) of every MAVLink frame (v1 or v2) packed one after another in a datagram, as
+    far as the headers can be followed; the last one may end past the datagram (truncated)."""
+    spans: list[tuple[int, int]] = []
+    i, n = 0, len(datagram)
+    while i < n:
+        if datagram[i] == MAVLINK_V2 and i + 10 <= n:
+            signed = datagram[i + 2] & MAVLINK_IFLAG_SIGNED
+            end = i + 12 + datagram[i + 1] + (SIGNATURE_BYTES if signed else 0)
+        elif datagram[i] == MAVLINK_V1 and i + 6 <= n:
+            end = i + 8 + datagram[i + 1]
+        else:
+            break  # not a frame start: the rest cannot be followed
+        spans.append((i, end))
+        i = end
+    return spans
 
 
 def frame_system_ids(datagram: bytes) -> list[int]:
     """The system id of every MAVLink frame (v1 or v2) packed one after another in a datagram, as
     far as the headers can be followed (an autopilot may send several messages in one datagram)."""
-    ids: list[int] = []
-    i, n = 0, len(datagram)
-    while i < n:
-        if datagram[i] == MAVLINK_V2 and i + 10 <= n:
-            ids.append(datagram[i + 5])
-            signed = datagram[i + 2] & MAVLINK_IFLAG_SIGNED
-            i += 12 + datagram[i + 1] + (SIGNATURE_BYTES if signed else 0)
-        elif datagram[i] == MAVLINK_V1 and i + 6 <= n:
-            ids.append(datagram[i + 3])
-            i += 8 + datagram[i + 1]
-        else:
-            break  # not a frame start: the rest cannot be followed
-    return ids
+    return [datagram[i + (5 if datagram[i] == MAVLINK_V2 else 3)] for i, _ in frame_spans(datagram)]
 
 
 def sender_system_id(datagram: bytes) -> int | None:

@@ -310,6 +310,9 @@ class MavsdkVehicle(BoardReaders):
         async for h in self._stream(self._telemetry.subscribe_health()):
             await self._board.put_status(home_ok=bool(h.is_home_position_ok))
 
+    def link_events(self) -> dict[str, int]:
+        return {} if self._guard is None else self._guard.link_events()
+
     async def _pump_link_guard(self) -> None:
         if self._guard is not None:
             await self._guard.conflicted.wait()
@@ -336,10 +339,12 @@ class MavsdkVehicle(BoardReaders):
 
 @asynccontextmanager
 async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frames.GeoOrigin, *,
-                              connect_timeout_s: float = 15.0) -> AsyncIterator[MavsdkVehicle]:
+                              connect_timeout_s: float = 15.0,
+                              signing_key: bytes | None = None) -> AsyncIterator[MavsdkVehicle]:
     """Connect to the autopilot on ``url`` and run its telemetry pumps while the context is open.
-    A ``udpin://`` port is held by a :class:`LinkGuard` that sees each datagram's source."""
-    async with guarded_link(url, system_id, name) as (mavsdk_url, guard):
+    A ``udpin://`` port is held by a :class:`LinkGuard` that sees each datagram's source (and
+    signs the link with ``signing_key``)."""
+    async with guarded_link(url, system_id, name, signing_key) as (mavsdk_url, guard):
         async with _open(name, system_id, url, mavsdk_url, guard, origin, connect_timeout_s) as vehicle:
             yield vehicle
 
@@ -356,6 +361,8 @@ async def _open(name: str, system_id: int, url: str, mavsdk_url: str, guard: Lin
             raise LinkError(f"cannot open connection {url!r}: {exc}", vehicle=name) from None
         except TimeoutError:
             raise ConnectTimeout(f"opening {url!r} took longer than {connect_timeout_s:g} s", vehicle=name) from None
+        if guard is not None:  # a disagreement about signing, named before MAVSDK waits for a heartbeat in vain
+            await guard.first_word(connect_timeout_s, name)
         try:
             async with asyncio.timeout(connect_timeout_s + 1.0):
                 system = await sdk.first_autopilot(timeout_s=connect_timeout_s)

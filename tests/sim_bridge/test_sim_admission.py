@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sim_bridge.admission import SigningKeyError, load_signing_key, parse_sysids, signing_timestamp
+from sim_bridge.admission import parse_sysids
+from uav_model.signing_key import SigningKeyError, load_signing_key, signing_timestamp
 from sim_bridge.bridge import SimOptions
 from sim_bridge.testing import stub_on_free_ports
 from uav_model.mission import parse_mission
