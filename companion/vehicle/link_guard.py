@@ -30,8 +30,9 @@ With a signing key (``companion run --signing-key``), the guard signs what MAVSD
 drops what the autopilot sends unsigned or signed with another key
 (:mod:`companion.vehicle.link_signing`); only a correctly signed frame makes an address the
 vehicle's autopilot. Before the autopilot has sent one good frame, a refused frame from its
-system id means the two sides disagree about signing: :attr:`LinkGuard.signing_problem` says
-how, and :meth:`LinkGuard.first_word` raises it before MAVSDK waits in vain. Without a key, an
+system id, with no good one for a second after it, means the two sides disagree about signing:
+:meth:`LinkGuard.first_word` raises it (:attr:`LinkGuard.signing_problem` says how) before
+MAVSDK waits in vain. Without a key, an
 autopilot that signs is the same disagreement (it would refuse every unsigned command).
 """
 
@@ -41,6 +42,7 @@ import asyncio
 import selectors
 import socket
 import threading
+import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
@@ -58,6 +60,7 @@ BURST = 64  # datagrams one side forwards before the other side's turn
 POLL_S = 0.05  # the relay thread's longest wait: how soon it sees a stop without a wake-up
 STOP_WAIT_S = 2.0  # how long leaving the guard waits for its thread
 FIRST_WORD_POLL_S = 0.01
+SIGNING_GRACE_S = 1.0  # wall: how long refused frames may go without one good frame before it is a disagreement
 SETPOINT_IDS = frozenset({mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
                           mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT,
                           mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET})
@@ -93,7 +96,7 @@ class LinkGuard:
         self.conflict: str | None = None
         self.conflicted = asyncio.Event()
         self.signing_problem: str | None = None
-        self.signing_failed = asyncio.Event()
+        self._suspect: tuple[str, float] | None = None  # the first refused frame of the system id: why, when
         self.signer = None if signing_key is None else LinkSigner(signing_key)
         self.dropped = 0  # datagrams from a second source, never relayed
         self.relayed = 0  # datagrams forwarded either way
@@ -122,9 +125,9 @@ class LinkGuard:
         else:
             ours = self.system_id in frame_system_ids(data)
             if ours and self.signing_problem is None and self.autopilot in (None, addr) and self._signed(data):
-                self._signing_disagrees(f"the autopilot (system {self.system_id} at {addr[0]}:{addr[1]}) signs "
-                                        "its MAVLink frames and so refuses unsigned commands; give the companion "
-                                        "its key with --signing-key FILE")
+                self.signing_problem = (f"signing: the autopilot (system {self.system_id} at {addr[0]}:{addr[1]}) "
+                                        "signs its MAVLink frames and so refuses unsigned commands; give the "
+                                        "companion its key with --signing-key FILE")
         if ours and self.autopilot is None:
             self.autopilot = addr
         if ours and addr != self.autopilot:
@@ -144,24 +147,20 @@ class LinkGuard:
                    for i, _ in frame_spans(data))
 
     def _refused(self, refused: list[Refusal], addr: tuple[str, int]) -> None:
-        """Frames the signing check dropped: counted; before the autopilot's first good frame, a
-        disagreement about signing."""
-        if self.autopilot is not None or self.signing_problem is not None:
+        """Frames the signing check dropped (counted by the signer): before the autopilot's first
+        good frame, a suspected disagreement about signing (or a forger: see :meth:`first_word`)."""
+        if self.autopilot is not None or self._suspect is not None:
             return
         mine = [r for r in refused if r.system_id == self.system_id]
         if not mine:
             return
         where = f"system {self.system_id} at {addr[0]}:{addr[1]}"
         if any(r.signed for r in mine):
-            self._signing_disagrees(f"frames from {where} fail the signature check: the autopilot's key is not "
-                                    "the one in --signing-key")
+            why = f"frames from {where} fail the signature check: the autopilot's key is not the one in --signing-key"
         else:
-            self._signing_disagrees(f"the autopilot ({where}) sends unsigned MAVLink frames but --signing-key is "
-                                    "set: give the autopilot the same key, or fly without --signing-key")
-
-    def _signing_disagrees(self, why: str) -> None:
-        self.signing_problem = f"signing: {why}"
-        self._signal(self.signing_failed)
+            why = (f"the autopilot ({where}) sends unsigned MAVLink frames but --signing-key is set: give the "
+                   "autopilot the same key, or fly without --signing-key")
+        self._suspect = f"signing: {why}", time.monotonic()
 
     def from_mavsdk(self, data: bytes, addr: tuple[str, int]) -> None:
         if addr[1] != self.mavsdk_port:
@@ -271,11 +270,17 @@ class LinkGuard:
 
     async def first_word(self, timeout_s: float, vehicle: str | None = None) -> None:
         """Wait until the autopilot has been heard (correctly signed, with a key); raise
-        SigningRefused when the two sides disagree about signing. After ``timeout_s`` it returns
+        SigningRefused when the two sides disagree about signing: refused frames of the system id
+        and, for SIGNING_GRACE_S after the first, not one good frame (an autopilot streams; a
+        forger's frames are followed by the real autopilot's). After ``timeout_s`` it returns
         without a word: MAVSDK's own wait then reports the silence."""
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout_s
         while self.autopilot is None and self.signing_problem is None and loop.time() < deadline:
+            suspect = self._suspect
+            if suspect is not None and time.monotonic() - suspect[1] > SIGNING_GRACE_S:
+                self.signing_problem = suspect[0]
+                break
             await asyncio.sleep(FIRST_WORD_POLL_S)
         if self.signing_problem is not None:
             raise SigningRefused(self.signing_problem, vehicle=vehicle)
