@@ -19,7 +19,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from uav_model.signing_key import signing_timestamp
+from uav_model.signing_key import SignatureCheck, signing_timestamp
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +74,8 @@ class Admission:
         parser.signing.secret_key = self.signing_key
         parser.signing.timestamp = signing_timestamp()
         parser.signing.allow_unsigned_callback = lambda _mav, msg_id: msg_id in UNSIGNED_OK
+        # pymavlink's own check moves a stream's timestamp before it checks the signature.
+        parser.check_signature = SignatureCheck(self.signing_key).verify
 
     def refusal(self, msg: Any) -> str | None:
         """Why a decoded message must not reach a vehicle, or None."""

@@ -6,7 +6,8 @@ is the key (MAVProxy's ``signing setup PASSPHRASE`` rule), so the same passphras
 MAVProxy, the stub and the companion.
 
 Signing timestamps count 10 microseconds since 1 January 2015 00:00 UTC (the MAVLink signing
-specification), in 48 bits on the wire.
+specification), in 48 bits on the wire. :class:`SignatureCheck` is the one check of an incoming
+signed frame: the signature first, then the timestamp against its stream's last.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from pathlib import Path
 KEY_BYTES = 32
 MAX_KEY_FILE_BYTES = 4096
 SIGNING_EPOCH_UNIX_S = 1420070400  # 1 January 2015 00:00 UTC: signing timestamps count from here
+SIGNATURE_BYTES = 13  # link id (1), timestamp (6), signature (6)
+NEW_STREAM_SLACK = 60 * 100_000  # a new stream's first timestamp may be a minute behind the clock (signing units)
 
 
 class SigningKeyError(ValueError):
@@ -54,3 +57,37 @@ def load_signing_key(path: Path) -> bytes:
 def signing_timestamp(unix_s: float | None = None) -> int:
     """Now in signing units (10 microseconds since 2015-01-01 UTC)."""
     return int(((time.time() if unix_s is None else unix_s) - SIGNING_EPOCH_UNIX_S) * 100_000)
+
+
+def signature(key: bytes, signed_part: bytes | bytearray) -> bytes:
+    """The 6 signature bytes of a frame: ``signed_part`` is the frame from its start byte to the
+    signature's timestamp (header, payload, CRC, link id, timestamp)."""
+    return hashlib.sha256(key + bytes(signed_part)).digest()[:6]
+
+
+class SignatureCheck:
+    """Checks signed MAVLink 2 frames from one peer against ``key``: the signature (the first 6
+    bytes of SHA-256(key + frame up to the signature)) must match, then the timestamp must be
+    newer than the last one of its (link id, system, component) stream (a replay is refused)
+    and, for a new stream, at most a minute behind the clock. The signature is checked first:
+    pymavlink moves the stream's timestamp before it checks, so one forged frame with a
+    far-future timestamp would lock the real sender out."""
+
+    def __init__(self, key: bytes):
+        self._key = key
+        self._streams: dict[tuple[int, int, int], int] = {}
+
+    def verify(self, frame: bytes | bytearray, system_id: int, component_id: int) -> bool:
+        """True for a whole signed frame (header to signature) that passes; see the class docstring."""
+        if signature(self._key, frame[:-6]) != bytes(frame[-6:]):
+            return False
+        link_id, timestamp = frame[-SIGNATURE_BYTES], int.from_bytes(frame[-12:-6], "little")
+        stream = (link_id, system_id, component_id)
+        last = self._streams.get(stream)
+        if last is None:
+            if timestamp + NEW_STREAM_SLACK < signing_timestamp():
+                return False
+        elif timestamp <= last:
+            return False
+        self._streams[stream] = timestamp
+        return True

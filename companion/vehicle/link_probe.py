@@ -15,11 +15,11 @@ from collections import defaultdict
 from urllib.parse import urlparse
 
 from companion.errors import LinkConflict
+from uav_model.signing_key import SIGNATURE_BYTES
 
 PROBE_S = 0.6  # wall; PX4 streams ATTITUDE at 100 Hz and the stub at 20 Hz: plenty of datagrams
 MAVLINK_V1, MAVLINK_V2 = 0xFE, 0xFD
 MAVLINK_IFLAG_SIGNED = 0x01
-SIGNATURE_BYTES = 13
 
 
 def frame_spans(datagram: bytes) -> list[tuple[int, int]]:

@@ -11,10 +11,8 @@ the autopilot; with a key it passes each one through a :class:`LinkSigner`:
   frame whose CRC is wrong, or whose message the codec does not know (its CRC seed unknown),
   cannot be signed: it is left out and counted.
 - **In** (autopilot -> MAVSDK): a frame passes when its signature is the key's and its
-  timestamp is newer than the last one of its (link, system, component) stream, so a replay is
-  refused, as is a new stream over a minute behind. The signature is checked before the stream's
-  timestamp moves (pymavlink's check moves it first, so one forged frame with a far-future
-  timestamp would lock the real autopilot out). RADIO_STATUS alone may come
+  timestamp is newer than the last one of its (link, system, component) stream
+  (:class:`uav_model.signing_key.SignatureCheck`, the stub's check too). RADIO_STATUS alone may come
   unsigned: a telemetry radio's own report, as the signing guide allows. An unsigned HEARTBEAT
   is refused, unlike on the stub, because MAVSDK reads the flight mode from it: a forged one
   would read as a mode change. Frames that pass are relayed as they came, signature and all.
@@ -22,21 +20,19 @@ the autopilot; with a key it passes each one through a :class:`LinkSigner`:
 
 from __future__ import annotations
 
-import hashlib
 import struct
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 from pymavlink.generator.mavcrc import x25crc
 
-from companion.vehicle.link_probe import MAVLINK_IFLAG_SIGNED, MAVLINK_V1, MAVLINK_V2, SIGNATURE_BYTES, frame_spans
-from uav_model.signing_key import signing_timestamp
+from companion.vehicle.link_probe import MAVLINK_IFLAG_SIGNED, MAVLINK_V1, MAVLINK_V2, frame_spans
+from uav_model.signing_key import SIGNATURE_BYTES, SignatureCheck, signature, signing_timestamp
 
 UNSIGNED_IN = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS})
 V2_HEADER_BYTES = 10
 V1_HEADER_BYTES = 6
 CRC_BYTES = 2
-NEW_STREAM_SLACK = 60 * 100_000  # a new stream's first timestamp may be a minute behind ours (signing units)
 
 
 @dataclass(frozen=True)
@@ -67,7 +63,7 @@ class LinkSigner:
         self._key = key
         self._link_id = link_id
         self._timestamp = signing_timestamp()
-        self._streams: dict[tuple[int, int, int], int] = {}  # (link id, system, component) -> last timestamp
+        self._check = SignatureCheck(key)
         self.signed = 0  # frames signed on their way out
         self.upgraded = 0  # of them, MAVLink 1 frames re-emitted as MAVLink 2
         self.unsignable = 0  # frames left out: a bad CRC or a message the codec does not know
@@ -112,25 +108,10 @@ class LinkSigner:
         body += struct.pack("<H", _crc(body[1:], msg_id))
         self._timestamp = max(self._timestamp + 1, signing_timestamp())
         body += struct.pack("<BQ", self._link_id, self._timestamp)[:7]
-        body += hashlib.sha256(self._key + body).digest()[:6]
+        body += signature(self._key, body)
         if frame[0] == MAVLINK_V1:
             self.upgraded += 1
         return bytes(body)
-
-    def _verified(self, frame: bytes, system_id: int) -> bool:
-        """The signature is the key's, then the timestamp is new for its stream (in that order)."""
-        if hashlib.sha256(self._key + frame[:-6]).digest()[:6] != frame[-6:]:
-            return False
-        link_id, timestamp = frame[-SIGNATURE_BYTES], int.from_bytes(frame[-12:-6], "little")
-        stream = (link_id, system_id, frame[6])
-        last = self._streams.get(stream)
-        if last is None:
-            if timestamp + NEW_STREAM_SLACK < signing_timestamp():
-                return False
-        elif timestamp <= last:
-            return False
-        self._streams[stream] = timestamp
-        return True
 
     def check(self, datagram: bytes) -> tuple[bytes, set[int], list[Refusal]]:
         """The frames of ``datagram`` that pass, the system ids that signed them, and the refused."""
@@ -144,7 +125,7 @@ class LinkSigner:
             msg_id = (frame[7] | frame[8] << 8 | frame[9] << 16) if v2 else (frame[5] if len(frame) > 5 else -1)
             signed = v2 and bool(frame[2] & MAVLINK_IFLAG_SIGNED)
             whole = end <= len(datagram)
-            if signed and whole and self._verified(frame, system_id):
+            if signed and whole and self._check.verify(frame, system_id, frame[6]):
                 self.verified += 1
                 signers.add(system_id)
                 passed += frame
