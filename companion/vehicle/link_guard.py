@@ -100,6 +100,7 @@ class LinkGuard:
         self.signer = None if signing_key is None else LinkSigner(signing_key)
         self.dropped = 0  # datagrams from a second source, never relayed
         self.relayed = 0  # datagrams forwarded either way
+        self.heard = False  # a frame from outside has been relayed to MAVSDK (with a key: a correctly signed one)
         self.stale_setpoints = 0  # setpoints from MAVSDK overtaken by a newer one while queued
         self._decoder = mavlink.MAVLink(None)  # reads a setpoint's target (the relay thread's own)
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -120,6 +121,7 @@ class LinkGuard:
             if refused:
                 self._refused(refused, addr)
             ours = self.system_id in signers
+            self.heard = self.heard or bool(signers)
             if not data:
                 return
         else:
@@ -141,6 +143,7 @@ class LinkGuard:
         if self._inner is not None:
             _send(self._inner, data, (LOOPBACK, self.mavsdk_port))
             self.relayed += 1
+            self.heard = self.heard or self.signer is None
 
     def _signed(self, data: bytes) -> bool:
         return any(data[i] == MAVLINK_V2 and data[i + 5] == self.system_id and data[i + 2] & MAVLINK_IFLAG_SIGNED
@@ -268,15 +271,15 @@ class LinkGuard:
                           signing_refused=self.signer.refused)
         return {k: v for k, v in events.items() if v}
 
-    async def first_word(self, timeout_s: float, vehicle: str | None = None) -> None:
-        """Wait until the autopilot has been heard (correctly signed, with a key); raise
-        SigningRefused when the two sides disagree about signing: refused frames of the system id
-        and, for SIGNING_GRACE_S after the first, not one good frame (an autopilot streams; a
-        forger's frames are followed by the real autopilot's). After ``timeout_s`` it returns
-        without a word: MAVSDK's own wait then reports the silence."""
+    async def first_word(self, timeout_s: float, vehicle: str | None = None) -> bool:
+        """Wait until a frame from outside has passed to MAVSDK (with a key: a correctly signed one):
+        True; False after ``timeout_s`` of silence. SigningRefused when the two sides disagree
+        about signing: refused frames of the system id and, for SIGNING_GRACE_S after the first,
+        not one good frame (an autopilot streams; a forger's frames are followed by the real
+        autopilot's)."""
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout_s
-        while self.autopilot is None and self.signing_problem is None and loop.time() < deadline:
+        while not self.heard and self.signing_problem is None and loop.time() < deadline:
             suspect = self._suspect
             if suspect is not None and time.monotonic() - suspect[1] > SIGNING_GRACE_S:
                 self.signing_problem = suspect[0]
@@ -284,6 +287,7 @@ class LinkGuard:
             await asyncio.sleep(FIRST_WORD_POLL_S)
         if self.signing_problem is not None:
             raise SigningRefused(self.signing_problem, vehicle=vehicle)
+        return self.heard
 
     @property
     def running(self) -> bool:

@@ -361,11 +361,11 @@ async def _open(name: str, system_id: int, url: str, mavsdk_url: str, guard: Lin
             raise LinkError(f"cannot open connection {url!r}: {exc}", vehicle=name) from None
         except TimeoutError:
             raise ConnectTimeout(f"opening {url!r} took longer than {connect_timeout_s:g} s", vehicle=name) from None
-        if guard is not None:  # a disagreement about signing, named before MAVSDK waits for a heartbeat in vain
-            await guard.first_word(connect_timeout_s, name)
+        # A disagreement about signing is named before MAVSDK waits for a heartbeat in vain.
+        heard = guard is None or await guard.first_word(connect_timeout_s, name)
         try:
             async with asyncio.timeout(connect_timeout_s + 1.0):
-                system = await sdk.first_autopilot(timeout_s=connect_timeout_s)
+                system = await sdk.first_autopilot(timeout_s=connect_timeout_s) if heard else None
         except TimeoutError:
             system = None
         if system is None:
