@@ -32,8 +32,8 @@ drops what the autopilot sends unsigned or signed with another key
 vehicle's autopilot. Before the autopilot has sent one good frame, a refused frame from its
 system id, with no good one for a second after it, means the two sides disagree about signing:
 :meth:`LinkGuard.first_word` raises it (:attr:`LinkGuard.signing_problem` says how) before
-MAVSDK waits in vain. Without a key, an
-autopilot that signs is the same disagreement (it would refuse every unsigned command).
+MAVSDK waits in vain. Without a key, an autopilot that signs is the same disagreement (it would
+refuse every unsigned command).
 """
 
 from __future__ import annotations
