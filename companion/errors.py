@@ -13,6 +13,7 @@ Raised, never printed; ``str()`` is one line that names the vehicle and says wha
      ├── MissionUploadError        upload or download failed, or the read-back differs
      ├── PreflightRefused          a pre-flight check failed before anything armed (CLI exit 2)
      │    ├── LinkConflict         two autopilots answer as one system on a link, or the port is taken
+     │    ├── SigningRefused       the companion and the autopilot disagree about MAVLink 2 signing
      │    └── GeofenceRefused      the geofence could not be uploaded or read back: the flight
      │                             is refused before anything arms (CLI exit 2)
      └── MissionAborted            a safety monitor or the operator stopped the flight;
@@ -84,6 +85,11 @@ class PreflightRefused(CompanionError):
 
 class LinkConflict(PreflightRefused):
     """Two autopilots answer as one system id on one link, or the link's port is taken."""
+
+
+class SigningRefused(PreflightRefused):
+    """The companion and the autopilot disagree about MAVLink 2 signing (one signs, the other does
+    not, or their keys differ), or the link cannot be signed: nothing armed."""
 
 
 class GeofenceRefused(PreflightRefused):

@@ -7,66 +7,25 @@ sends is signed, and a frame that is unsigned or signed with another key is drop
 and RADIO_STATUS excepted, as the MAVLink signing guide allows). Each refusal is counted and
 logged once per (socket, sender, message type); it has no effect on the vehicle.
 
-Key files (``--signing-key FILE``): exactly 32 bytes are the key; otherwise the text, stripped,
-is 64 hex digits (the key) or a passphrase whose SHA-256 is the key (MAVProxy's ``signing
-setup PASSPHRASE`` rule), so the same passphrase signs in MAVProxy and here.
+Key files (``--signing-key FILE``) are read by :func:`uav_model.signing_key.load_signing_key`,
+the one loader the companion uses too.
 """
 
 from __future__ import annotations
 
-import hashlib
 import logging
-import re
-import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from uav_model.signing_key import SignatureCheck, signing_timestamp
+
 log = logging.getLogger(__name__)
 
-KEY_BYTES = 32
-MAX_KEY_FILE_BYTES = 4096
 UNSIGNED_OK = frozenset({mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_RADIO_STATUS})
-SIGNING_EPOCH_UNIX_S = 1420070400  # 1 January 2015 00:00 UTC: signing timestamps count from here
-INVALID_SIGNATURE = "Invalid signature"
-MAX_LOGGED = 256  # distinct (socket, sender, type) refusals logged; a flood of senders is only counted  # pymavlink's reason on a refused frame
-
-
-class SigningKeyError(ValueError):
-    """The key file cannot be used; one line naming the file."""
-
-
-def load_signing_key(path: Path) -> bytes:
-    """The 32-byte secret from a key file (see the module docstring for the formats)."""
-    try:
-        if not path.is_file():
-            raise SigningKeyError(f"--signing-key {path}: not a regular file")
-        with open(path, "rb") as f:
-            data = f.read(MAX_KEY_FILE_BYTES + 1)
-    except OSError as exc:
-        raise SigningKeyError(f"--signing-key {path}: cannot read it ({exc.strerror})") from None
-    if len(data) > MAX_KEY_FILE_BYTES:
-        raise SigningKeyError(f"--signing-key {path}: larger than {MAX_KEY_FILE_BYTES} bytes; "
-                              "expected a 32-byte key, 64 hex digits or a passphrase")
-    if len(data) == KEY_BYTES:
-        return data
-    try:
-        text = data.decode("utf-8").strip()
-    except UnicodeDecodeError:
-        raise SigningKeyError(f"--signing-key {path}: {len(data)} bytes of binary; a raw key is exactly "
-                              f"{KEY_BYTES} bytes") from None
-    if not text:
-        raise SigningKeyError(f"--signing-key {path}: empty")
-    if re.fullmatch(r"[0-9a-fA-F]{64}", text):
-        return bytes.fromhex(text)
-    return hashlib.sha256(text.encode("utf-8")).digest()
-
-
-def signing_timestamp(unix_s: float | None = None) -> int:
-    """Now in signing units (10 microseconds since 2015-01-01 UTC)."""
-    return int(((time.time() if unix_s is None else unix_s) - SIGNING_EPOCH_UNIX_S) * 100_000)
+INVALID_SIGNATURE = "Invalid signature"  # pymavlink's reason on a refused frame
+MAX_LOGGED = 256  # distinct (socket, sender, type) refusals logged; a flood of senders is only counted
 
 
 def parse_sysids(text: str) -> frozenset[int]:
@@ -101,6 +60,13 @@ class Admission:
         encoder.signing.sign_outgoing = True
         return encoder
 
+    def stamp(self, encoder: Any) -> Any:
+        """Before packing: the signing timestamp follows the clock (pymavlink only adds one per frame),
+        so a peer that joins later does not see a stream from the past."""
+        if self.signing_key is not None:
+            encoder.signing.timestamp = max(encoder.signing.timestamp, signing_timestamp())
+        return encoder
+
     def check_signatures(self, parser: Any) -> None:
         """Make a per-peer parser refuse unsigned or badly signed frames, when there is a key."""
         if self.signing_key is None:
@@ -108,6 +74,8 @@ class Admission:
         parser.signing.secret_key = self.signing_key
         parser.signing.timestamp = signing_timestamp()
         parser.signing.allow_unsigned_callback = lambda _mav, msg_id: msg_id in UNSIGNED_OK
+        # pymavlink's own check moves a stream's timestamp before it checks the signature.
+        parser.check_signature = SignatureCheck(self.signing_key).verify
 
     def refusal(self, msg: Any) -> str | None:
         """Why a decoded message must not reach a vehicle, or None."""

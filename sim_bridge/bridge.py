@@ -88,8 +88,8 @@ class SimBridge:
         o = self.options
         fo = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/out") if with_faults else None
         fi = LinkFaults(o.faults, o.seed, f"{v.name}/{name}/in") if with_faults else None
-        encoder = mavlink.MAVLink(None, v.system_id, v.component_id)
-        return Link(name, self.admission.sign(encoder, link_id=0 if name == API_LINK else 1), fo, fi)
+        return Link(name, self.admission.sign(mavlink.MAVLink(None, v.system_id, v.component_id),
+                                              link_id=0 if name == API_LINK else 1), fo, fi)
 
     # ================================================================== lifecycle =========
     async def __aenter__(self) -> "SimBridge":
@@ -251,7 +251,7 @@ class SimBridge:
         if ep is None or ep.transport is None:
             return
         try:
-            buf = msg.pack(link.encoder)
+            buf = msg.pack(self.admission.stamp(link.encoder))
         except Exception:  # noqa: BLE001 - a message that cannot be packed is a bug, not a crash
             self.stats["pack_errors"] += 1
             log.exception("sim_bridge: cannot pack %s", msg.get_type())

@@ -10,7 +10,8 @@ import sys
 from pathlib import Path
 
 from uav_model.mission import MissionError, load_mission
-from sim_bridge.admission import SigningKeyError, load_signing_key, parse_sysids
+from uav_model.signing_key import SigningKeyError, load_signing_key
+from sim_bridge.admission import parse_sysids
 from sim_bridge.bridge import SimBridge, SimBridgeError, SimOptions, run_stub
 from sim_bridge.clock import ClockError, SimClock
 from sim_bridge.faults import Blackout, FaultConfig, FaultSpecError

@@ -51,6 +51,7 @@ class RunSettings:
     failsafe_hold: bool = True  # set COM_OBL_RC_ACT 5 at connect: PX4's default RTL flies straight home,
     # through the obstacles only the companion knows about
     safe_state_timeout_s: float = 5.0  # wall
+    signing_key: bytes | None = field(default=None, repr=False)  # MAVLink 2 signing on every udpin link
 
 
 @dataclass

@@ -39,7 +39,7 @@ from companion.errors import (CommandRefused, CompanionError, LinkError, Mission
                               PreflightRefused, VehicleNotReady, primary_error)
 from uav_model.mission import VehicleSpec
 from companion.planning.metrics import RunSummary, Track, summarize, until_last_arrival
-from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
+from companion.vehicle.mavsdk_open import open_mavsdk_vehicle
 from companion.vehicle.port import Vehicle
 
 # Opens one vehicle of the mission given its connection label; the default is MAVSDK on that URL.
@@ -83,18 +83,19 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
     message: str | None = None
     shared_clock = False
     flight: FlightContext | None = None  # read after the flight: how far the schedule fell behind
+    vehicles: dict[str, Vehicle] = {}  # read after the flight too: what each link guard kept out
     with FlightLog(out_dir) as log:
         try:
             async with AsyncExitStack() as stack:
                 # Before connecting: the first tick's kernel loading would otherwise stall the loop in flight.
                 log_warm = warm_up_planners(plan)
                 report(f"planner warmed up in {log_warm:.1f} s")
-                vehicles = {}
                 for spec in mission.vehicles:
                     url = connections[spec.name]
                     opened = (open_vehicle(spec, url) if open_vehicle is not None else open_mavsdk_vehicle(
                         spec.name, spec.system_id, url, mission.origin,
-                        connect_timeout_s=settings.connect_timeout_s, telemetry_hz=settings.telemetry_hz))
+                        connect_timeout_s=settings.connect_timeout_s, telemetry_hz=settings.telemetry_hz,
+                        signing_key=settings.signing_key))
                     vehicles[spec.name] = await stack.enter_async_context(opened)
                     report(f"{spec.name}: connected on {url} (system id {spec.system_id})")
                 ready = await get_ready(plan, vehicles, settings, checks, report)
@@ -136,6 +137,7 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
         summary = _score(plan, log, outcomes, reason, shared_clock)
         doc = _summary_doc(plan, summary, outcomes, reason, message, time.monotonic() - started, link)
         doc["failsafes"] = [e.summary_dict() for e in failsafes]  # recovered ones too: the run says what happened
+        doc["live"]["link_events"] = _link_events(vehicles, report)
         schedule = LiveSchedule.of(plan, flight)  # the timed variant's schedule, and how far the flight fell behind it
         if schedule is not None:
             doc["live"]["schedule"] = schedule.summary_dict()
@@ -147,6 +149,16 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
                                                       else (summary.reason if summary else "incomplete"))
     return RunResult(summary, doc, outcomes, final_reason, message, time.monotonic() - started,
                      tracks=_tracks(log), log_problems=log_problems)
+
+
+def _link_events(vehicles: Mapping[str, Vehicle], report: Callable[[str], None]) -> dict[str, dict[str, int]]:
+    """Per vehicle, what its link guard signed and kept out (MAVSDK links only), each refusal reported."""
+    events = {n: v.link_events() for n, v in vehicles.items() if hasattr(v, "link_events")}
+    for name, counts in events.items():
+        if counts.get("signing_refused"):
+            report(f"{name}: link: {counts['signing_refused']} frames dropped by the signing check "
+                   "(unsigned, another key, or replayed)")
+    return {n: c for n, c in events.items() if c}
 
 
 def _certificate_doc(plan: FlightPlan) -> dict[str, Any] | None:

@@ -31,6 +31,8 @@ from companion.cli.sim_options import add_sim_options, inprocess_options, px4_op
 from companion.errors import CompanionError, PreflightRefused
 from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_base, embedded_stub
 from companion.sitl.px4 import Px4Options, px4_sitl
+from companion.vehicle.link_probe import udpin_port
+from uav_model.signing_key import SigningKeyError, load_signing_key
 
 if TYPE_CHECKING:
     from companion.sitl.inprocess import InProcessOptions
@@ -118,26 +120,35 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         f"({TELEMETRY_HZ[0]:g}-{TELEMETRY_HZ[1]:g}, default %(default)g); lower it for many vehicles "
                         "or a high --speedup")
     p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
-                   help="MAVLink 2 signing: refused, because MAVSDK (the companion's MAVLink library) has no signing "
-                        "API; see docs/companion.md, 'Links and signing'")
+                   help="MAVLink 2 signing: the link guard signs every frame MAVSDK sends and drops unsigned or "
+                        "badly signed frames from the autopilot (udpin:// links; the embedded stub gets the key "
+                        "too). FILE: 32 bytes, 64 hex digits or a passphrase (docs/companion.md, 'Signing')")
     p.add_argument("--in-process", action="store_true",
                    help="no stub process and no sockets: fly the stub's vehicles inside the companion on one sim "
                         "clock, deterministically and faster than real time (same outputs, no .tlog)")
     p.set_defaults(func=cmd_run)
 
 
-MAVSDK_CANNOT_SIGN = ("--signing-key: the companion cannot sign: MAVSDK {version} has no MAVLink 2 signing API, so an "
-                      "autopilot that enforces signing would refuse every command it sends; fly unsigned on a trusted link "
-                      "(loopback, a private network) and limit who may command with the autopilot's own means, e.g. "
-                      "sim-bridge --allow-sysid (docs/companion.md)")
+def _signing_key(args: argparse.Namespace) -> bytes | None:
+    """The key of --signing-key (BadInput on a bad file, or where there is no link to sign)."""
+    if args.signing_key is None:
+        return None
+    if args.in_process:
+        raise BadInput("--signing-key: --in-process has no MAVLink link to sign")
+    try:
+        return load_signing_key(args.signing_key)
+    except SigningKeyError as exc:
+        raise BadInput(str(exc)) from None
 
 
 @planned
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
-    if args.signing_key is not None:
-        from importlib.metadata import version
-        raise BadInput(MAVSDK_CANNOT_SIGN.format(version=version("mavsdk")))
+    key = _signing_key(args)
     conns = connections(plan, args.connect) if args.connect else None
+    unsignable = [f"{n}={u}" for n, u in (conns or {}).items() if udpin_port(u) is None]
+    if key is not None and unsignable:
+        raise BadInput(f"--signing-key: {', '.join(unsignable)}: the companion signs on udpin:// links only "
+                       "(the UDP ports its link guard holds)")
     inproc = inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out, reserve=True)
     px4 = px4_options(args, plan.mission, out)
@@ -147,14 +158,14 @@ def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
     settings = RunSettings(shared_clock=shared_clock if args.shared_clock is None else args.shared_clock,
                            connect_timeout_s=args.connect_timeout, telemetry_hz=args.telemetry_hz,
                            progress_every_s=args.progress_every,
-                           land=not args.no_land, failsafe_hold=not args.keep_failsafe)
+                           land=not args.no_land, failsafe_hold=not args.keep_failsafe, signing_key=key)
     checks = PreflightSettings(station_tolerance_m=args.station_tolerance, plan_from_current=args.plan_from_current,
                                set_failsafe_hold=not args.keep_failsafe)
     stub = None
     if conns is None and inproc is None and px4 is None:
         stub = StubOptions(speedup=args.speedup or 1.0, api_port_base=args.port_base, gcs_port=args.gcs_port,
                            loss=args.loss, latency_ms=args.latency_ms, seed=args.seed,
-                           blackouts=tuple(args.blackout), tlog_dir=out,
+                           blackouts=tuple(args.blackout), tlog_dir=out, signing_key_file=args.signing_key,
                            log_path=None if out is None else out / "sim_bridge.log")
     elif conns is not None and (args.speedup not in (None, 1.0) or args.loss or args.latency_ms or args.blackout):
         print("companion: note: --speedup/--loss/--latency-ms/--blackout only apply to the embedded stub; "

@@ -141,7 +141,7 @@ def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
 
 async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, report) -> None:
     from companion.app.fence import upload_and_verify_fence
-    from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
+    from companion.vehicle.mavsdk_open import open_mavsdk_vehicle
     for v in plan.mission.vehicles:
         async with open_mavsdk_vehicle(v.name, v.system_id, conns[v.name], plan.mission.origin,
                                        connect_timeout_s=timeout_s) as vehicle:

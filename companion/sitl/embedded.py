@@ -45,6 +45,7 @@ class StubOptions:
     tlog_dir: Path | None = None
     log_path: Path | None = None  # the child's output; None: discarded
     params: tuple[str, ...] = ()  # autopilot parameters at boot (NAME=VALUE); none: PX4's defaults
+    signing_key_file: Path | None = None  # MAVLink 2 signing: the stub signs and refuses unsigned frames
 
     def argv(self, mission_path: Path) -> list[str]:
         out = [sys.executable, "-m", "companion.sitl.stub_child", str(mission_path), "--speedup", f"{self.speedup:g}",
@@ -60,6 +61,8 @@ class StubOptions:
             out += ["--tlog", str(self.tlog_dir)]
         for p in self.params:
             out += ["--param", p]
+        if self.signing_key_file is not None:
+            out += ["--signing-key", str(self.signing_key_file.absolute())]
         return out
 
 

@@ -20,6 +20,20 @@ delays neither the vehicle's telemetry to MAVSDK nor MAVSDK's setpoints to the v
 thread waits on both sockets with a short timeout and a wake-up socket; leaving
 :func:`guarded_port` stops it, waits (sleeping on the loop, never blocking it) until the thread
 has ended, then closes the sockets, so the port is free again. The conflict event is set on the loop with ``call_soon_threadsafe``.
+
+Setpoints are a stream in which only the newest counts: when several SET_POSITION_TARGET_* or
+SET_ATTITUDE_TARGET frames from MAVSDK for one target wait in the guard's socket at once (the
+process lost the CPU for a while), only the newest of them is forwarded, in its place; every
+other datagram is forwarded in order. Counted in :attr:`LinkGuard.stale_setpoints`.
+
+With a signing key (``companion run --signing-key``), the guard signs what MAVSDK sends and
+drops what the autopilot sends unsigned or signed with another key
+(:mod:`companion.vehicle.link_signing`); only a correctly signed frame makes an address the
+vehicle's autopilot. Before the autopilot has sent one good frame, a refused frame from its
+system id, with no good one for a second after it, means the two sides disagree about signing:
+:meth:`LinkGuard.first_word` raises it (:attr:`LinkGuard.signing_problem` says how) before
+MAVSDK waits in vain. Without a key, an autopilot that signs is the same disagreement (it would
+refuse every unsigned command).
 """
 
 from __future__ import annotations
@@ -28,11 +42,16 @@ import asyncio
 import selectors
 import socket
 import threading
+import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from companion.errors import LinkConflict
-from companion.vehicle.link_probe import frame_system_ids, probe_udpin, udpin_port
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.errors import LinkConflict, SigningRefused
+from companion.vehicle.link_probe import (MAVLINK_IFLAG_SIGNED, MAVLINK_V2, frame_spans, frame_system_ids,
+                                          probe_udpin, udpin_port)
+from companion.vehicle.link_signing import LinkSigner, Refusal
 from companion.vehicle.position_stamps import PositionStamps
 
 LOOPBACK = "127.0.0.1"
@@ -41,6 +60,11 @@ MAX_DATAGRAM = 65535
 BURST = 64  # datagrams one side forwards before the other side's turn
 POLL_S = 0.05  # the relay thread's longest wait: how soon it sees a stop without a wake-up
 STOP_WAIT_S = 2.0  # how long leaving the guard waits for its thread
+FIRST_WORD_POLL_S = 0.01
+SIGNING_GRACE_S = 1.0  # wall: how long refused frames may go without one good frame before it is a disagreement
+SETPOINT_IDS = frozenset({mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
+                          mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT,
+                          mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET})
 
 
 def _roomy(sock: socket.socket) -> socket.socket:
@@ -66,15 +90,21 @@ def _send(sock: socket.socket, data: bytes, addr: tuple[str, int]) -> None:
 class LinkGuard:
     """Relay between the autopilot on ``outer`` and MAVSDK on ``mavsdk_port``; see the module docstring."""
 
-    def __init__(self, system_id: int, mavsdk_port: int):
+    def __init__(self, system_id: int, mavsdk_port: int, signing_key: bytes | None = None):
         self.system_id = system_id
         self.mavsdk_port = mavsdk_port
         self.autopilot: tuple[str, int] | None = None
         self.conflict: str | None = None
         self.conflicted = asyncio.Event()
+        self.signing_problem: str | None = None
+        self._suspect: tuple[str, float] | None = None  # the first refused frame of the system id: why, when
+        self.signer = None if signing_key is None else LinkSigner(signing_key)
         self.dropped = 0  # datagrams from a second source, never relayed
         self.relayed = 0  # datagrams forwarded either way
         self.stamps = PositionStamps(system_id)  # the autopilot's time of each position MAVSDK reads
+        self.heard = False  # a frame from outside has been relayed to MAVSDK (with a key: a correctly signed one)
+        self.stale_setpoints = 0  # setpoints from MAVSDK overtaken by a newer one while queued
+        self._decoder = mavlink.MAVLink(None)  # reads a setpoint's target (the relay thread's own)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._outer: socket.socket | None = None
         self._inner: socket.socket | None = None
@@ -88,7 +118,20 @@ class LinkGuard:
         return f"udpin://{LOOPBACK}:{self.mavsdk_port}"
 
     def from_outside(self, data: bytes, addr: tuple[str, int]) -> None:
-        ours = self.system_id in frame_system_ids(data)
+        if self.signer is not None:
+            data, signers, refused = self.signer.check(data)
+            if refused:
+                self._refused(refused, addr)
+            ours = self.system_id in signers
+            self.heard = self.heard or bool(signers)
+            if not data:
+                return
+        else:
+            ours = self.system_id in frame_system_ids(data)
+            if ours and self.signing_problem is None and self.autopilot in (None, addr) and self._signed(data):
+                self.signing_problem = (f"signing: the autopilot (system {self.system_id} at {addr[0]}:{addr[1]}) "
+                                        "signs its MAVLink frames and so refuses unsigned commands; give the "
+                                        "companion its key with --signing-key FILE")
         if ours and self.autopilot is None:
             self.autopilot = addr
         if ours and addr != self.autopilot:
@@ -97,28 +140,53 @@ class LinkGuard:
                 a = self.autopilot
                 self.conflict = (f"link conflict: system id {self.system_id} from two sources "
                                  f"{a[0]}:{a[1]} and {addr[0]}:{addr[1]}")
-                self._signal_conflict()
+                self._signal(self.conflicted)
             return
         if ours:
             self.stamps.record(data)
         if self._inner is not None:
             _send(self._inner, data, (LOOPBACK, self.mavsdk_port))
             self.relayed += 1
+            self.heard = self.heard or self.signer is None
+
+    def _signed(self, data: bytes) -> bool:
+        return any(data[i] == MAVLINK_V2 and data[i + 5] == self.system_id and data[i + 2] & MAVLINK_IFLAG_SIGNED
+                   for i, _ in frame_spans(data))
+
+    def _refused(self, refused: list[Refusal], addr: tuple[str, int]) -> None:
+        """Frames the signing check dropped (counted by the signer): before the autopilot's first
+        good frame, a suspected disagreement about signing (or a forger: see :meth:`first_word`)."""
+        if self.autopilot is not None or self._suspect is not None:
+            return
+        mine = [r for r in refused if r.system_id == self.system_id]
+        if not mine:
+            return
+        where = f"system {self.system_id} at {addr[0]}:{addr[1]}"
+        if any(r.signed for r in mine):
+            why = f"frames from {where} fail the signature check: the autopilot's key is not the one in --signing-key"
+        else:
+            why = (f"the autopilot ({where}) sends unsigned MAVLink frames but --signing-key is set: give the "
+                   "autopilot the same key, or fly without --signing-key")
+        self._suspect = f"signing: {why}", time.monotonic()
 
     def from_mavsdk(self, data: bytes, addr: tuple[str, int]) -> None:
         if addr[1] != self.mavsdk_port:
             return  # not MAVSDK: nobody else is told this private port
+        if self.signer is not None and self.autopilot is not None:
+            data = self.signer.sign(data)
+            if not data:
+                return
         if self.autopilot is not None and self._outer is not None:
             _send(self._outer, data, self.autopilot)
             self.relayed += 1
 
-    def _signal_conflict(self) -> None:
+    def _signal(self, event: asyncio.Event) -> None:
         loop = self._loop
         if loop is None:
-            self.conflicted.set()
+            event.set()
             return
         try:
-            loop.call_soon_threadsafe(self.conflicted.set)
+            loop.call_soon_threadsafe(event.set)
         except RuntimeError:
             pass  # the loop has closed: nobody is left to tell
 
@@ -147,15 +215,42 @@ class LinkGuard:
             pass  # a socket closed under the selector: the guard is going away
 
     def _drain(self, sock: socket.socket, handle) -> None:
-        """Forward the datagrams waiting on ``sock`` now (a burst at a time, so that the other side takes turns)."""
+        """Forward the datagrams waiting on ``sock`` now (a burst at a time, so that the other side
+        takes turns); of MAVSDK's setpoints for one target in a burst, only the newest."""
+        burst: list[tuple[bytes, tuple[str, int]]] = []
         for _ in range(BURST):
             try:
                 data, addr = sock.recvfrom(MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
-                return
+                break
             except OSError:
                 continue  # an ICMP error queued on the socket: the next datagram may follow
-            handle(data, (str(addr[0]), int(addr[1])))
+            burst.append((data, (str(addr[0]), int(addr[1]))))
+        if sock is self._inner and len(burst) > 1:
+            burst = self._newest_setpoints(burst)
+        for data, addr in burst:
+            handle(data, addr)
+
+    def _setpoint_target(self, data: bytes) -> tuple[int, ...] | None:
+        """(message, sender, target) when ``data`` is one setpoint frame, else None."""
+        spans = frame_spans(data)
+        if len(spans) != 1 or data[0] != MAVLINK_V2 or len(data) < 10:
+            return None
+        msg_id = data[7] | data[8] << 8 | data[9] << 16
+        if msg_id not in SETPOINT_IDS:
+            return None
+        try:
+            msg = self._decoder.decode(bytearray(data))
+        except Exception:  # noqa: BLE001 - pymavlink raises several kinds on a bad frame: forward it as it is
+            return None
+        return msg_id, data[5], data[6], msg.target_system, msg.target_component
+
+    def _newest_setpoints(self, burst: list[tuple[bytes, tuple[str, int]]]) -> list[tuple[bytes, tuple[str, int]]]:
+        targets = [self._setpoint_target(data) for data, _ in burst]
+        newest = {t: i for i, t in enumerate(targets) if t is not None}
+        kept = [item for i, (item, t) in enumerate(zip(burst, targets)) if t is None or newest[t] == i]
+        self.stale_setpoints += len(burst) - len(kept)
+        return kept
 
     def close(self) -> None:
         """Ask the relay thread to stop; never blocks (:meth:`stopped` waits for it and frees the port)."""
@@ -170,6 +265,33 @@ class LinkGuard:
         for sock in (self._outer, self._inner, self._wake_r, self._wake_w):
             if sock is not None:
                 sock.close()
+
+    def link_events(self) -> dict[str, int]:
+        """What the guard kept from the vehicle's link, for the run's summary (nonzero counts only)."""
+        events = {"second_source_dropped": self.dropped, "stale_setpoints_dropped": self.stale_setpoints}
+        if self.signer is not None:
+            events.update(signed_out=self.signer.signed, upgraded_to_mavlink2=self.signer.upgraded,
+                          unsignable_dropped=self.signer.unsignable, verified_in=self.signer.verified,
+                          signing_refused=self.signer.refused)
+        return {k: v for k, v in events.items() if v}
+
+    async def first_word(self, timeout_s: float, vehicle: str | None = None) -> bool:
+        """Wait until a frame from outside has passed to MAVSDK (with a key: a correctly signed one):
+        True; False after ``timeout_s`` of silence. SigningRefused when the two sides disagree
+        about signing: refused frames of the system id and, for SIGNING_GRACE_S after the first,
+        not one good frame (an autopilot streams; a forger's frames are followed by the real
+        autopilot's)."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout_s
+        while not self.heard and self.signing_problem is None and loop.time() < deadline:
+            suspect = self._suspect
+            if suspect is not None and time.monotonic() - suspect[1] > SIGNING_GRACE_S:
+                self.signing_problem = suspect[0]
+                break
+            await asyncio.sleep(FIRST_WORD_POLL_S)
+        if self.signing_problem is not None:
+            raise SigningRefused(self.signing_problem, vehicle=vehicle)
+        return self.heard
 
     @property
     def running(self) -> bool:
@@ -195,23 +317,28 @@ def _free_loopback_port() -> int:
 
 
 @asynccontextmanager
-async def guarded_link(url: str, system_id: int, vehicle: str) -> AsyncIterator[tuple[str, LinkGuard | None]]:
+async def guarded_link(url: str, system_id: int, vehicle: str,
+                       signing_key: bytes | None = None) -> AsyncIterator[tuple[str, LinkGuard | None]]:
     """The URL MAVSDK should open for ``url`` and its guard, while the context is open: a
     ``udpin://`` port is probed (two autopilots already: LinkConflict), then held by a guard;
-    other URLs (udpout, tcp, serial) are MAVSDK's own, unguarded."""
-    await probe_udpin(url, system_id, vehicle)
+    other URLs (udpout, tcp, serial) are MAVSDK's own, unguarded, and cannot be signed."""
     where = udpin_port(url)
+    if where is None and signing_key is not None:
+        raise SigningRefused(f"signing: {url} is not a udpin:// link; the companion signs only on the UDP "
+                             "ports it holds", vehicle=vehicle)
+    await probe_udpin(url, system_id, vehicle)
     if where is None:
         yield url, None
         return
-    async with guarded_port(*where, system_id, vehicle) as guard:
+    async with guarded_port(*where, system_id, vehicle, signing_key=signing_key) as guard:
         yield guard.mavsdk_url, guard
 
 
 @asynccontextmanager
-async def guarded_port(host: str, port: int, system_id: int, vehicle: str | None = None) -> AsyncIterator[LinkGuard]:
+async def guarded_port(host: str, port: int, system_id: int, vehicle: str | None = None, *,
+                       signing_key: bytes | None = None) -> AsyncIterator[LinkGuard]:
     """Hold ``host:port`` for the vehicle while the context is open (LinkConflict if it is taken)."""
-    guard = LinkGuard(system_id, _free_loopback_port())
+    guard = LinkGuard(system_id, _free_loopback_port(), signing_key)
     outer = _roomy(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
     try:
         outer.bind((host, port))

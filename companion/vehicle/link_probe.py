@@ -16,38 +16,47 @@ from collections.abc import Iterator
 from urllib.parse import urlparse
 
 from companion.errors import LinkConflict
+from uav_model.signing_key import SIGNATURE_BYTES
 
 PROBE_S = 0.6  # wall; PX4 streams ATTITUDE at 100 Hz and the stub at 20 Hz: plenty of datagrams
 MAVLINK_V1, MAVLINK_V2 = 0xFE, 0xFD
-
-
 MAVLINK_IFLAG_SIGNED = 0x01
-SIGNATURE_BYTES = 13
 
 
-def mavlink_frames(datagram: bytes) -> Iterator[tuple[int, int, bytes]]:
-    """``(system id, message id, payload)`` of every MAVLink frame (v1 or v2) packed one after
-    another in a datagram, as far as the headers can be followed (an autopilot may send several
-    messages in one datagram). A MAVLink 2 payload comes as sent: trailing zero bytes truncated."""
+def frame_spans(datagram: bytes) -> list[tuple[int, int]]:
+    """(start, end) of every MAVLink frame (v1 or v2) packed one after another in a datagram, as
+    far as the headers can be followed; the last one may end past the datagram (truncated)."""
+    spans: list[tuple[int, int]] = []
     i, n = 0, len(datagram)
     while i < n:
         if datagram[i] == MAVLINK_V2 and i + 10 <= n:
-            length = datagram[i + 1]
+            signed = datagram[i + 2] & MAVLINK_IFLAG_SIGNED
+            end = i + 12 + datagram[i + 1] + (SIGNATURE_BYTES if signed else 0)
+        elif datagram[i] == MAVLINK_V1 and i + 6 <= n:
+            end = i + 8 + datagram[i + 1]
+        else:
+            break  # not a frame start: the rest cannot be followed
+        spans.append((i, end))
+        i = end
+    return spans
+
+
+def mavlink_frames(datagram: bytes) -> Iterator[tuple[int, int, bytes]]:
+    """``(system id, message id, payload)`` of every frame :func:`frame_spans` finds. A MAVLink 2
+    payload comes as sent: trailing zero bytes truncated."""
+    for i, _ in frame_spans(datagram):
+        length = datagram[i + 1]
+        if datagram[i] == MAVLINK_V2:
             msgid = datagram[i + 7] | datagram[i + 8] << 8 | datagram[i + 9] << 16
             yield datagram[i + 5], msgid, datagram[i + 10:i + 10 + length]
-            signed = datagram[i + 2] & MAVLINK_IFLAG_SIGNED
-            i += 12 + length + (SIGNATURE_BYTES if signed else 0)
-        elif datagram[i] == MAVLINK_V1 and i + 6 <= n:
-            length = datagram[i + 1]
-            yield datagram[i + 3], datagram[i + 5], datagram[i + 6:i + 6 + length]
-            i += 8 + length
         else:
-            return  # not a frame start: the rest cannot be followed
+            yield datagram[i + 3], datagram[i + 5], datagram[i + 6:i + 6 + length]
 
 
 def frame_system_ids(datagram: bytes) -> list[int]:
-    """The system id of every MAVLink frame in a datagram (:func:`mavlink_frames`)."""
-    return [system_id for system_id, _, _ in mavlink_frames(datagram)]
+    """The system id of every MAVLink frame (v1 or v2) packed one after another in a datagram, as
+    far as the headers can be followed (an autopilot may send several messages in one datagram)."""
+    return [datagram[i + (5 if datagram[i] == MAVLINK_V2 else 3)] for i, _ in frame_spans(datagram)]
 
 
 def sender_system_id(datagram: bytes) -> int | None:

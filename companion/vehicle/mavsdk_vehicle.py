@@ -1,8 +1,9 @@
 """The Vehicle port over MAVSDK 4 (``mavsdk.asyncio``): one Mavsdk instance per vehicle.
 
-Open with :func:`open_mavsdk_vehicle` as an async context manager. Inside it, one task group runs
-the telemetry pumps (attitude, position, velocity, mode, armed, landed state, health, battery,
-ADS-B traffic); leaving the context cancels them and destroys the Mavsdk instance.
+Open with :func:`companion.vehicle.mavsdk_open.open_mavsdk_vehicle` (an async context manager).
+Inside it, one task group runs the telemetry pumps (attitude, position, velocity, mode, armed,
+landed state, health, battery, ADS-B traffic); leaving the context cancels them and destroys the
+Mavsdk instance.
 
 Conversions happen here and only through :mod:`uav_model.frames`: GLOBAL_POSITION_INT lat/lon
 becomes mission ENU (one frame for every vehicle, whatever their homes); NED yaw becomes an ENU
@@ -18,11 +19,9 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import AsyncGenerator, AsyncIterator, Awaitable, Callable, Sequence
-from contextlib import asynccontextmanager
+from collections.abc import AsyncGenerator, Awaitable, Callable, Sequence
 from typing import TypeVar
 
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, MavsdkConnectionError
 from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync, MissionRawError
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError
@@ -33,11 +32,11 @@ from mavsdk.asyncio.plugins.transponder import TransponderAsync
 from mavsdk.exceptions import MavsdkError
 
 from uav_model import frames
-from companion.errors import CommandRefused, ConnectTimeout, LinkError, MissionUploadError, VehicleNotReady
+from companion.errors import CommandRefused, LinkError, MissionUploadError, VehicleNotReady
 from companion.vehicle.board import BoardReaders, VehicleBoard
 from companion.vehicle.convert import (  # shared with the in-process adapter
     MAV_FRAME_GLOBAL, FenceItem, fence_items, fence_zones, traffic_velocity_enu)
-from companion.vehicle.link_guard import LinkGuard, guarded_link
+from companion.vehicle.link_guard import LinkGuard
 from companion.vehicle.mavsdk_items import (MAV_MISSION_TYPE_FENCE, body_setpoint, items_to_waypoints,
                                             waypoints_to_items)
 from companion.vehicle.mavsdk_params import MavsdkParams
@@ -58,7 +57,6 @@ STREAM_RATE_HZ = 10.0
 STREAM_RATE_ATTEMPTS = 10  # a loaded machine loses acks, and MAVSDK refuses while it misses heartbeats
 STREAM_RATE_RETRY_S = 2.0  # wall, between attempts
 MISSION_TRANSFER_TIMEOUT_S = 30.0  # wall; the protocol has its own per-item timeouts
-SHUTDOWN_TIMEOUT_S = 5.0  # wall; destroying an instance joins its threads (then companion.app.event_loop.leave)
 _RETRYABLE = frozenset({"BUSY", "TIMEOUT", "CONNECTION_ERROR", "UNKNOWN"})
 
 _MODES = {
@@ -75,7 +73,7 @@ _LANDED = {
 
 
 class MavsdkVehicle(BoardReaders):
-    """One autopilot over its own Mavsdk instance. Build with :func:`open_mavsdk_vehicle`."""
+    """One autopilot over its own Mavsdk instance; opened by :mod:`companion.vehicle.mavsdk_open`."""
 
     def __init__(self, name: str, system_id: int, system, origin: frames.GeoOrigin, guard: LinkGuard | None = None,
                  telemetry_hz: float = STREAM_RATE_HZ):
@@ -315,6 +313,9 @@ class MavsdkVehicle(BoardReaders):
         async for h in self._stream(self._telemetry.subscribe_health()):
             await self._board.put_status(home_ok=bool(h.is_home_position_ok))
 
+    def link_events(self) -> dict[str, int]:
+        return {} if self._guard is None else self._guard.link_events()
+
     async def _pump_link_guard(self) -> None:
         if self._guard is not None:
             await self._guard.conflicted.wait()
@@ -337,64 +338,3 @@ class MavsdkVehicle(BoardReaders):
                 callsign=callsign, x_east_m=x, y_north_m=y,
                 vx_east_m_s=vx, vy_north_m_s=vy,
                 t_sim_s=t_sim, t_wall_s=time.monotonic(), via=self._name))
-
-
-@asynccontextmanager
-async def open_mavsdk_vehicle(name: str, system_id: int, url: str, origin: frames.GeoOrigin, *,
-                              connect_timeout_s: float = 15.0, telemetry_hz: float = STREAM_RATE_HZ
-                              ) -> AsyncIterator[MavsdkVehicle]:
-    """Connect to the autopilot on ``url`` and run its telemetry pumps while the context is open.
-    A ``udpin://`` port is held by a :class:`LinkGuard` that sees each datagram's source."""
-    async with guarded_link(url, system_id, name) as (mavsdk_url, guard):
-        async with _open(name, system_id, url, mavsdk_url, guard, origin, connect_timeout_s, telemetry_hz) as vehicle:
-            yield vehicle
-
-
-@asynccontextmanager
-async def _open(name: str, system_id: int, url: str, mavsdk_url: str, guard: LinkGuard | None,
-                origin: frames.GeoOrigin, connect_timeout_s: float, telemetry_hz: float,
-                ) -> AsyncIterator[MavsdkVehicle]:
-    sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-    try:
-        try:
-            async with asyncio.timeout(connect_timeout_s):
-                await sdk.add_any_connection(mavsdk_url)
-        except MavsdkConnectionError as exc:
-            raise LinkError(f"cannot open connection {url!r}: {exc}", vehicle=name) from None
-        except TimeoutError:
-            raise ConnectTimeout(f"opening {url!r} took longer than {connect_timeout_s:g} s", vehicle=name) from None
-        try:
-            async with asyncio.timeout(connect_timeout_s + 1.0):
-                system = await sdk.first_autopilot(timeout_s=connect_timeout_s)
-        except TimeoutError:
-            system = None
-        if system is None:
-            raise ConnectTimeout(f"no autopilot heartbeat on {url} within {connect_timeout_s:g} s", vehicle=name)
-        got = await system.get_system_id()
-        if got != system_id:
-            raise LinkError(f"the autopilot on {url} has system id {got}, the mission expects {system_id}",
-                            vehicle=name)
-        vehicle = MavsdkVehicle(name, system_id, system, origin, guard, telemetry_hz)
-        try:
-            async with asyncio.TaskGroup() as tg:
-                pumps = vehicle.start_pumps(tg)
-                try:
-                    yield vehicle
-                finally:
-                    for task in pumps:
-                        task.cancel()
-        except BaseExceptionGroup as group:
-            # The pumps only end by cancellation, so the group holds the caller's own error:
-            # hand it back unwrapped so that ``except CommandRefused`` still works.
-            if len(group.exceptions) == 1:
-                raise group.exceptions[0] from None
-            raise
-        finally:
-            await vehicle.close_streams()
-    finally:
-        # Joins MAVSDK's threads: keep it off the event loop, and do not wait forever for it.
-        try:
-            async with asyncio.timeout(SHUTDOWN_TIMEOUT_S):
-                await asyncio.to_thread(sdk.destroy)
-        except TimeoutError:
-            log.warning("vehicle %s: MAVSDK did not shut down within %g s", name, SHUTDOWN_TIMEOUT_S)

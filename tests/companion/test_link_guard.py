@@ -8,7 +8,11 @@ while the datagrams are sent and must be received; the guard's thread alone can 
 from __future__ import annotations
 
 import asyncio
+import os
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
 
@@ -130,3 +134,60 @@ def test_a_taken_port_is_a_link_conflict_and_leaves_no_thread():
     with pytest.raises(LinkConflict, match="cannot listen on udp 127.0.0.1:"):
         asyncio.run(main())
     assert not _guard_threads()
+
+
+RELAY_CHILD = """
+import asyncio, sys
+from companion.vehicle.link_guard import LOOPBACK, guarded_port
+
+async def main():
+    async with guarded_port(LOOPBACK, int(sys.argv[1]), system_id=1) as guard:
+        print(guard.mavsdk_port, flush=True)
+        await asyncio.get_running_loop().run_in_executor(None, sys.stdin.read)
+        print(guard.stale_setpoints, flush=True)
+
+asyncio.run(main())
+"""
+
+
+def _setpoint(x: float, target: int = 1) -> bytes:
+    enc = mavlink.MAVLink(None, 245, 190)
+    return enc.set_position_target_local_ned_encode(0, target, 1, mavlink.MAV_FRAME_BODY_NED, 0xDC7, x, 0, 0,
+                                                    1.0, 0, 0, 0, 0, 0, 0, 0.1).pack(enc)
+
+
+def _command(n: int) -> bytes:
+    enc = mavlink.MAVLink(None, 245, 190)
+    return enc.command_long_encode(1, 1, mavlink.MAV_CMD_DO_SET_MODE, n, 1, 0, 0, 0, 0, 0, 0).pack(enc)
+
+
+def test_a_stalled_relay_forwards_only_the_newest_queued_setpoint_per_target_and_the_rest_in_order():
+    """The relay's process is stopped (SIGSTOP: as a machine under load would) while MAVSDK queues
+    setpoints and commands; once it runs again, the autopilot gets every command in order and,
+    per target, only the newest setpoint, in its place."""
+    port = _free_port()
+    child = subprocess.Popen([sys.executable, "-c", RELAY_CHILD, str(port)], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+    try:
+        mavsdk_port = int(child.stdout.readline())
+        with _udp() as autopilot, _udp(mavsdk_port) as mavsdk:
+            autopilot.sendto(_heartbeat(1), (LOOPBACK, port))
+            relay = _received(mavsdk)[1]
+            os.kill(child.pid, signal.SIGSTOP)
+            try:
+                queued = ([_command(1)] + [_setpoint(float(i)) for i in range(20)] + [_command(2)]
+                          + [_setpoint(100.0 + i, target=2) for i in range(5)] + [_setpoint(20.0), _command(3)])
+                for data in queued:
+                    mavsdk.sendto(data, relay)
+            finally:
+                os.kill(child.pid, signal.SIGCONT)
+            got = []
+            while (item := _received(autopilot, SILENCE_S if got else ARRIVAL_S)) is not None:
+                got.append(item[0])
+        out, _ = child.communicate("", timeout=10)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert got == [_command(1), _command(2), _setpoint(104.0, target=2), _setpoint(20.0), _command(3)]
+    assert int(out.split()[-1]) == len(queued) - len(got)

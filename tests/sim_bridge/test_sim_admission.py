@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sim_bridge.admission import SigningKeyError, load_signing_key, parse_sysids, signing_timestamp
+from sim_bridge.admission import parse_sysids
+from uav_model.signing_key import SigningKeyError, load_signing_key, signing_timestamp
 from sim_bridge.bridge import SimOptions
 from sim_bridge.testing import stub_on_free_ports
 from uav_model.mission import parse_mission
@@ -38,7 +39,8 @@ KEY = hashlib.sha256(b"correct horse").digest()
 class Client:
     """A ground station on vehicle 0's API port: sends from it, reads the stub's frames on it."""
 
-    def __init__(self, sim, sysid: int, key: bytes | None = None, verify_key: bytes | None = None):
+    def __init__(self, sim, sysid: int, key: bytes | None = None, verify_key: bytes | None = None,
+                 timestamp: int | None = None):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", sim.options.api_port(0)))
         self.sock.setblocking(False)
@@ -46,7 +48,7 @@ class Client:
         self.enc = mavlink.MAVLink(None, sysid, 190)
         if key is not None:
             self.enc.signing.secret_key, self.enc.signing.sign_outgoing = key, True
-            self.enc.signing.timestamp = signing_timestamp()
+            self.enc.signing.timestamp = signing_timestamp() if timestamp is None else timestamp
         self.dec = mavlink.MAVLink(None, 0, 0)
         self.dec.robust_parsing = True
         if verify_key is not None:
@@ -135,7 +137,9 @@ def test_a_stub_with_a_key_signs_its_frames_and_obeys_only_signed_commands(caplo
     wrong = hashlib.sha256(b"wrong").digest()
     with caplog.at_level(logging.WARNING, logger="sim_bridge.admission"):
         (unsigned, other, signed), _ = arm_attempts(SimOptions(speedup=4.0, signing_key=KEY), [
-            {"sysid": 245, "verify_key": KEY}, {"sysid": 245, "key": wrong, "verify_key": KEY},
+            {"sysid": 245, "verify_key": KEY},
+            # Another key, and a far-future timestamp on the stream the owner uses next: it must not lock the owner out.
+            {"sysid": 245, "key": wrong, "verify_key": KEY, "timestamp": (1 << 48) - 10},
             {"sysid": 245, "key": KEY, "verify_key": KEY, "listen_s": 0.5}])
     assert (unsigned.acks, unsigned.armed) == ([], False)
     assert (other.acks, other.armed) == ([], False)

@@ -24,7 +24,7 @@ from companion.app.live_run import run_mission
 from companion.cli import main
 from companion.errors import GeofenceRefused
 from companion.sitl.inprocess import open_inprocess_fleet
-from companion.vehicle.mavsdk_vehicle import open_mavsdk_vehicle
+from companion.vehicle.mavsdk_open import open_mavsdk_vehicle
 from companion.vehicle.port import GeoFenceZone
 from uav_model.fence_margin import (exclusion_margin_m, fence_standoff_m, fence_warnings, keep_in_standoff_m,
                                    px4_braking_reach_m, rollout_box)

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.vehicle.mavsdk_vehicle import STREAM_RATE_HZ, open_mavsdk_vehicle
+from companion.vehicle.mavsdk_open import open_mavsdk_vehicle
+from companion.vehicle.mavsdk_vehicle import STREAM_RATE_HZ
 from sim_bridge.bridge import SimOptions
 from sim_bridge.testing import sim_connection_url, stub_on_free_ports
 from uav_model.mission import load_mission
