@@ -147,11 +147,6 @@ def _rules(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig) -> _Ru
         distance = no_obstacle_in_reach(config)
     if scene.binding:
         ok_by_rule[Rule.SEPARATION] = separation_ok(window.px, window.py, config.times_s, pose, scene.binding, config)
-        if config.lagged_hom_m is not None:  # the plant flies wide of a turn: kept on its flight of it too
-            xy = placement(pose) @ config.lagged_hom_m
-            ok_by_rule[Rule.SEPARATION] = ok_by_rule[Rule.SEPARATION] & separation_ok(
-                xy[0].reshape(window.px.shape), xy[1].reshape(window.px.shape), config.times_s, pose, scene.binding,
-                config)
     if scene.fence_here is not None:
         ok_by_rule[Rule.GEOFENCE] = fence_ok(window.px, window.py, config.fence_m, scene.fence_here)
     if legal is None or len(ok_by_rule) > 1:
