@@ -27,8 +27,12 @@ line names the CPU and the load average).
 
 from __future__ import annotations
 
+import sys
+
+if "--numpy" in sys.argv:  # before any import: the DWA's backend is chosen when its configs are built
+    sys.modules["numba"] = None
+
 import argparse
-import contextlib
 import cProfile
 import io
 import pstats
@@ -40,7 +44,6 @@ from pathlib import Path
 import numpy as np
 
 from companion.bench.machine import machine_line
-from companion.planning.dwa import kernels
 from companion.planning.flight.headless import simulate
 from companion.planning.routes import plan_routes
 from companion.scenarios import ScenarioConfig, ScenarioError, generate_scenario
@@ -154,21 +157,20 @@ def main() -> None:
     print(machine_line(), flush=True)
     print(f"seed {args.seed}, {args.scenarios} scenarios x {args.repeats} repeats per size, "
           f"kernels: {'numpy' if args.numpy else 'numba where installed'}", flush=True)
-    with kernels.numpy_only() if args.numpy else contextlib.nullcontext():
-        converging = load_mission(ROOT / "missions" / "eight_converging.yaml")
-        conv_routes = plan_routes(converging)
-        for variant in variants:
-            simulate(converging, variant, routes=conv_routes)  # warm: kernels compiled, caches filled
-            factors, cpu_factors, run, _ = fly(converging, conv_routes, variant, max(args.repeats, 3))
-            print(f"[{variant}] eight_converging.yaml: {statistics.median(factors):.0f}x real time, "
-                  f"{statistics.median(cpu_factors):.0f}x of CPU (medians of {len(factors)}; "
-                  f"{run.summary.duration_s:.0f} s flown in {run.wall_s:.2f} s), success {run.success}", flush=True)
-        for variant in variants:
-            by_near: dict[int, list[float]] = defaultdict(list)
-            sizes_table(args, variant, sizes, by_near)
-            near_table(variant, by_near)
-            if args.profile:
-                profile(args, variant)
+    converging = load_mission(ROOT / "missions" / "eight_converging.yaml")
+    conv_routes = plan_routes(converging)
+    for variant in variants:
+        simulate(converging, variant, routes=conv_routes)  # warm: kernels compiled, caches filled
+        factors, cpu_factors, run, _ = fly(converging, conv_routes, variant, max(args.repeats, 3))
+        print(f"[{variant}] eight_converging.yaml: {statistics.median(factors):.0f}x real time, "
+              f"{statistics.median(cpu_factors):.0f}x of CPU (medians of {len(factors)}; "
+              f"{run.summary.duration_s:.0f} s flown in {run.wall_s:.2f} s), success {run.success}", flush=True)
+    for variant in variants:
+        by_near: dict[int, list[float]] = defaultdict(list)
+        sizes_table(args, variant, sizes, by_near)
+        near_table(variant, by_near)
+        if args.profile:
+            profile(args, variant)
 
 
 if __name__ == "__main__":
