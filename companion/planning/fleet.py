@@ -25,6 +25,8 @@ import math
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from companion.planning.dwa import OtherUav
 
 
@@ -85,3 +87,44 @@ def react_to(x_m: float, y_m: float, rank: int, neighbours: Sequence[Neighbour],
     uavs = tuple(OtherUav(n.uav.x_m, n.uav.y_m, n.uav.vx_m_s, n.uav.vy_m_s, False, True)  # right of way
                  if n.rank < rank and not n.uav.arrived else n.uav for n in neighbours)
     return Reaction(partner, uavs)
+
+
+
+class FleetView:
+    """:func:`react_to` for every vehicle of a fleet in one tick, from one distance matrix.
+
+    Vehicle i is at ``xy_m[i]`` (V, 2), seen by the others as ``uavs[i]``, named ``names[i]``, of
+    priority rank i (``names`` in priority order), assigned ``partners[i]``. Each separation set
+    leaves out the UAVs that cannot bind: those farther than ``reach[i]``'s metres plus their
+    speed times its seconds (:func:`.dwa.legality.separation_reach`)."""
+
+    def __init__(self, xy_m: np.ndarray, uavs: Sequence[OtherUav], names: Sequence[str],
+                 partners: Sequence[Collection[str] | None], reach: Sequence[tuple[float, float]]):
+        self.uavs, self.names, self.partners, self.reach = list(uavs), names, partners, reach
+        self.gap = np.hypot(xy_m[:, None, 0] - xy_m[None, :, 0], xy_m[:, None, 1] - xy_m[None, :, 1])
+        self.speed = np.array([math.hypot(u.vx_m_s, u.vy_m_s) for u in uavs])
+        self.flying = np.array([not u.arrived for u in uavs])
+        self.ranks = np.arange(len(uavs))
+        self.with_way = [u if u.arrived else OtherUav(u.x_m, u.y_m, u.vx_m_s, u.vy_m_s, False, True) for u in uavs]
+
+    def park(self, i: int) -> None:
+        """Vehicle i has arrived this tick: the others see it parked at its place."""
+        u = self.uavs[i]
+        self.uavs[i] = self.with_way[i] = OtherUav(u.x_m, u.y_m, 0.0, 0.0, arrived=True)
+        self.speed[i], self.flying[i] = 0.0, False
+
+    def reaction(self, i: int) -> Reaction:
+        count, ranks = len(self.uavs), self.ranks
+        others = pool = ranks != i
+        if self.partners[i]:
+            assigned = others & np.array([n in self.partners[i] for n in self.names])
+            if assigned.any():
+                pool = assigned
+        above = pool & self.flying & (ranks < (i if pool is others else count))  # assigned: all count as above
+        j = int(np.argmin(np.where(above if above.any() else pool, self.gap[i], np.inf)))  # ties: the lower rank
+        near = np.flatnonzero(others & (self.gap[i] <= self.reach[i][0] + self.speed * self.reach[i][1]))
+        if count > 2:  # react_to's right of way
+            separate = tuple(self.with_way[k] if k < i else self.uavs[k] for k in near)
+        else:
+            separate = tuple(self.uavs[k] for k in near)
+        return Reaction(Neighbour(self.names[j], j, self.uavs[j]), separate)

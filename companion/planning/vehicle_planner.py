@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from companion.planning.dwa import Command, DwaConfig, NoLegalRollout, ObstacleSnapshot, OtherUav, Pose, plan_step
+from companion.planning.dwa.legality import separation_reach
 from companion.planning.errors import BudgetExceeded, NoPath
 from companion.planning.grid import rasterise
 from companion.planning.local_goals import LocalGoalTracker
@@ -307,6 +308,12 @@ class VehiclePlanner:
             self.tracker.advance_to(self._along_m)
         held = self.lead_m > 0.0 or bool(route.is_waiting_at(t_s))
         return speed, held
+
+    @property
+    def separation_reach(self) -> tuple[float, float]:
+        """:func:`.dwa.legality.separation_reach` over every config this planner may fly."""
+        reaches = [separation_reach(c) for c in (self.config, self.approach) if c is not None]
+        return max(r[0] for r in reaches), max(r[1] for r in reaches)
 
     @property
     def station_xy(self) -> tuple[float, float]:

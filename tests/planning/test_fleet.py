@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from companion.planning.dwa import NO_OBSTACLES, Command, DwaConfig, OtherUav, Pose, plan_step
-from companion.planning.fleet import Neighbour, Reaction, react_to, sightline_partner
+from companion.planning.fleet import FleetView, Neighbour, Reaction, react_to, sightline_partner
 from companion.planning.metrics import pair_name
 from companion.planning.flight.headless import simulate
 from companion.scenarios import ScenarioConfig, fleet_layout, generate_scenario
@@ -134,3 +134,26 @@ def test_eight_vehicles_meeting_at_the_centre_keep_every_separation():
     assert summary.success, summary.reason
     assert len(summary.pairs) == 28
     assert min(p.min_separation_m for p in summary.pairs.values()) >= mission.safety.min_separation_m
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_fleet_view_answers_as_react_to_leaving_out_only_the_uavs_out_of_reach(seed):
+    """The tick loop's one-matrix view (FleetView) against react_to per vehicle, on random fleets
+    with some vehicles parked and some assigned partners."""
+    rng = np.random.default_rng(seed)
+    count = int(rng.integers(3, 12))
+    names = [f"v{i}" for i in range(count)]
+    xy = rng.uniform(0.0, 1500.0, (count, 2))
+    uavs = [OtherUav(x, y, 0.0, 0.0, arrived=True) if rng.random() < 0.2 else OtherUav(x, y, *rng.uniform(-10, 10, 2))
+            for x, y in xy]
+    partners = [None if rng.random() < 0.6 else set(rng.choice(names, 2)) for _ in names]
+    reach = (400.0, 20.0)
+    view = FleetView(xy, uavs, names, partners, [reach] * count)
+    for i in range(count):
+        neighbours = [Neighbour(names[j], j, uavs[j]) for j in range(count) if j != i]
+        expected = react_to(*xy[i], i, neighbours, partners[i])
+        got = view.reaction(i)
+        assert got.partner == expected.partner
+        kept = [u for u in expected.separate_from
+                if np.hypot(u.x_m - xy[i][0], u.y_m - xy[i][1]) <= reach[0] + np.hypot(u.vx_m_s, u.vy_m_s) * reach[1]]
+        assert list(got.separate_from) == kept

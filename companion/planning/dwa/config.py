@@ -4,12 +4,13 @@ precomputed once (see :mod:`.shapes`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from companion.planning.dwa.backend import DEFAULT, Backend
-from companion.planning.dwa.shapes import homogeneous, recovery_shapes
+from companion.planning.dwa.shapes import homogeneous, lagged_rollouts, recovery_shapes
 from uav_model.plant.unicycle import body_rollouts
 
 if TYPE_CHECKING:  # only for the builder's signature; the core takes plain values
@@ -194,6 +195,17 @@ class DwaConfig:
     def stop_drift_m(self) -> float:
         """How far the plant carries on along its heading after a hover command at cruise."""
         return self.tracking_lag_s * self.speed_m_s
+
+    @cached_property
+    def lagged_hom_m(self) -> np.ndarray | None:
+        """The rollouts as the lagging plant flies them (:func:`.shapes.lagged_rollouts`), as
+        body_hom_m's homogeneous columns; None when the plant flies them exactly. Built on first
+        use: only the escape reads them."""
+        if self.tracking_lag_s <= 0.0:
+            return None
+        body = lagged_rollouts(self.speeds_m_s, self.yaw_rates_rad_s, self.speed_m_s, self.dt_s, self.steps,
+                               self.tracking_lag_s)
+        return homogeneous(body.reshape(-1, 2))
 
     @property
     def spin_time_s(self) -> float:

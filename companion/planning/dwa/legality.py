@@ -48,6 +48,15 @@ def separation_can_bind(pose: Pose, other: OtherUav | None, config: DwaConfig) -
         + math.hypot(other.vx_m_s, other.vy_m_s) * config.horizon_s + 1.0)
 
 
+def separation_reach(config: DwaConfig) -> tuple[float, float]:
+    """(m, s): a UAV farther from the pose than the first plus its speed times the second can
+    bind none of this config's rules, nor its recovery's or its hover's (the rollouts, lagged
+    or not, reach no farther than cruise x horizon; a recovery starts at most a spin plus the
+    lag later), so a caller may leave it out of ``separate_from``."""
+    return (config.reach_m + config.stop_drift_m + config.min_separation_m + config.yield_margin_m + 1.0,
+            config.horizon_s + config.spin_time_s + config.tracking_lag_s + config.dt_s)
+
+
 def fence_distance(pose: Pose, config: DwaConfig) -> float | None:
     """The pose's distance inside the fence (negative outside), or None when no fence or no
     rollout can reach it."""

@@ -12,7 +12,10 @@ In this order (:func:`no_legal_rollout`):
 3. The hover point is going to be hit: the recovery judged on the TRUE footprints (the
    inflation margin is the reserve an emergency may use); else
 4. the rollout from the current heading that stays clear of the true footprints longest,
-   if it lasts longer than hovering (the escape); else hold.
+   if it lasts longer than hovering (the escape); else hold. A plant that lags is judged on
+   the rollout and on its flight of it (:func:`.shapes.lagged_rollouts`): it flies wide of a
+   turn, by up to 17 m for the multicopter, and an escape that grazes a true footprint on the
+   rollout is flown into it.
 
 A plant that lags its commands (``config.tracking_lag_s`` > 0, the multicopter) does not stop
 where it is, nor get going at once after a yaw: the hover is judged on its braking segment,
@@ -70,10 +73,15 @@ class Stuck:
     heading: np.ndarray
     near: ObstacleSnapshot
     clearances: Callable[[], np.ndarray | None]
+    lagged_clearances: Callable[[], np.ndarray | None] = lambda: None  # the same, as a lagging plant flies them
 
     @cached_property
     def clear(self) -> np.ndarray | None:
         return self.clearances()
+
+    @cached_property
+    def lagged(self) -> np.ndarray | None:
+        return self.lagged_clearances()
 
 
 def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
@@ -258,6 +266,8 @@ def escape(config: DwaConfig, stuck: Stuck, hover: HoverCheck, reason: str,
     if clear is not None:
         margins = np.concatenate([near.circle_margin_m, near.poly_margin_m])
         true_clear = clear + margins[:, None]
+        if stuck.lagged is not None:  # the plant flies wide of a turn: clear on the rollout and as flown
+            true_clear = np.minimum(true_clear, stuck.lagged + margins[:, None])
         ok_pts &= (true_clear >= np.minimum(true_clear[:, 0:1], 0.0) - 1e-9).all(axis=0).reshape(ok_pts.shape)
         if len(margins):
             kept = true_clear.min(axis=0).reshape(ok_pts.shape)[:, 1:].min(axis=1)

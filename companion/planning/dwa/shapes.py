@@ -55,6 +55,29 @@ def recovery_shapes(body: np.ndarray, final_dheading: np.ndarray, t: np.ndarray,
 
 
 
+def lagged_rollouts(speeds_m_s: np.ndarray, rates_rad_s: np.ndarray, cruise_m_s: float, dt_s: float, steps: int,
+                    lag_s: float, substeps: int = 20) -> np.ndarray:
+    """The rollouts (S, K + 1, 2) as a plant whose velocity trails its command by a first-order
+    lag of ``lag_s`` flies them, from cruise along the heading (body frame): the heading turns
+    at the rollout's yaw rate, the velocity relaxes toward the rollout's speed along it. The
+    multicopter flies its commands within 2-4 m of these over an 11 s horizon with a 2 s lag,
+    where it strays up to 17 m from the unicycle's arcs (it flies wide of every turn)."""
+    h = dt_s / substeps
+    keep = 1.0 - math.exp(-h / lag_s)
+    vx, vy = np.full(len(rates_rad_s), float(cruise_m_s)), np.zeros(len(rates_rad_s))
+    x, y = np.zeros(len(rates_rad_s)), np.zeros(len(rates_rad_s))
+    out = np.zeros((len(rates_rad_s), steps + 1, 2))
+    for k in range(steps * substeps):
+        heading = rates_rad_s * ((k + 0.5) * h)
+        vx += (speeds_m_s * np.cos(heading) - vx) * keep
+        vy += (speeds_m_s * np.sin(heading) - vy) * keep
+        x += vx * h
+        y += vy * h
+        if (k + 1) % substeps == 0:
+            out[:, (k + 1) // substeps, 0], out[:, (k + 1) // substeps, 1] = x, y
+    return out
+
+
 def rollouts(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
     """All rollouts for ``pose``: points (S, K + 1, 2) at config.times_s (the first is the pose
     itself) and the headings (S,) at the prediction point."""

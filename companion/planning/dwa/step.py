@@ -181,7 +181,13 @@ def _recover(pose: Pose, goals: LocalGoals, other: OtherUav | None, scene: _Scen
     heading = config.backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad,
                                                goals, (pose.x_m, pose.y_m), window.px, window.py, scene.single,
                                                _soonest(config))
-    stuck = Stuck(rules.ok_by_rule, heading, near, clearances)
+    def lagged_clearances() -> np.ndarray | None:
+        if config.lagged_hom_m is None or not scene.culled.count:
+            return None
+        xy = placement(pose) @ config.lagged_hom_m
+        return config.backend.inflated_clearance(xy[0], xy[1], config.point_times_s, near)
+
+    stuck = Stuck(rules.ok_by_rule, heading, near, clearances, lagged_clearances)
     return no_legal_rollout(pose, goals, other, scene.culled.snapshot, config, stuck, scene.separate_from)
 
 

@@ -30,7 +30,7 @@ from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to
 from uav_model.mission import Mission
 from companion.planning.budget import Budget, spend
 from companion.planning.dwa import OtherUav, Pose
-from companion.planning.fleet import Neighbour, react_to
+from companion.planning.fleet import FleetView
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.vehicle_planner import TickResult
 from companion.planning.metrics import (PlannerCounts, RunSummary, ScheduleRecord, Track, TruthGeometry,
@@ -122,9 +122,9 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
     dt = mission.planner.dt_s
     n_ticks = int(math.floor(mission.safety.time_limit_s / dt + 1e-9))
     names = [v.name for v in vehicles]
-    others = {n: [m for m in names if m != n] for n in names}
     rank = {n: i for i, n in enumerate(names)}
-    hides = {n: mission.hides_from(n) for n in names}  # assigned sight-line partners (None: the nearest above)
+    hides = [mission.hides_from(n) for n in names]  # assigned sight-line partners (None: the nearest above)
+    reach = [planners[n].separation_reach for n in names]
     # rows[i] = every vehicle's (x, y) at t = i * dt; an arrived vehicle repeats its last row.
     rows = [[_xy(states[n]) for n in names]]
     last_row = {n: None for n in names}  # the row of arrival
@@ -145,23 +145,18 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
                 clocks.observe(name, here[name], t)
             for name, route in clocks.update(t).items():  # a lower vehicle far behind its plan: re-planned
                 planners[name].adopt_timed(route, clocks.sight_near_m(name))
-        seen: dict[tuple[str, bool], OtherUav] = {}  # each vehicle as the others see it this tick
+        # Each vehicle as the others see it this tick (an arrived one parked at its station: kept
+        # clear of, no longer flying anywhere), and whom each reacts to, from one distance matrix.
+        view = FleetView(np.asarray(rows[-1]), [_other(states[n], here[n], parked=n not in active) for n in names],
+                         names, hides, reach)
         for name in list(active):
             own = states[name]
-            uavs = []
-            for n in others[name]:
-                # An arrived vehicle is parked at its station: kept clear of, no longer flying anywhere.
-                key = (n, n not in active)
-                uav = seen.get(key)
-                if uav is None:
-                    uav = seen[key] = _other(states[n], here[n], parked=key[1])
-                uavs.append(uav)
             x, y = here[name]
-            if len(uavs) == 1:  # react_to's answer for one neighbour, without building it
-                other, separate_from = uavs[0], (uavs[0],)
+            if len(names) == 2:  # the one other vehicle, without a view
+                other = view.uavs[1 - rank[name]]
+                separate_from = (other,)
             else:
-                reaction = react_to(x, y, rank[name], [Neighbour(n, rank[n], u) for n, u in zip(others[name], uavs)],
-                                    hides[name])
+                reaction = view.reaction(rank[name])
                 other, separate_from = reaction.other, reaction.separate_from
             planner = planners[name]
             result = planner.tick(Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad)), other, snapshot, t,
@@ -172,6 +167,7 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
             ticks[name].append(result)
             if result.arrived:
                 active.remove(name)
+                view.park(rank[name])
                 if clocks is not None:
                     clocks.done(name)
                 last_row[name] = k
@@ -256,10 +252,9 @@ def first_violation(mission: Mission, truth: TruthGeometry, rows: list, first: i
                                           t0, t0 + dt, upto_m=1.0)  # only contact matters here
         bad |= (clear <= 0.0).reshape(n, nv).any(axis=1)
     bad |= ~inside_fence(mission.world, b[..., 0], b[..., 1]).all(axis=1)
-    for i in range(nv):
-        for j in range(i + 1, nv):
-            d = pair_min_distance(a[:, i, 0], a[:, i, 1], b[:, i, 0], b[:, i, 1],
-                                  a[:, j, 0], a[:, j, 1], b[:, j, 0], b[:, j, 1])
-            bad |= d < mission.safety.min_separation_m
+    if nv > 1:  # every pair at once: (n, pairs)
+        i, j = np.triu_indices(nv, 1)
+        d = pair_min_distance(a[:, i, 0], a[:, i, 1], b[:, i, 0], b[:, i, 1], a[:, j, 0], a[:, j, 1], b[:, j, 0], b[:, j, 1])
+        bad |= (d < mission.safety.min_separation_m).any(axis=1)
     hits = np.flatnonzero(bad)
     return first + int(hits[0]) if hits.size else None
