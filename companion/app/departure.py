@@ -32,6 +32,7 @@ if TYPE_CHECKING:
 ARM_RETRY_RESULTS = frozenset({"COMMAND_DENIED", "TEMPORARILY_REJECTED", "BUSY", "TIMEOUT", "UNKNOWN"})
 REARM_MODES = frozenset({FlightMode.LAND, FlightMode.RETURN_TO_LAUNCH, FlightMode.TAKEOFF})
 TAKEOFF_ATTEMPTS = 3  # a take-off the preflight disarm beat on the ground (a lost command) is tried again
+ARM_CONFIRM_ATTEMPTS = 3  # arm commands whose heartbeat confirmation is awaited
 ON_GROUND_ALT_M = 1.0  # disarmed below this: it never lifted, arming again is safe
 PRFLT_MARGIN_SIM_S = 5.0  # take off at least this long before COM_DISARM_PRFLT runs out (PX4 detects take-off ~1.6 s after the command)
 MIN_ALIGN_RATE_RAD_S = math.radians(30.0)  # PX4 yaws in place at 86-90 deg/s; the stub at v/r
@@ -130,7 +131,18 @@ class Departure:
                                     f"{self.ctx.settings.arm_retry_s:g} s")
                 await asyncio.sleep(wait_wall)
                 delay_sim = min(2.0 * delay_sim, 2.0)
-        await self.vehicle.wait_until(lambda s, p: s.armed, wall_for_sim(self.vehicle, 3.0), "armed")
+        for confirm in range(1, ARM_CONFIRM_ATTEMPTS + 1):
+            try:
+                await self.vehicle.wait_until(lambda s, p: s.armed, wall_for_sim(self.vehicle, 3.0), "armed")
+                break
+            except TelemetryLost:
+                # Armed while the link was down, then disarmed by COM_DISARM_PRFLT before it came
+                # back: the heartbeats say disarmed ever since. Arm again, a bounded number of times.
+                if confirm == ARM_CONFIRM_ATTEMPTS or self.vehicle.status().armed:
+                    raise
+                self.ctx.report(f"{self.name}: armed was never confirmed; arming again")
+                self.outcome.arm_attempts += 1
+                await self.vehicle.arm()
         self._armed_at_sim_s = self.vehicle.clock_s()
         if self.outcome.arm_attempts > 1:
             self.ctx.report(f"{self.name}: armed after {self.outcome.arm_attempts} attempts")
