@@ -274,10 +274,12 @@ class MavsdkVehicle(BoardReaders):
             x, y, _ = frames.geodetic_to_local(self._origin, p.latitude_deg, p.longitude_deg)
             self._pos = (x, y, float(p.relative_altitude_m))
             self._pos_fresh = True
-            stamp = None if self._guard is None else self._guard.stamps.lookup(
-                p.latitude_deg, p.longitude_deg, p.relative_altitude_m)
+            stamps = None if self._guard is None else self._guard.stamps
+            stamp = None if stamps is None else stamps.lookup(p.latitude_deg, p.longitude_deg, p.relative_altitude_m)
             if stamp is not None and self._att is not None:  # the position's own time (position_stamps)
                 self._att, self._att_fresh = (stamp, self._att[1]), True
+            elif stamps is not None and stamps.matched:
+                self._pos_fresh = False  # stamped before but not this one: no time to trust, so no sample
             await self._maybe_emit()
 
     async def _pump_velocity(self) -> None:

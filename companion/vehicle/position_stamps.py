@@ -23,7 +23,7 @@ from companion.vehicle.link_probe import mavlink_frames
 
 GLOBAL_POSITION_INT = 33
 _GPI = struct.Struct("<Iiiii")  # time_boot_ms, lat, lon, alt, relative_alt: the payload's first 20 bytes
-KEEP = 256  # stamps kept: a few seconds of PX4's position stream at 4x, far more than MAVSDK lags
+KEEP = 4096  # stamps kept: 40 s of wall time at the stub's 100/s cap, 20 s of PX4's 50 Hz at 4x
 
 Key = tuple[int, int, int]  # lat 1e-7 deg, lon 1e-7 deg, relative altitude mm
 
@@ -43,6 +43,7 @@ class PositionStamps:
         self.system_id = system_id
         self._sent: deque[tuple[Key, float]] = deque(maxlen=keep)
         self._last = -math.inf  # the stamp of the last match
+        self.matched = self.missed = 0  # positions looked up, and found or not
         self._lock = threading.Lock()
 
     def record(self, datagram: bytes) -> None:
@@ -65,5 +66,7 @@ class PositionStamps:
                 if sent == key:
                     del self._sent[i]
                     self._last = t_s
+                    self.matched += 1
                     return t_s
+            self.missed += 1
         return None

@@ -15,40 +15,14 @@ import time
 from pathlib import Path
 
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
 
-from uav_model import frames
+from tests.top.forgery import forge_as_system_1
 from uav_model.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = ROOT / "tests" / "data" / "small_swap.yaml"
-PX4_HOLD = (4 << 16) | (3 << 24)  # AUTO.LOITER: what a spoofer would claim
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
-
-
-def _spoof(port: int, mission_path: Path, seconds: float) -> tuple[str, int]:
-    """HEARTBEATs (HOLD) and GLOBAL_POSITION_INTs 5 km east as system 1, from a new socket."""
-    origin = load_mission(mission_path).origin
-    lat, lon, _ = frames.local_to_geodetic(origin, 5000.0, 0.0, 0.0)
-    enc = mavlink.MAVLink(None, 1, 1)
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", 0))
-    try:
-        end = time.monotonic() + seconds
-        t_ms = 0
-        while time.monotonic() < end:
-            hb = enc.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4,
-                                      mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_SAFETY_ARMED,
-                                      PX4_HOLD, mavlink.MAV_STATE_ACTIVE)
-            pos = enc.global_position_int_encode(t_ms, int(lat * 1e7), int(lon * 1e7), 500_000, 5_000, 0, 0, 0, 0)
-            for msg in (hb, pos):
-                sock.sendto(msg.pack(enc), ("127.0.0.1", port))
-            t_ms += 100
-            time.sleep(0.1)
-        return sock.getsockname()
-    finally:
-        sock.close()
 
 
 def _udp_bound(pid: int) -> set[tuple[str, int]]:
@@ -79,7 +53,7 @@ def test_a_spoofed_second_source_in_flight_is_a_named_link_conflict(sitl, compan
         assert run.process.poll() is None and time.monotonic() < deadline, run.wait(1).tail
         time.sleep(0.1)
     time.sleep(1.0)  # well into the flight
-    spoofer = _spoof(stub.api_port_base, SMALL, seconds=3.0)
+    spoofer, _ = forge_as_system_1(stub.api_port_base, SMALL, seconds=3.0)
     result = run.wait(300)
     assert result.exit_code == 1, result.tail
     summary = result.summary

@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -22,13 +21,12 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from sim_bridge.testing import free_udp_port_block
-from uav_model import frames
+from tests.top.forgery import forge_as_system_1
 from uav_model.mission import load_mission
 from uav_model.signing_key import MAX_KEY_FILE_BYTES, signing_timestamp
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = ROOT / "tests" / "data" / "small_swap.yaml"
-PX4_HOLD = (4 << 16) | (3 << 24)  # AUTO.LOITER: what a forger would claim
 FORGE_S = 3.0
 REFUSAL_WALL_S = 120  # bounds a refusal on a loaded machine; a free one refuses within seconds
 
@@ -40,30 +38,12 @@ def _key(tmp_path: Path, phrase: str) -> Path:
 
 
 def _forge(port: int, seconds: float) -> int:
-    """HEARTBEATs (HOLD) and GLOBAL_POSITION_INTs 5 km east as system 1, from a new socket,
-    unsigned and signed with a wrong key by turns; the number of frames sent."""
-    lat, lon, _ = frames.local_to_geodetic(load_mission(SMALL).origin, 5000.0, 0.0, 0.0)
+    """Forgeries as system 1, unsigned and signed with a wrong key by turns; the frames sent."""
     unsigned = mavlink.MAVLink(None, 1, 1)
     wrong = mavlink.MAVLink(None, 1, 1)
     wrong.signing.secret_key, wrong.signing.sign_outgoing = bytes(range(32)), True
     wrong.signing.timestamp = signing_timestamp() + 100_000
-    sent = 0
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        end = time.monotonic() + seconds
-        t_ms = 0
-        while time.monotonic() < end:
-            for enc in (unsigned, wrong):
-                hb = enc.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4,
-                                          mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_SAFETY_ARMED,
-                                          PX4_HOLD, mavlink.MAV_STATE_ACTIVE)
-                pos = enc.global_position_int_encode(t_ms, int(lat * 1e7), int(lon * 1e7), 500_000, 5_000, 0, 0, 0, 0)
-                for msg in (hb, pos):
-                    sock.sendto(msg.pack(enc), ("127.0.0.1", port))
-                    sent += 1
-            t_ms += 100
-            time.sleep(0.1)
-    return sent
+    return forge_as_system_1(port, SMALL, seconds, [unsigned, wrong])[1]
 
 
 def _modes(run, name: str) -> list[str]:
