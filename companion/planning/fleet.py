@@ -101,8 +101,11 @@ class FleetView:
     def __init__(self, xy_m: np.ndarray, uavs: Sequence[OtherUav], names: Sequence[str],
                  partners: Sequence[Collection[str] | None], reach: Sequence[tuple[float, float]]):
         self.uavs, self.names, self.partners, self.reach = list(uavs), names, partners, reach
-        self.gap = np.hypot(xy_m[:, None, 0] - xy_m[None, :, 0], xy_m[:, None, 1] - xy_m[None, :, 1])
         self.speed = np.array([math.hypot(u.vx_m_s, u.vy_m_s) for u in uavs])
+        if len(self.uavs) == 2:  # a pair (the paper's case, most flights): one distance, no matrix
+            self.pair_gap = math.hypot(float(xy_m[0, 0] - xy_m[1, 0]), float(xy_m[0, 1] - xy_m[1, 1]))
+            return
+        self.gap = np.hypot(xy_m[:, None, 0] - xy_m[None, :, 0], xy_m[:, None, 1] - xy_m[None, :, 1])
         self.flying = np.array([not u.arrived for u in uavs])
         self.ranks = np.arange(len(uavs))
         self.with_way = [u if u.arrived else OtherUav(u.x_m, u.y_m, u.vx_m_s, u.vy_m_s, False, True) for u in uavs]
@@ -110,10 +113,17 @@ class FleetView:
     def park(self, i: int) -> None:
         """Vehicle i has arrived this tick: the others see it parked at its place."""
         u = self.uavs[i]
-        self.uavs[i] = self.with_way[i] = OtherUav(u.x_m, u.y_m, 0.0, 0.0, arrived=True)
-        self.speed[i], self.flying[i] = 0.0, False
+        self.uavs[i] = OtherUav(u.x_m, u.y_m, 0.0, 0.0, arrived=True)
+        self.speed[i] = 0.0
+        if len(self.uavs) > 2:
+            self.with_way[i], self.flying[i] = self.uavs[i], False
 
     def reaction(self, i: int) -> Reaction:
+        if len(self.uavs) == 2:  # as below, for a pair: the other is the partner and, in reach, the separation set
+            j = 1 - i
+            near, per_s = self.reach[i]
+            separate = (self.uavs[j],) if self.pair_gap <= near + float(self.speed[j]) * per_s else ()
+            return Reaction(Neighbour(self.names[j], j, self.uavs[j]), separate)
         count, ranks = len(self.uavs), self.ranks
         others = pool = ranks != i
         if self.partners[i]:

@@ -147,12 +147,15 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
                 planners[name].adopt_timed(route, clocks.sight_near_m(name))
         # Each vehicle as the others see it this tick (an arrived one parked at its station: kept
         # clear of, no longer flying anywhere), and whom each reacts to, from one distance matrix.
-        view = FleetView(np.asarray(rows[-1]), [_other(states[n], here[n], parked=n not in active) for n in names],
-                         names, hides, reach)
+        view = None if len(names) == 1 else FleetView(  # flying alone (a forecast): nobody to react to
+            np.asarray(rows[-1]), [_other(states[n], here[n], parked=n not in active) for n in names],
+            names, hides, reach)
         for name in list(active):
             own = states[name]
             x, y = here[name]
-            if len(names) == 2:  # the one other vehicle, without a view
+            if view is None:
+                other, separate_from = None, ()
+            elif len(names) == 2:  # the one other vehicle, without a view
                 other = view.uavs[1 - rank[name]]
                 separate_from = (other,)
             else:
@@ -167,7 +170,8 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
             ticks[name].append(result)
             if result.arrived:
                 active.remove(name)
-                view.park(rank[name])
+                if view is not None:
+                    view.park(rank[name])
                 if clocks is not None:
                     clocks.done(name)
                 last_row[name] = k
