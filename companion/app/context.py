@@ -20,6 +20,7 @@ from companion.app.flight_plan import FlightPlan
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.coordination.replan import ReplanJob, Replanned
 from companion.planning.coordination.clocks import KeptHold
+from companion.vehicle.mavsdk_vehicle import STREAM_RATE_HZ
 from companion.vehicle.port import PoseSample, Vehicle
 
 if TYPE_CHECKING:
@@ -32,7 +33,7 @@ class RunSettings:
 
     shared_clock: bool | None = None  # one sim clock for all vehicles; None: detect it at connect
     connect_timeout_s: float = 15.0  # wall
-    telemetry_hz: float = 10.0  # attitude, position and velocity asked of each autopilot, of its own clock
+    telemetry_hz: float = STREAM_RATE_HZ  # attitude, position and velocity asked of each autopilot, of its own clock
     ready_timeout_s: float = 30.0  # wall
     command_attempts: int = 5  # retryable answers only (TIMEOUT, BUSY): a loaded machine times MAVSDK transfers out
     progress_every_s: float = 20.0  # sim

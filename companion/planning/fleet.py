@@ -102,8 +102,7 @@ class FleetView:
                  partners: Sequence[Collection[str] | None], reach: Sequence[tuple[float, float]]):
         self.uavs, self.names, self.partners, self.reach = list(uavs), names, partners, reach
         self.speed = np.array([math.hypot(u.vx_m_s, u.vy_m_s) for u in uavs])
-        if len(self.uavs) == 2:  # a pair (the paper's case, most flights): one distance, no matrix
-            self.pair_gap = math.hypot(float(xy_m[0, 0] - xy_m[1, 0]), float(xy_m[0, 1] - xy_m[1, 1]))
+        if len(self.uavs) == 2:  # a pair (the paper's case, most flights): no matrix
             return
         self.gap = np.hypot(xy_m[:, None, 0] - xy_m[None, :, 0], xy_m[:, None, 1] - xy_m[None, :, 1])
         self.flying = np.array([not u.arrived for u in uavs])
@@ -119,11 +118,9 @@ class FleetView:
             self.with_way[i], self.flying[i] = self.uavs[i], False
 
     def reaction(self, i: int) -> Reaction:
-        if len(self.uavs) == 2:  # as below, for a pair: the other is the partner and, in reach, the separation set
+        if len(self.uavs) == 2:  # a pair, as react_to answers it: the other is the partner and the separation set
             j = 1 - i
-            near, per_s = self.reach[i]
-            separate = (self.uavs[j],) if self.pair_gap <= near + float(self.speed[j]) * per_s else ()
-            return Reaction(Neighbour(self.names[j], j, self.uavs[j]), separate)
+            return Reaction(Neighbour(self.names[j], j, self.uavs[j]), (self.uavs[j],))
         count, ranks = len(self.uavs), self.ranks
         others = pool = ranks != i
         if self.partners[i]:

@@ -155,9 +155,6 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
             x, y = here[name]
             if view is None:
                 other, separate_from = None, ()
-            elif len(names) == 2:  # the one other vehicle, without a view
-                other = view.uavs[1 - rank[name]]
-                separate_from = (other,)
             else:
                 reaction = view.reaction(rank[name])
                 other, separate_from = reaction.other, reaction.separate_from
