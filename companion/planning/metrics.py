@@ -326,7 +326,7 @@ class PairMetrics:
     """Separation and sightline of one pair of vehicles over the whole flight."""
 
     min_separation_m: float
-    los_blocked_fraction: float  # of the common sample times, the sight line crossed a true footprint
+    los_blocked_fraction: float  # of the flight's time (its samples weighted by their intervals), the sight line crossed a true footprint
     crossing_occluded: bool  # the sight line was blocked at the pair's closest approach
 
 
@@ -335,6 +335,7 @@ def _pair_metrics(geometry: TruthGeometry, names: Sequence[str], xy: Mapping[str
     """Every pair (in priority order) on the merged times, and the fleet's closest approach per step."""
     pairs: dict[str, PairMetrics] = {}
     sep_steps = []
+    weights = _sample_weights(t_all)
     for i, a in enumerate(names):
         for b in names[i + 1:]:
             (ax, ay), (bx, by) = xy[a], xy[b]
@@ -345,9 +346,24 @@ def _pair_metrics(geometry: TruthGeometry, names: Sequence[str], xy: Mapping[str
             sep_steps.append(d)
             blocked = geometry.sight_blocked(ax, ay, bx, by, t_all)
             pairs[pair_name(a, b)] = PairMetrics(
-                min_separation_m=float(d.min()), los_blocked_fraction=float(blocked.mean()),
+                min_separation_m=float(d.min()),
+                los_blocked_fraction=float(blocked.mean()) if weights is None else math.fsum(weights[blocked]) / math.fsum(weights),
                 crossing_occluded=bool(blocked[int(np.argmin(np.hypot(ax - bx, ay - by)))]))
     return pairs, np.min(np.stack(sep_steps), axis=0)
+
+
+def _sample_weights(t_s: np.ndarray) -> np.ndarray | None:
+    """The time each sample stands for (the interval it starts; the last, the one before it), so
+    that a share of the samples is a share of the flight's time; None when the samples are
+    equally spaced (headless flights), where the plain mean is that share. A live run's samples
+    are not: a loaded companion misses positions in bursts, and counted per sample the stretches
+    it saw densely would weigh more than the flight gave them."""
+    if len(t_s) < 3:
+        return None
+    dt = np.diff(t_s)
+    if float(np.ptp(dt)) <= 1e-9 * float(dt.max()):
+        return None
+    return np.append(dt, dt[-1])
 
 
 def until_last_arrival(mission: "Mission", tracks: Mapping[str, Track]) -> dict[str, Track]:

@@ -131,6 +131,28 @@ def test_tracks_with_different_sample_times_are_merged():
     assert s.success and s.min_separation_m > 250.0
 
 
+def keep(track: Track, mask: np.ndarray) -> Track:
+    return Track(track.t_s[mask], track.x_m[mask], track.y_m[mask])
+
+
+def test_the_blocked_fraction_is_of_time_not_of_samples():
+    # A loaded companion misses positions in bursts. The same flight, sampled densely where the
+    # line is blocked and sparsely elsewhere, is blocked for the same share of its time.
+    a = line(0.0, 100.0, (0.0, 800.0), (1000.0, 800.0), dt=0.5)  # north of the disk, west to east
+    b = line(0.0, 100.0, (500.0, 200.0), (500.0, 200.0), dt=0.5)  # parked south of it
+    even = summarize(M, {"a": a, "b": b}).los_blocked_fraction
+    assert 0.1 < even < 0.5
+    geometry = TruthGeometry(M.world)
+    blocked = geometry.sight_blocked(a.x_m, a.y_m, b.x_m, b.y_m, a.t_s)
+    assert np.array_equal(a.t_s, b.t_s)
+    # every fourth sample where the line is open, every sample where it is blocked, ends kept
+    thin = blocked | (np.arange(len(a)) % 4 == 0)
+    thin[[0, -1]] = True
+    uneven = summarize(M, {"a": keep(a, thin), "b": keep(b, thin)})
+    assert np.mean(blocked[thin]) > even + 0.1  # counted per sample, the dense part would weigh more
+    assert uneven.los_blocked_fraction == pytest.approx(even, abs=0.03)
+
+
 def test_same_side_crossing_is_not_occluded_and_not_strict():
     a = line(0.0, 100.0, (0.0, 800.0), (1000.0, 800.0), dt=1.0)
     b = line(0.0, 100.0, (1000.0, 900.0), (0.0, 900.0), dt=1.0)
