@@ -269,7 +269,7 @@ class LinkGuard:
     def link_events(self) -> dict[str, int]:
         """What the guard kept from the vehicle's link, for the run's summary (nonzero counts only)."""
         events = {"second_source_dropped": self.dropped, "stale_setpoints_dropped": self.stale_setpoints,
-                  "positions_unstamped": self.stamps.missed}
+                  "positions_unstamped": self.stamps.missed, "traffic_unstamped": self.stamps.traffic_missed}
         if self.signer is not None:
             events.update(signed_out=self.signer.signed, upgraded_to_mavlink2=self.signer.upgraded,
                           unsignable_dropped=self.signer.unsignable, verified_in=self.signer.verified,

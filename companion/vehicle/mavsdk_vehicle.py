@@ -335,7 +335,11 @@ class MavsdkVehicle(BoardReaders):
                 continue
             x, y, _ = frames.geodetic_to_local(self._origin, a.latitude_deg, a.longitude_deg)
             vx, vy = traffic_velocity_enu(float(a.heading_deg), float(a.horizontal_velocity_m_s))
-            t_sim = self._board.latest_clock_s if self._board.latest_clock_s is not None else math.nan
+            # The vehicle's clock when it sent the report (position_stamps), else the newest we have.
+            t_sim = None if self._guard is None else self._guard.stamps.lookup_traffic(
+                a.icao_address, a.latitude_deg, a.longitude_deg)
+            if t_sim is None:
+                t_sim = self._board.latest_clock_s if self._board.latest_clock_s is not None else math.nan
             await self._board.put_traffic(TrafficReport(
                 callsign=callsign, x_east_m=x, y_north_m=y,
                 vx_east_m_s=vx, vy_north_m_s=vy,

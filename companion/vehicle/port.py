@@ -88,7 +88,9 @@ class VehicleStatus:
 class TrafficReport:
     """A moving obstacle reported over the link (ADSB_VEHICLE), in the mission's ENU frame.
 
-    ``t_sim_s`` is the receiving vehicle's clock at reception: ADSB_VEHICLE carries no time stamp.
+    ``t_sim_s`` is the reporting vehicle's clock when it sent the report (ADSB_VEHICLE carries
+    none: the link guard reads it from the vehicle's stamped frames before it), else the newest
+    clock at reception.
     """
 
     callsign: str

@@ -59,3 +59,31 @@ def test_only_the_newest_positions_are_kept():
         stamps.record(_frame(1000 + i, 473977420 + i, 85455940, 0))
     assert stamps.lookup(*_as_mavsdk(473977420, 85455940, 0)) is None
     assert stamps.lookup(*_as_mavsdk(473977424, 85455940, 0)) == 1.004
+
+
+def _traffic(icao: int, lat: int, lon: int, *, sysid: int = 1) -> bytes:
+    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
+    return mav.adsb_vehicle_encode(icao, lat, lon, mavlink.ADSB_ALTITUDE_TYPE_GEOMETRIC, 0, 9000, 400, 0, b"shuttle",
+                                   mavlink.ADSB_EMITTER_TYPE_POINT_OBSTACLE, 0, 0x17, 0).pack(mav)
+
+
+def _attitude(t_ms: int, *, sysid: int = 1) -> bytes:
+    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
+    return mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0).pack(mav)
+
+
+def test_a_traffic_report_gets_the_vehicle_clock_of_the_frame_sent_before_it():
+    stamps = PositionStamps(system_id=1)
+    stamps.record(_traffic(0x500, 473977420, 85455940))  # before any clock: never stamped
+    stamps.record(_frame(2000, 473977420, 85455940, 0))
+    stamps.record(_traffic(0x501, 473977500, 85456000) + _traffic(0x502, 473977600, 85456100))  # one instant
+    stamps.record(_attitude(2050))
+    stamps.record(_attitude(2070, sysid=2))  # another vehicle's clock: not ours
+    stamps.record(_traffic(0x501, 473977510, 85456010))
+    stamps.record(_traffic(0x503, 473977700, 85456200, sysid=2))  # relayed by another system: not ours
+    assert stamps.lookup_traffic(0x500, 47.3977420, 8.5455940) is None
+    assert stamps.lookup_traffic(0x501, 473977500 * 1e-7, 85456000 * 1e-7) == 2.0
+    assert stamps.lookup_traffic(0x502, 473977600 * 1e-7, 85456100 * 1e-7) == 2.0  # the same instant
+    assert stamps.lookup_traffic(0x501, 473977510 * 1e-7, 85456010 * 1e-7) == 2.05
+    assert stamps.lookup_traffic(0x503, 473977700 * 1e-7, 85456200 * 1e-7) is None
+    assert stamps.traffic_missed == 2 and stamps.missed == 0  # positions are counted apart
