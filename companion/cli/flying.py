@@ -24,15 +24,13 @@ from companion.app.results import release_reserve
 from companion.app.run_record import LinkRecord
 from companion.app.live_run import RunResult, run_mission, save_run, summary_table
 from companion.cli.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BadInput
-from companion.cli.options import (add_certificate_options, add_no_fence_option, add_plant_option, add_variant_option,
-                                   connect_pair,
-                                   connections, output_dir, planned, positive, printer, quiet_mavsdk)
+from companion.cli.options import (add_certificate_options, add_no_fence_option, add_plant_option,
+                                   add_signing_key_option, add_variant_option, connect_pair, connections, output_dir,
+                                   planned, positive, printer, quiet_mavsdk, signing_key)
 from companion.cli.sim_options import add_sim_options, inprocess_options, px4_options
 from companion.errors import CompanionError, PreflightRefused
 from companion.sitl.embedded import DEFAULT_PORT_BASE, StubOptions, choose_port_base, embedded_stub
 from companion.sitl.px4 import Px4Options, px4_sitl
-from companion.vehicle.link_probe import udpin_port
-from uav_model.signing_key import SigningKeyError, load_signing_key
 
 if TYPE_CHECKING:
     from companion.sitl.inprocess import InProcessOptions
@@ -119,36 +117,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="attitude, position and velocity rate asked of each autopilot, per second of its clock "
                         f"({TELEMETRY_HZ[0]:g}-{TELEMETRY_HZ[1]:g}, default %(default)g); lower it for many vehicles "
                         "or a high --speedup")
-    p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
-                   help="MAVLink 2 signing: the link guard signs every frame MAVSDK sends and drops unsigned or "
-                        "badly signed frames from the autopilot (udpin:// links; the embedded stub gets the key "
-                        "too). FILE: 32 bytes, 64 hex digits or a passphrase (docs/companion.md, 'Signing')")
+    add_signing_key_option(p, "; the embedded stub gets the key too")
     p.add_argument("--in-process", action="store_true",
                    help="no stub process and no sockets: fly the stub's vehicles inside the companion on one sim "
                         "clock, deterministically and faster than real time (same outputs, no .tlog)")
     p.set_defaults(func=cmd_run)
 
 
-def _signing_key(args: argparse.Namespace) -> bytes | None:
-    """The key of --signing-key (BadInput on a bad file, or where there is no link to sign)."""
-    if args.signing_key is None:
-        return None
-    if args.in_process:
-        raise BadInput("--signing-key: --in-process has no MAVLink link to sign")
-    try:
-        return load_signing_key(args.signing_key)
-    except SigningKeyError as exc:
-        raise BadInput(str(exc)) from None
-
-
 @planned
 def cmd_run(args: argparse.Namespace, plan: FlightPlan) -> int:
-    key = _signing_key(args)
+    if args.signing_key is not None and args.in_process:
+        raise BadInput("--signing-key: --in-process has no MAVLink link to sign")
     conns = connections(plan, args.connect) if args.connect else None
-    unsignable = [f"{n}={u}" for n, u in (conns or {}).items() if udpin_port(u) is None]
-    if key is not None and unsignable:
-        raise BadInput(f"--signing-key: {', '.join(unsignable)}: the companion signs on udpin:// links only "
-                       "(the UDP ports its link guard holds)")
+    key = signing_key(args, conns or {})
     inproc = inprocess_options(args) if args.in_process else None
     out = None if args.out is None else output_dir(args.out, reserve=True)
     px4 = px4_options(args, plan.mission, out)

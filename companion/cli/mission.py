@@ -12,8 +12,9 @@ from pathlib import Path
 from companion.app.event_loop import run_bounded
 from companion.app.flight_plan import FlightPlan, verify_readback
 from companion.cli.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
-from companion.cli.options import (add_certificate_options, add_no_fence_option, add_variant_option, connect_pair,
-                                   connections, output_dir, planned, positive, printer, quiet_mavsdk)
+from companion.cli.options import (add_certificate_options, add_no_fence_option, add_signing_key_option,
+                                   add_variant_option, connect_pair, connections, output_dir, planned, positive,
+                                   printer, quiet_mavsdk, signing_key)
 from companion.errors import CompanionError, PreflightRefused
 from uav_model.fence_margin import fence_warnings
 from uav_model.mission import mission_schema, shared_goals
@@ -39,6 +40,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     add_variant_option(p)
     p.add_argument("--connect-timeout", type=positive, default=15.0, metavar="S")
     add_no_fence_option(p)
+    add_signing_key_option(p)
     p.set_defaults(func=cmd_upload)
 
     p = sub.add_parser("schema", help="print the mission JSON Schema")
@@ -127,9 +129,10 @@ def _save_plan_figure(path: Path, plan: FlightPlan) -> None:
 @planned
 def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
     conns = connections(plan, args.connect)
+    key = signing_key(args, conns)
     quiet_mavsdk(None)
     try:
-        run_bounded(_upload(plan, conns, args.connect_timeout, printer(time.monotonic())))
+        run_bounded(_upload(plan, conns, args.connect_timeout, key, printer(time.monotonic())))
     except PreflightRefused as exc:  # the geofence refused or read back different
         print(f"companion: refused: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -139,12 +142,12 @@ def cmd_upload(args: argparse.Namespace, plan: FlightPlan) -> int:
     return EXIT_OK
 
 
-async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, report) -> None:
+async def _upload(plan: FlightPlan, conns: dict[str, str], timeout_s: float, key: bytes | None, report) -> None:
     from companion.app.fence import upload_and_verify_fence
     from companion.vehicle.mavsdk_open import open_mavsdk_vehicle
     for v in plan.mission.vehicles:
         async with open_mavsdk_vehicle(v.name, v.system_id, conns[v.name], plan.mission.origin,
-                                       connect_timeout_s=timeout_s) as vehicle:
+                                       connect_timeout_s=timeout_s, signing_key=key) as vehicle:
             waypoints = plan.waypoints(v)
             await vehicle.upload_route(waypoints, plan.mission.planner.acceptance_radius_m)
             got = await vehicle.download_route()

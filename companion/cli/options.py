@@ -21,8 +21,10 @@ from companion.app.flight_plan import prepare
 from companion.app.results import OutputNotWritable, QuietFileHandler, prepare_output
 from companion.cli.errors import BadInput, bad_input
 from companion.planning.budget import BudgetSpent
+from companion.vehicle.link_probe import udpin_port
 from uav_model.mission import VARIANTS, Mission, MissionError, load_mission
 from uav_model.plant import Plant
+from uav_model.signing_key import SigningKeyError, load_signing_key
 
 if TYPE_CHECKING:
     from companion.app.flight_plan import FlightPlan
@@ -200,3 +202,24 @@ def printer(started: float):
         print(f"[{time.monotonic() - started:6.1f}s] {line}", flush=True)
         log.info("%s", line)
     return report
+
+
+def add_signing_key_option(parser: argparse.ArgumentParser, more: str = "") -> None:
+    parser.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                        help="MAVLink 2 signing: the link guard signs every frame MAVSDK sends and drops unsigned or "
+                             f"badly signed frames from the autopilot (udpin:// links{more}). FILE: 32 bytes, 64 hex "
+                             "digits or a passphrase (docs/companion.md, 'Signing')")
+
+
+def signing_key(args: argparse.Namespace, conns: dict[str, str]) -> bytes | None:
+    """The key of --signing-key; BadInput on a bad file, or for a link the guard cannot sign."""
+    if args.signing_key is None:
+        return None
+    unsignable = [f"{n}={u}" for n, u in conns.items() if udpin_port(u) is None]
+    if unsignable:
+        raise BadInput(f"--signing-key: {', '.join(unsignable)}: the companion signs on udpin:// links only "
+                       "(the UDP ports its link guard holds)")
+    try:
+        return load_signing_key(args.signing_key)
+    except SigningKeyError as exc:
+        raise BadInput(str(exc)) from None

@@ -147,3 +147,20 @@ def test_signing_where_there_is_no_link_to_sign_exits_2_in_one_line(tmp_path, ar
     assert proc.returncode == 2, proc.stderr[-2000:]
     (line,) = proc.stderr.splitlines()
     assert line.startswith(f"companion: {why}"), line
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_upload_signs_its_link_and_is_refused_in_one_line_without_the_key(sitl, companion, tmp_path):
+    key = str(_key(tmp_path, "correct horse"))
+    signed = sitl(SMALL, extra=["--signing-key", key])
+    refused = companion.cli("upload", SMALL, *signed.connect_args(), timeout_s=REFUSAL_WALL_S)
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    (line,) = refused.stderr.splitlines()
+    assert "signs its MAVLink frames and so refuses unsigned commands" in line and "--signing-key FILE" in line
+    result = companion.cli("upload", SMALL, *signed.connect_args(), "--signing-key", key, timeout_s=REFUSAL_WALL_S)
+    assert result.returncode == 0, result.stdout + result.stderr
+    # Read back over the signed link and compared by the companion (the GCS's link is unsigned: the
+    # stub refuses its mission download).
+    assert all(f"{n}: uploaded " in result.stdout and "read them back" in result.stdout for n in ("a", "b")), result.stdout
+    assert not any(signed.vehicle("a").armed_history)
