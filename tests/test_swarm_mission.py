@@ -8,18 +8,24 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 from companion.bench.table import read_runs_csv, run_row, write_runs_csv
 from companion.cli.bench import run as bench_cli
 from companion.formations import ring
+from companion.planning.coordination.search import Blocking, plan_vehicle
+from companion.planning.coordination.shadow import SightShadows
 from companion.planning.dwa import OtherUav
 from companion.planning.fleet import Neighbour, react_to
 from companion.planning.flight.headless import simulate
+from companion.planning.grid import rasterise
+from companion.planning.metrics import TruthGeometry
 from companion.planning.routes import higher_routes, plan_routes
+from companion.planning.timed_route import TimedRoute
 from companion.scenarios import ScenarioConfig, ScenarioError, generate_scenario
-from uav_model.mission import MissionError, mission_from_data, parse_mission
+from uav_model.mission import Mission, MissionError, mission_from_data, parse_mission
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -153,3 +159,40 @@ def test_the_bench_refuses_a_fleet_outside_2_to_32_before_flying(tmp_path, capsy
     out, err = capsys.readouterr()
     assert out == "" and err.strip() == f"companion bench: vehicles: use 2 to 32 (got {count})"
     assert not (tmp_path / "out" / "runs.csv").exists()
+
+
+def _wall(pairs) -> Mission:
+    """a parked south of a long wall, b parked north of it, c flying west to east north of it:
+    c can hide from a the whole flight, never from b."""
+    doc = {"name": "wall", "area": {"x_min_m": 0, "y_min_m": 0, "x_max_m": 1000, "y_max_m": 700},
+           "stations": {"A": [500, 100], "A2": [560, 100], "B": [950, 450], "B2": [950, 400],
+                        "C": [200, 500], "D": [800, 500]},
+           "obstacles": [{"id": "wall", "shape": "rectangle", "center": [500, 300], "width_m": 800, "height_m": 40}],
+           "vehicles": [{"name": "a", "start": "A", "goal": "A2"}, {"name": "b", "start": "B", "goal": "B2"},
+                        {"name": "c", "start": "C", "goal": "D"}],
+           "safety": {"time_limit_s": 400}}
+    if pairs is not None:
+        doc["sightline"] = {"pairs": pairs}
+    return mission_from_data(doc, "wall")
+
+
+@pytest.mark.parametrize("pairs, kept", [(None, Blocking.NONE), ([["a", "c"]], Blocking.WHOLE_FLIGHT),
+                                         ([["b", "c"]], Blocking.NONE), ([["a", "b"]], Blocking.NONE)])
+def test_the_space_time_search_hides_a_vehicle_from_its_assigned_partner_only(pairs, kept):
+    """Without an assignment c hides from every vehicle above it, and b sees all of c's side of
+    the wall: separation only. Assigned to a, c keeps the line to a blocked the whole flight,
+    the line to b open; assigned to b (or to nobody), it cannot hide."""
+    mission = _wall(pairs)
+    grid = rasterise(mission.world, mission.planner.grid_resolution_m)
+    parked = {n: TimedRoute(n, np.array([0.0, 1.0]), np.array([mission.vehicle(n).start_enu_m] * 2)) for n in "ab"}
+    route, level, step = plan_vehicle(mission, "c", (parked["a"], parked["b"]), grid, SightShadows(mission.world, grid))
+    assert level is kept
+    t = np.arange(0.0, route.arrival_s + step, step)
+    c = route.planned_position_at(t)
+    truth = TruthGeometry(mission.world)
+    for name in "ab":
+        other = np.broadcast_to(np.asarray(mission.vehicle(name).start_enu_m), c.shape)
+        blocked = truth.sight_blocked(c[:, 0], c[:, 1], other[:, 0], other[:, 1], t)
+        assert blocked.all() if name == "a" else not blocked.any()  # the wall hides c from a alone
+        assert np.hypot(*(c - other).T).min() >= mission.safety.min_separation_m
+    np.testing.assert_allclose(route.xy_enu_m[-1], mission.vehicle("c").goal_enu_m)
