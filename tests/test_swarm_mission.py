@@ -3,6 +3,7 @@ name, how it is refused, whom each planner hides from, and how runs.csv reports 
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -12,13 +13,14 @@ import numpy as np
 import pytest
 import yaml
 
-from companion.bench.table import read_runs_csv, run_row, write_runs_csv
+from companion.bench.table import aggregate, certificate_columns, read_runs_csv, run_row, write_runs_csv
 from companion.cli.bench import run as bench_cli
 from companion.formations import ring
 from companion.planning.coordination.search import Blocking, plan_vehicle
 from companion.planning.coordination.shadow import SightShadows
 from companion.planning.dwa import OtherUav
 from companion.planning.fleet import Neighbour, react_to
+from companion.planning.flight.forecast import mission_certificates
 from companion.planning.flight.headless import simulate
 from companion.planning.grid import rasterise
 from companion.planning.metrics import TruthGeometry
@@ -120,13 +122,22 @@ def test_the_lower_vehicle_of_an_assigned_pair_is_routed_against_its_partner_onl
 
 
 def test_runs_csv_reports_each_assigned_pair_after_the_vehicles(tmp_path):
-    run = simulate(mission_from_data(ring(8, 600.0, hub_m=200.0, pairs=[["v0", "v4"], ["v2", "v6"]]), "m"))
-    row = run_row(1, 0, "m", run.variant, run.summary.summary_dict(), wall_s=run.wall_s)
+    mission = mission_from_data(ring(8, 600.0, hub_m=200.0, pairs=[["v0", "v4"], ["v2", "v6"]]), "m")
+    run = simulate(mission)
+    certificates = mission_certificates(mission)
+    row = {**run_row(1, 0, "m", run.variant, run.summary.summary_dict(), wall_s=run.wall_s),
+           **certificate_columns(certificates[0], certificates)}
     path = write_runs_csv([row], tmp_path / "runs.csv")
     header = path.read_text().splitlines()[0].split(",")
-    assert header[-4:] == ["v0-v4_los_blocked_fraction", "v0-v4_crossing_occluded",
-                           "v2-v6_los_blocked_fraction", "v2-v6_crossing_occluded"]
+    cert = ["cert_whole_flight", "cert_whole_flight_hold_s", "cert_closest_approach", "cert_closest_approach_hold_s"]
+    assert header[-12:] == ["v0-v4_los_blocked_fraction", "v0-v4_crossing_occluded",
+                            "v2-v6_los_blocked_fraction", "v2-v6_crossing_occluded"] + [
+                                f"{pair}_{key}" for pair in ("v0-v4", "v2-v6") for key in cert]
     (back,) = read_runs_csv(path)
+    assert [back[f"{pair}_cert_closest_approach"] for pair in ("v0-v4", "v2-v6")] == ["feasible", "feasible"]
+    assert back["v2-v6_cert_closest_approach_hold_s"] == 0.0
+    assert all(back[key] == back[f"v0-v4_{key}"] for key in cert)  # the headline: the first pair's
+    assert aggregate([back])[run.variant]["pair_certificates"] == {"feasible": 2, "needs-hold": 0, "infeasible": 0}
     pairs = run.summary.pairs
     assert back["sight_pairs"] == 2
     assert back["sight_pairs_occluded"] == pairs["v0-v4"].crossing_occluded + pairs["v2-v6"].crossing_occluded
@@ -196,3 +207,17 @@ def test_the_space_time_search_hides_a_vehicle_from_its_assigned_partner_only(pa
         assert blocked.all() if name == "a" else not blocked.any()  # the wall hides c from a alone
         assert np.hypot(*(c - other).T).min() >= mission.safety.min_separation_m
     np.testing.assert_allclose(route.xy_enu_m[-1], mission.vehicle("c").goal_enu_m)
+
+
+def test_validate_and_plan_report_each_assigned_pairs_certificate(tmp_path, capsys):
+    from companion.cli.app import main
+
+    mission = ROOT / "missions" / "ring8_two_pairs.yaml"
+    assert main(["validate", str(mission)]) == 0
+    out = capsys.readouterr().out
+    assert "sight line v0-v4 blocked" in out and "(v2 is not held;" in out and "sight line v2-v6 blocked" in out
+    assert main(["plan", str(mission), "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "routes.json").read_text())
+    assert list(doc["occlusion_certificates"]) == ["v0-v4", "v2-v6"]
+    assert doc["occlusion_certificate"] == doc["occlusion_certificates"]["v0-v4"]  # the headline
+    assert doc["occlusion_certificates"]["v2-v6"]["higher_holds"] is False
