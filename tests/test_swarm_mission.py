@@ -16,6 +16,8 @@ import yaml
 from companion.bench.table import aggregate, certificate_columns, read_runs_csv, run_row, write_runs_csv
 from companion.cli.bench import run as bench_cli
 from companion.formations import ring
+from companion.planning.coordination.certificate import hold_partner
+from companion.planning.coordination.plan import departure_hold, route_forecast
 from companion.planning.coordination.search import Blocking, plan_vehicle
 from companion.planning.coordination.shadow import SightShadows
 from companion.planning.dwa import OtherUav
@@ -221,3 +223,18 @@ def test_validate_and_plan_report_each_assigned_pairs_certificate(tmp_path, caps
     assert list(doc["occlusion_certificates"]) == ["v0-v4", "v2-v6"]
     assert doc["occlusion_certificate"] == doc["occlusion_certificates"]["v0-v4"]  # the headline
     assert doc["occlusion_certificates"]["v2-v6"]["higher_holds"] is False
+
+
+@pytest.mark.parametrize("pairs, partner", [(None, "v1"), ([["v2", "v6"], ["v4", "v0"]], "v4"),
+                                            ([["v2", "v6"]], None)])
+def test_the_first_vehicles_departure_hold_is_for_the_first_pair_that_names_it(pairs, partner):
+    """Without pairs the hold is for the second vehicle; with pairs, for the first vehicle's
+    partner in the first pair naming it; in none, the first vehicle never holds."""
+    doc = ring(8, 600.0, hub_m=200.0, pairs=pairs)
+    doc["coordination"] = {"hold_s_max": 120.0}
+    mission = mission_from_data(doc, "m")
+    assert hold_partner(mission) == partner
+    if partner is None:
+        first = route_forecast(mission, plan_routes(mission))
+        grid = rasterise(mission.world, mission.planner.grid_resolution_m)
+        assert departure_hold(mission, first, grid, SightShadows(mission.world, grid)) == 0.0
