@@ -182,9 +182,10 @@ def problem_for(mission: "Mission", grid: OccupancyGrid, shadows: SightShadows, 
                 others: tuple[TimedRoute, ...], fastest_other_m_s: float, memo: dict | None = None, *,
                 from_xy: tuple[float, float] | None = None, t0_s: float = 0.0,
                 budget: Budget | None = None, pair_alone: bool = False) -> SpaceTimeProblem:
-    """Vehicle ``name`` against ``others``, hiding from those the mission has it hide from
-    (:func:`sight_partners`; ``pair_alone``: from every one of ``others``, the higher vehicle of a
-    pair judged alone); ``memo`` shares masks between problems on ``grid``.
+    """Vehicle ``name`` against ``others``, hiding from those the mission has it hide from (all of
+    them, or its assigned partners among them: ``Mission.hides_from``; ``pair_alone``: from every
+    one of ``others``, the higher vehicle of a pair judged alone); ``memo`` shares masks between
+    problems on ``grid``.
     A re-plan starts at ``from_xy`` at mission time ``t0_s`` (default: its station at 0).
     ``budget``: charged by the searches on the problem (:mod:`budget`)."""
     v = mission.vehicle(name)
@@ -196,25 +197,18 @@ def problem_for(mission: "Mission", grid: OccupancyGrid, shadows: SightShadows, 
                             None if pair_alone else mission.hides_from(name))
 
 
-def sight_partners(mission: "Mission", name: str, others: tuple[TimedRoute, ...]) -> tuple[TimedRoute, ...]:
-    """The routes of ``others`` whose sight line ``name`` keeps blocked: all of them, or its
-    assigned partners among them when the mission assigns pairs."""
-    partners = mission.hides_from(name)
-    return others if partners is None else tuple(o for o in others if o.vehicle in partners)
-
-
 def plan_vehicle(mission: "Mission", name: str, others: tuple[TimedRoute, ...], grid: OccupancyGrid,
                  shadows: SightShadows, memo: dict | None = None, *, from_xy: tuple[float, float] | None = None,
                  t0_s: float = 0.0) -> tuple[TimedRoute, Blocking, float] | None:
     """One lower-priority vehicle against ``others`` (forecasts of the vehicles above it), the
     strictest rule first: (timed route, rule kept, step s), or None when not even separation can
-    be planned. A vehicle that hides from none of ``others`` (:func:`sight_partners`) is planned
+    be planned. A vehicle that hides from none of ``others`` (``Mission.hides_from``) is planned
     for separation only. Before flight it starts at its station at 0; a re-plan (it strayed from its
     plan, or one above it did: re-forecast them with :func:`timed.forecast_from`) starts at
     ``from_xy`` at ``t0_s``."""
     fastest = max((mission.vehicle(o.vehicle).speed_m_s for o in others), default=0.0)
     problem = problem_for(mission, grid, shadows, name, others, fastest, memo, from_xy=from_xy, t0_s=t0_s)
-    partners = sight_partners(mission, name, others)
+    partners = problem.sight_others
     margin = near_margin_m(mission, name, max(mission.vehicle(o.vehicle).speed_m_s for o in partners)) \
         if partners else 0.0
     ladder = [(Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),

@@ -91,6 +91,7 @@ class SpaceTimeProblem:
         self.nx = free.shape[1]
         self.others = others
         self._sight = None if sight is None else tuple(i for i, o in enumerate(others) if o.vehicle in sight)
+        self.sight_others = others if self._sight is None else tuple(others[i] for i in self._sight)
         self.t0_s = t0_s  # step 0 is this mission time (a re-plan starts mid-flight)
         self.horizon = max(1, int((horizon_s - t0_s) // model.step_s))
         settled_s = max((o.arrival_s for o in others), default=t0_s)
