@@ -15,7 +15,10 @@ import pytest
 
 from companion.formations import corridor, crossing_lanes, ring
 from companion.scenarios import ScenarioConfig, generate_scenario
-from companion.planning.flight.headless import RunResult, simulate
+from companion.planning.coordination.plan import plan_coordinated
+from companion.planning.coordination.search import Blocking
+from companion.planning.flight.forecast import mission_certificate, mission_certificates
+from companion.planning.flight.headless import RunResult, flight_inputs, simulate, simulate_certified
 from companion.planning.metrics import Track
 from companion.testing.assertions import TelemetryAssertions
 from uav_model.mission import load_mission, mission_from_data
@@ -103,6 +106,37 @@ def test_two_assigned_pairs_among_eight_keep_their_sight_lines_blocked():
     assert summary.success_strict
     # the headline columns are the first assigned pair's
     assert summary.los_blocked_fraction == summary.pairs["v0-v4"].los_blocked_fraction
+
+
+def test_two_assigned_pairs_among_eight_flown_on_the_timed_variants_space_time_plan():
+    """The same ring with ``astar-bdwa-timed``: v4 is planned to hide from v0 and v6 from v2 alone
+    (not from every vehicle above them), the four others for separation only; each pair's own
+    certificate calls its line feasible, and the flight keeps both lines blocked."""
+    mission = load_mission(ROOT / "missions" / "ring8_two_pairs.yaml").with_variant("astar-bdwa-timed")
+    routes, first = flight_inputs(mission)
+    plan = plan_coordinated(mission, routes, first)
+    assert {n for n, b in plan.blocking.items() if b is not Blocking.NONE} == {"v0", "v4", "v6"}  # v0: first
+    assert plan.hold_s == 0.0 and all(plan.planned.values())
+    run, certificates = simulate_certified(mission, inputs=(routes, first))
+    assert [(c.pair, c.verdict) for c in certificates] == [("v0-v4", "feasible"), ("v2-v6", "feasible")]
+    flown = Flown(run)
+    assert_safe_arrivals(flown)
+    summary = run.summary
+    for pair in ("v0-v4", "v2-v6"):
+        assert summary.pairs[pair].crossing_occluded, (pair, summary.pairs[pair])
+    assert summary.success_strict
+
+
+def test_each_assigned_pair_gets_its_own_certificate_and_says_when_its_line_cannot_be_kept():
+    """Without the hub nothing hides anyone: each pair's certificate says so, against its own
+    higher vehicle's forecast; only the first vehicle in priority may be held by the rule."""
+    mission = mission_from_data(ring(8, 600.0, pairs=[["v6", "v2"], ["v0", "v4"]]), "m")
+    certificates = mission_certificates(mission)
+    assert [(c.higher, c.lower, c.verdict) for c in certificates] == [("v2", "v6", "infeasible"),
+                                                                      ("v0", "v4", "infeasible")]
+    assert [c.higher_holds for c in certificates] == [False, True]
+    assert "v2 is not held" in certificates[0].describe()
+    assert mission_certificate(mission) == certificates[0]  # the headline: the first pair named
 
 
 def test_without_an_assignment_the_papers_pair_is_scored_and_strict_success_reads_it_alone():

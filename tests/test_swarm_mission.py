@@ -3,23 +3,33 @@ name, how it is refused, whom each planner hides from, and how runs.csv reports 
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
-from companion.bench.table import read_runs_csv, run_row, write_runs_csv
+from companion.bench.table import aggregate, certificate_columns, read_runs_csv, run_row, write_runs_csv
 from companion.cli.bench import run as bench_cli
 from companion.formations import ring
+from companion.planning.coordination.certificate import hold_partner
+from companion.planning.coordination.plan import departure_hold, route_forecast
+from companion.planning.coordination.search import Blocking, plan_vehicle
+from companion.planning.coordination.shadow import SightShadows
 from companion.planning.dwa import OtherUav
 from companion.planning.fleet import Neighbour, react_to
+from companion.planning.flight.forecast import mission_certificates
 from companion.planning.flight.headless import simulate
+from companion.planning.grid import rasterise
+from companion.planning.metrics import TruthGeometry
 from companion.planning.routes import higher_routes, plan_routes
+from companion.planning.timed_route import TimedRoute
 from companion.scenarios import ScenarioConfig, ScenarioError, generate_scenario
-from uav_model.mission import MissionError, mission_from_data, parse_mission
+from uav_model.mission import Mission, MissionError, mission_from_data, parse_mission
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -114,13 +124,22 @@ def test_the_lower_vehicle_of_an_assigned_pair_is_routed_against_its_partner_onl
 
 
 def test_runs_csv_reports_each_assigned_pair_after_the_vehicles(tmp_path):
-    run = simulate(mission_from_data(ring(8, 600.0, hub_m=200.0, pairs=[["v0", "v4"], ["v2", "v6"]]), "m"))
-    row = run_row(1, 0, "m", run.variant, run.summary.summary_dict(), wall_s=run.wall_s)
+    mission = mission_from_data(ring(8, 600.0, hub_m=200.0, pairs=[["v0", "v4"], ["v2", "v6"]]), "m")
+    run = simulate(mission)
+    certificates = mission_certificates(mission)
+    row = {**run_row(1, 0, "m", run.variant, run.summary.summary_dict(), wall_s=run.wall_s),
+           **certificate_columns(certificates[0], certificates)}
     path = write_runs_csv([row], tmp_path / "runs.csv")
     header = path.read_text().splitlines()[0].split(",")
-    assert header[-4:] == ["v0-v4_los_blocked_fraction", "v0-v4_crossing_occluded",
-                           "v2-v6_los_blocked_fraction", "v2-v6_crossing_occluded"]
+    cert = ["cert_whole_flight", "cert_whole_flight_hold_s", "cert_closest_approach", "cert_closest_approach_hold_s"]
+    assert header[-12:] == ["v0-v4_los_blocked_fraction", "v0-v4_crossing_occluded",
+                            "v2-v6_los_blocked_fraction", "v2-v6_crossing_occluded"] + [
+                                f"{pair}_{key}" for pair in ("v0-v4", "v2-v6") for key in cert]
     (back,) = read_runs_csv(path)
+    assert [back[f"{pair}_cert_closest_approach"] for pair in ("v0-v4", "v2-v6")] == ["feasible", "feasible"]
+    assert back["v2-v6_cert_closest_approach_hold_s"] == 0.0
+    assert all(back[key] == back[f"v0-v4_{key}"] for key in cert)  # the headline: the first pair's
+    assert aggregate([back])[run.variant]["pair_certificates"] == {"feasible": 2, "needs-hold": 0, "infeasible": 0}
     pairs = run.summary.pairs
     assert back["sight_pairs"] == 2
     assert back["sight_pairs_occluded"] == pairs["v0-v4"].crossing_occluded + pairs["v2-v6"].crossing_occluded
@@ -153,3 +172,69 @@ def test_the_bench_refuses_a_fleet_outside_2_to_32_before_flying(tmp_path, capsy
     out, err = capsys.readouterr()
     assert out == "" and err.strip() == f"companion bench: vehicles: use 2 to 32 (got {count})"
     assert not (tmp_path / "out" / "runs.csv").exists()
+
+
+def _wall(pairs) -> Mission:
+    """a parked south of a long wall, b parked north of it, c flying west to east north of it:
+    c can hide from a the whole flight, never from b."""
+    doc = {"name": "wall", "area": {"x_min_m": 0, "y_min_m": 0, "x_max_m": 1000, "y_max_m": 700},
+           "stations": {"A": [500, 100], "A2": [560, 100], "B": [950, 450], "B2": [950, 400],
+                        "C": [200, 500], "D": [800, 500]},
+           "obstacles": [{"id": "wall", "shape": "rectangle", "center": [500, 300], "width_m": 800, "height_m": 40}],
+           "vehicles": [{"name": "a", "start": "A", "goal": "A2"}, {"name": "b", "start": "B", "goal": "B2"},
+                        {"name": "c", "start": "C", "goal": "D"}],
+           "safety": {"time_limit_s": 400}}
+    if pairs is not None:
+        doc["sightline"] = {"pairs": pairs}
+    return mission_from_data(doc, "wall")
+
+
+@pytest.mark.parametrize("pairs, kept", [(None, Blocking.NONE), ([["a", "c"]], Blocking.WHOLE_FLIGHT),
+                                         ([["b", "c"]], Blocking.NONE), ([["a", "b"]], Blocking.NONE)])
+def test_the_space_time_search_hides_a_vehicle_from_its_assigned_partner_only(pairs, kept):
+    """Without an assignment c hides from every vehicle above it, and b sees all of c's side of
+    the wall: separation only. Assigned to a, c keeps the line to a blocked the whole flight,
+    the line to b open; assigned to b (or to nobody), it cannot hide."""
+    mission = _wall(pairs)
+    grid = rasterise(mission.world, mission.planner.grid_resolution_m)
+    parked = {n: TimedRoute(n, np.array([0.0, 1.0]), np.array([mission.vehicle(n).start_enu_m] * 2)) for n in "ab"}
+    route, level, step = plan_vehicle(mission, "c", (parked["a"], parked["b"]), grid, SightShadows(mission.world, grid))
+    assert level is kept
+    t = np.arange(0.0, route.arrival_s + step, step)
+    c = route.planned_position_at(t)
+    truth = TruthGeometry(mission.world)
+    for name in "ab":
+        other = np.broadcast_to(np.asarray(mission.vehicle(name).start_enu_m), c.shape)
+        blocked = truth.sight_blocked(c[:, 0], c[:, 1], other[:, 0], other[:, 1], t)
+        assert blocked.all() if name == "a" else not blocked.any()  # the wall hides c from a alone
+        assert np.hypot(*(c - other).T).min() >= mission.safety.min_separation_m
+    np.testing.assert_allclose(route.xy_enu_m[-1], mission.vehicle("c").goal_enu_m)
+
+
+def test_validate_and_plan_report_each_assigned_pairs_certificate(tmp_path, capsys):
+    from companion.cli.app import main
+
+    mission = ROOT / "missions" / "ring8_two_pairs.yaml"
+    assert main(["validate", str(mission)]) == 0
+    out = capsys.readouterr().out
+    assert "sight line v0-v4 blocked" in out and "(v2 is not held;" in out and "sight line v2-v6 blocked" in out
+    assert main(["plan", str(mission), "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "routes.json").read_text())
+    assert list(doc["occlusion_certificates"]) == ["v0-v4", "v2-v6"]
+    assert doc["occlusion_certificate"] == doc["occlusion_certificates"]["v0-v4"]  # the headline
+    assert doc["occlusion_certificates"]["v2-v6"]["higher_holds"] is False
+
+
+@pytest.mark.parametrize("pairs, partner", [(None, "v1"), ([["v2", "v6"], ["v4", "v0"]], "v4"),
+                                            ([["v2", "v6"]], None)])
+def test_the_first_vehicles_departure_hold_is_for_the_first_pair_that_names_it(pairs, partner):
+    """Without pairs the hold is for the second vehicle; with pairs, for the first vehicle's
+    partner in the first pair naming it; in none, the first vehicle never holds."""
+    doc = ring(8, 600.0, hub_m=200.0, pairs=pairs)
+    doc["coordination"] = {"hold_s_max": 120.0}
+    mission = mission_from_data(doc, "m")
+    assert hold_partner(mission) == partner
+    if partner is None:
+        first = route_forecast(mission, plan_routes(mission))
+        grid = rasterise(mission.world, mission.planner.grid_resolution_m)
+        assert departure_hold(mission, first, grid, SightShadows(mission.world, grid)) == 0.0

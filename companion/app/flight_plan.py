@@ -21,7 +21,7 @@ from companion.planning.coordination.certificate import OcclusionCertificate, ce
 from companion.planning.coordination.plan import CoordinatedPlan, plan_coordinated
 from companion.planning.errors import NoPath
 from companion.planning.flight.fleet_setup import FleetSetup, build_fleet
-from companion.planning.flight.forecast import first_forecast, mission_certificate
+from companion.planning.flight.forecast import first_forecast, mission_certificates
 from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import VARIANTS, variant_needs_route, variant_nodes
 from companion.vehicle.port import GeoWaypoint
@@ -44,17 +44,24 @@ class FlightPlan:
     certificate_budget: Budget | None = field(default=None, compare=False)  # None: as long as it takes
 
     @cached_property
-    def certificate(self) -> OcclusionCertificate | None:
-        """The occlusion certificate (seconds of pure work; computed on first use), within
-        ``certificate_budget``; None without one (a single vehicle, or ``with_certificate`` off)."""
+    def certificates(self) -> tuple[OcclusionCertificate, ...]:
+        """The occlusion certificate of each scored sight-line pair, the headline first (seconds
+        of pure work; computed on first use), within ``certificate_budget``; empty without one (a
+        single vehicle, or ``with_certificate`` off)."""
         if not self.with_certificate:
-            return None
+            return ()
         first = None
         if len(self.mission.vehicles) > 1 and self.mission.by_priority[0].name in self.routes:
             first = self._first_forecast(self.certificate_budget)
             if first is None:  # the forecast itself ran out of budget: nothing is decided
-                return certify(self.mission, None, budget=self.certificate_budget)
-        return mission_certificate(self.mission, self.routes, self.certificate_budget, first=first)
+                return tuple(certify(self.mission, None, pair=p, budget=self.certificate_budget)
+                             for p in self.mission.sight_pairs)
+        return mission_certificates(self.mission, self.routes, self.certificate_budget, first=first)
+
+    @property
+    def certificate(self) -> OcclusionCertificate | None:
+        """The headline certificate: the first scored pair's (:attr:`certificates`)."""
+        return self.certificates[0] if self.certificates else None
 
     def _first_forecast(self, budget: Budget | None = None) -> TimedRoute | None:
         """The first vehicle's forecast (:func:`first_forecast`), flown once for the certificate and
@@ -68,10 +75,11 @@ class FlightPlan:
         return self.__dict__["_first"]
 
     def certificate_advice(self) -> str | None:
-        """What keeps the sight line blocked when this plan's variant will not (a timed variant,
-        the hold it needs), from the certificate; None when there is nothing to say."""
-        c = self.certificate
-        return None if c is None else c.advice(self.variant, tuple(n for n, v in VARIANTS.items() if v.timed))
+        """What keeps the sight lines blocked when this plan's variant will not (a timed variant,
+        the hold it needs), from the first certificate that has advice; None when there is
+        nothing to say."""
+        timed = tuple(n for n, v in VARIANTS.items() if v.timed)
+        return next((a for c in self.certificates if (a := c.advice(self.variant, timed)) is not None), None)
 
     @cached_property
     def coordinated(self) -> CoordinatedPlan | None:

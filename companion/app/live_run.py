@@ -38,6 +38,7 @@ from companion.app.warmup import warm_up_planners
 from companion.errors import (CommandRefused, CompanionError, LinkError, MissionAborted, MissionUploadError,
                               PreflightRefused, VehicleNotReady, primary_error)
 from uav_model.mission import VehicleSpec
+from companion.planning.coordination.certificate import certificates_doc
 from companion.planning.metrics import RunSummary, Track, summarize, until_last_arrival
 from companion.vehicle.mavsdk_open import open_mavsdk_vehicle
 from companion.vehicle.port import Vehicle
@@ -143,7 +144,8 @@ async def run_mission(plan: FlightPlan, connections: Mapping[str, str], settings
             doc["live"]["schedule"] = schedule.summary_dict()
         # Seconds of pure numpy, once the vehicles are done with. Not in a worker thread: beside the
         # in-process fleet's busy loop, the GIL hand-offs of numpy calls stalled it for minutes.
-        doc["occlusion_certificate"] = _certificate_doc(plan)
+        doc["occlusion_certificate"] = _certificate_doc(plan)  # the headline: the first scored pair's
+        doc["occlusion_certificates"] = certificates_doc(plan.certificates)
         log_problems = tuple(log.problems())
     final_reason = reason if reason is not None else (None if summary is not None and summary.success
                                                       else (summary.reason if summary else "incomplete"))

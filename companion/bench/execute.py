@@ -35,7 +35,7 @@ from companion.planning.errors import NoPath
 from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import variant_needs_route
 from companion.planning.metrics import FailureReason, vehicle_lower_bound_s
-from companion.planning.flight.forecast import first_forecast, forecast_key, mission_certificate
+from companion.planning.flight.forecast import first_forecast, forecast_key, mission_certificates
 from companion.planning.flight.headless import simulate
 from companion.scenarios import (ScenarioConfig, ScenarioError, generate_scenario, mission_yaml_text,
                                  with_variant)
@@ -140,7 +140,9 @@ class _Certificates:
 
     def _judge(self, mission: Any, first: TimedRoute) -> dict[str, Any]:
         try:
-            return certificate_columns(mission_certificate(mission, self.scenario.routes, first=first))
+            certificates = mission_certificates(mission, self.scenario.routes, first=first)
+            return certificate_columns(certificates[0] if certificates else None,
+                                       certificates if mission.assigned_pairs is not None else ())
         except Exception as exc:  # a certificate bug must not sink the scenario's flights
             self._report(exc)
             return {}

@@ -46,6 +46,10 @@ RUN_COLUMNS: tuple[tuple[str, type], ...] = (
 )
 # Per scored pair, named <higher>-<lower>_<metric> (e.g. a-b_crossing_occluded), after the vehicles.
 PAIR_COLUMNS: tuple[tuple[str, type], ...] = (("los_blocked_fraction", float), ("crossing_occluded", bool))
+# Per assigned pair (missions with sightline.pairs), its own certificate, as the cert_* columns are the first's.
+PAIR_CERT_COLUMNS: tuple[tuple[str, type], ...] = (
+    ("cert_whole_flight", str), ("cert_whole_flight_hold_s", float),
+    ("cert_closest_approach", str), ("cert_closest_approach_hold_s", float))
 VEHICLE_COLUMNS: tuple[tuple[str, type], ...] = (
     ("arrived", bool), ("flight_time_s", float), ("path_length_m", float), ("lower_bound_s", float),
     ("ratio", float), ("min_obstacle_clearance_m", float), ("nodes_raw", int), ("nodes_sparse", int),
@@ -89,8 +93,10 @@ class CertVerdict(str, Enum):
     INFEASIBLE = "infeasible"  # no hold within the time limit helps
 
 
-def certificate_columns(cert: "OcclusionCertificate | None") -> dict[str, Any]:
-    """The ``cert_*`` columns of a scenario's certificate (empty without one: a single vehicle)."""
+def certificate_columns(cert: "OcclusionCertificate | None",
+                        pairs: "Sequence[OcclusionCertificate]" = ()) -> dict[str, Any]:
+    """The ``cert_*`` columns of a scenario's headline certificate (empty without one: a single
+    vehicle), and ``<pair>_cert_*`` for each of ``pairs`` (a mission's assigned pairs)."""
     if cert is None:
         return {}
 
@@ -98,10 +104,13 @@ def certificate_columns(cert: "OcclusionCertificate | None") -> dict[str, Any]:
         return (CertVerdict.FEASIBLE if ok else CertVerdict.INFEASIBLE if hold is None
                 else CertVerdict.NEEDS_HOLD).value
 
-    return {"cert_whole_flight": verdict(cert.whole_flight, cert.whole_flight_min_hold_s),
-            "cert_whole_flight_hold_s": cert.whole_flight_min_hold_s,
-            "cert_closest_approach": verdict(cert.closest_approach, cert.closest_approach_min_hold_s),
-            "cert_closest_approach_hold_s": cert.closest_approach_min_hold_s}
+    def of(c: "OcclusionCertificate", prefix: str) -> dict[str, Any]:
+        return {f"{prefix}cert_whole_flight": verdict(c.whole_flight, c.whole_flight_min_hold_s),
+                f"{prefix}cert_whole_flight_hold_s": c.whole_flight_min_hold_s,
+                f"{prefix}cert_closest_approach": verdict(c.closest_approach, c.closest_approach_min_hold_s),
+                f"{prefix}cert_closest_approach_hold_s": c.closest_approach_min_hold_s}
+
+    return {**of(cert, ""), **{k: v for c in pairs for k, v in of(c, f"{c.pair}_").items()}}
 
 
 def _column_prefixes(rows: Iterable[Mapping[str, Any]], suffix: str) -> list[str]:
@@ -120,8 +129,11 @@ def vehicle_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
 
 
 def pair_names(rows: Iterable[Mapping[str, Any]]) -> list[str]:
-    """Scored sight-line pairs in order of first appearance (from ``<pair>_crossing_occluded``)."""
-    return _column_prefixes(rows, "_crossing_occluded")
+    """Scored sight-line pairs in order of first appearance (from ``<pair>_crossing_occluded``,
+    then ``<pair>_cert_closest_approach``)."""
+    rows = list(rows)
+    return list(dict.fromkeys(_column_prefixes(rows, "_crossing_occluded")
+                              + _column_prefixes(rows, "_cert_closest_approach")))
 
 
 def columns(rows: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -130,7 +142,8 @@ def columns(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     weights = [k for k in WEIGHT_COLUMNS if any(k in r for r in rows)]
     return ([k for k, _ in RUN_COLUMNS] + weights
             + [f"{n}_{k}" for n in vehicle_names(rows) for k, _ in VEHICLE_COLUMNS]
-            + [f"{p}_{k}" for p in pair_names(rows) for k, _ in PAIR_COLUMNS])
+            + [f"{p}_{k}" for p in pair_names(rows) for k, _ in PAIR_COLUMNS]
+            + [f"{p}_{k}" for p in pair_names(rows) for k, _ in PAIR_CERT_COLUMNS if any(f"{p}_{k}" in r for r in rows)])
 
 
 def _cell(value: Any) -> str:
@@ -165,7 +178,7 @@ def _typed(kind: type, text: str) -> Any:
 def read_runs_csv(path: str | Path) -> list[dict[str, Any]]:
     """runs.csv back as typed rows (empty cells are None)."""
     kinds = {**dict(RUN_COLUMNS), **{k: float for k in WEIGHT_COLUMNS}}
-    suffix_kinds = {**dict(VEHICLE_COLUMNS), **dict(PAIR_COLUMNS)}
+    suffix_kinds = {**dict(VEHICLE_COLUMNS), **dict(PAIR_COLUMNS), **dict(PAIR_CERT_COLUMNS)}
     with Path(path).open(newline="", encoding="utf-8") as fh:
         reader = csv.DictReader(fh)
         rows = []
@@ -241,13 +254,17 @@ def aggregate(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
 
 
 def _certificate_summary(mine: Sequence[Mapping[str, Any]], names: Sequence[str]) -> dict[str, Any]:
-    """Certificate counts of a variant's scenarios; strict successes among those whose
-    closest approach it calls feasible; ratios to the bound over successes needing no hold."""
+    """Certificate counts of a variant's scenarios (the headline, and over every assigned pair's
+    own); strict successes among those whose closest approach it calls feasible (for every
+    assigned pair); ratios to the bound over successes needing no hold."""
     counts = {q: {v.value: sum(1 for r in mine if r.get(f"cert_{q}") == v.value) for v in CertVerdict}
               for q in ("whole_flight", "closest_approach")}
-    feasible = [r for r in mine if r.get("cert_closest_approach") == CertVerdict.FEASIBLE.value]
+    pairs = [f"{p}_cert_closest_approach" for p in pair_names(mine)]
+    per_pair = {v.value: sum(1 for r in mine for key in pairs if r.get(key) == v.value) for v in CertVerdict}
+    feasible = [r for r in mine if r.get("cert_closest_approach") == CertVerdict.FEASIBLE.value
+                and all(r.get(key) in (None, CertVerdict.FEASIBLE.value) for key in pairs)]
     strict = sum(1 for r in feasible if r["success_strict"])
-    return {"certificate": counts,
+    return {"certificate": counts, "pair_certificates": per_pair,
             "strict_where_feasible": {"scenarios": len(feasible), "strict": strict,
                                       "rate": round(strict / len(feasible), 4) if feasible else None},
             "ratio_to_bound_no_hold": {n: _stats([r[f"{n}_ratio"] for r in feasible if r["success"]
@@ -301,6 +318,10 @@ def format_table(summary: Mapping[str, Mapping[str, Any]]) -> str:
             ratios = ", ".join(f"{n} {num(st['mean'], '.3f')}" for n, st in s["ratio_to_bound_no_hold"].items())
             lines.append(f"certificate {variant} (feasible / needs hold / infeasible): {certificate_text(s)}; "
                          f"strict where feasible {_strict_feasible_text(s)}; x bound where feasible: {ratios}")
+            pairs = s.get("pair_certificates") or {}
+            if sum(pairs.values()):
+                lines.append(f"certificate per assigned pair {variant}: closest approach {pairs['feasible']} / "
+                             f"{pairs['needs-hold']} / {pairs['infeasible']}")
     return "\n".join(lines)
 
 

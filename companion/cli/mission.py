@@ -63,16 +63,17 @@ def cmd_validate(args: argparse.Namespace, plan: FlightPlan) -> int:
     routes = ", ".join(f"{n}: {r.nodes_raw} -> {r.nodes_sparse} nodes" for n, r in plan.routes.items())
     print(f"{m.source}: ok: {len(m.vehicles)} vehicle(s), {len(m.world.obstacles)} obstacle(s) "
           f"({len(m.world.moving_obstacles)} moving), variant {plan.variant}" + (f"; routes {routes}" if routes else ""))
-    if plan.certificate is not None:
-        print(plan.certificate.describe())
-        if (advice := plan.certificate_advice()) is not None:
-            print(f"  {advice}")
+    for certificate in plan.certificates:
+        print(certificate.describe())
+    if (advice := plan.certificate_advice()) is not None:
+        print(f"  {advice}")
     return EXIT_OK
 
 
 @planned
 def cmd_plan(args: argparse.Namespace, plan: FlightPlan) -> int:
     from companion.planning.bounds import lower_bound_s
+    from companion.planning.coordination.certificate import certificates_doc
     out = output_dir(args.out)
     doc: dict = {"mission": plan.mission.name, "variant": plan.variant, "vehicles": {}}
     for v in plan.mission.by_priority:
@@ -91,8 +92,10 @@ def cmd_plan(args: argparse.Namespace, plan: FlightPlan) -> int:
               + (f"{route.nodes_raw} A* nodes -> {route.nodes_sparse} sparse" if route else "no global route (variant)")
               + f"; lower bound {bound:.1f} s")
     if plan.certificate is not None:
-        doc["occlusion_certificate"] = plan.certificate.summary_dict()
-        print(plan.certificate.describe())
+        doc["occlusion_certificate"] = plan.certificate.summary_dict()  # the headline: the first scored pair's
+        doc["occlusion_certificates"] = certificates_doc(plan.certificates)
+    for certificate in plan.certificates:
+        print(certificate.describe())
     (out / "routes.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     from companion.app.fence import mission_fence
     from companion.formats.qgc_plan import plan_document

@@ -29,6 +29,7 @@ def add_parser(sub) -> None:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from companion.app.results import save_results
     from companion.app.warmup import warm_up_headless
+    from companion.planning.coordination.certificate import certificates_doc
     from companion.planning.flight.headless import flight_inputs, simulate_certified
     from companion.plots import save_trajectory
 
@@ -44,7 +45,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         mission = mission.with_variant(variant)
         inputs = flight_inputs(mission)  # routes and the first vehicle's forecast: flown once, used twice
         warm_up_headless(mission, inputs=inputs)  # compiled code loaded before the clock: the speed is the flight's
-        run, certificate = simulate_certified(mission, inputs=inputs)
+        run, certificates = simulate_certified(mission, inputs=inputs)
     except (MissionError, NoPath) as exc:
         if made:  # bad input leaves nothing behind
             with contextlib.suppress(OSError):
@@ -53,9 +54,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     summary = run.summary.summary_dict()
     summary.update(mission=mission.name, mission_file=str(args.mission), variant=run.variant,
                    wall_s=round(run.wall_s, 3), speed_factor=round(run.speed_factor, 1))
-    summary["occlusion_certificate"] = None if certificate is None else certificate.summary_dict()
+    summary["occlusion_certificate"] = certificates[0].summary_dict() if certificates else None  # the headline
+    summary["occlusion_certificates"] = certificates_doc(certificates)
     print(format_summary(run), flush=True)  # the verdict first: it needs no disk
-    if certificate is not None:
+    for certificate in certificates:
         print(certificate.describe(), flush=True)
     saved = save_results(out, summary, [
         ("trajectory.png", lambda path: save_trajectory(path, mission, run.tracks, run.routes,

@@ -164,8 +164,12 @@ SIGHT_NEAR_MARGIN_M = 200.0  # see VehiclePlanner.sight_near_m; chosen on a tuni
 
 def sight_near_m(mission: "Mission", timed_routes: dict[str, TimedRoute], name: str) -> float | None:
     """Where a lower vehicle's sightline term acts when it tracks a timed route: within the
-    planned closest approach to the first vehicle plus a margin (None: everywhere)."""
-    first = mission.by_priority[0].name
-    if name == first or name not in timed_routes or first not in timed_routes:
+    planned closest approach to the first vehicle (with assigned sight-line pairs: to the nearest
+    of its partners) plus a margin (None: everywhere)."""
+    partners = mission.hides_from(name)
+    if partners is None:
+        partners = (mission.by_priority[0].name,)
+    partners = tuple(p for p in partners if p != name and p in timed_routes)
+    if name not in timed_routes or not partners:
         return None
-    return closest_approach_m(timed_routes[first], timed_routes[name]) + SIGHT_NEAR_MARGIN_M
+    return min(closest_approach_m(timed_routes[p], timed_routes[name]) for p in partners) + SIGHT_NEAR_MARGIN_M

@@ -11,7 +11,8 @@ module finds, for one D, the earliest arrival over *all* such paths, with two wa
     F0[k+1] = grow(F0[k]) & allowed(k+1)                                  reachable
     F1[k+1] = (grow(F1[k]) & allowed(k+1)) | (F0[k+1] & W(k+1))          ... having passed W
 
-W(k) = the states at step k blocked from every higher vehicle and within D of the nearest. The
+W(k) = the states at step k blocked from every higher vehicle it hides from and within D of the
+nearest. The
 earliest arrival is the first step the goal is in F1 (and stays allowed); the path is
 backtracked through F1 until it meets W, then through F0.
 """
@@ -38,7 +39,7 @@ class _Witness:
         if mask is None:
             p = self.problem
             within = np.zeros_like(p.free_bits)
-            for xy in p.positions(k):
+            for xy in p.sight_positions(k):
                 within |= p.within_bits(xy, self.near2_m2)
             mask = self._masks[k] = p.blocked_by_all(k) & within
         return mask

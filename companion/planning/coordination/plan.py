@@ -3,10 +3,12 @@
 Vehicles are planned in ``mission.by_priority`` order (the paper's rule, section III.A). The
 first flies as its forecast has it (the caller's: :func:`companion.planning.flight.forecast.first_forecast`),
 after a departure hold when the mission allows one (``coordination.hold_s_max``; the least that
-keeps the line blocked, found as the occlusion certificate finds it: :func:`certificate.least_hold`).
-Every later vehicle is planned against the forecasts of all vehicles above it, the strictest
-rule first (:func:`search.plan_vehicle`), or flies its route at cruise speed when not even
-separation can be planned (``planned`` False). The result records which rule held.
+keeps the line to the vehicle hiding from it blocked, found as the occlusion certificate finds it:
+:func:`certificate.least_hold`). Every later vehicle is planned against the forecasts of all
+vehicles above it, the strictest rule first (:func:`search.plan_vehicle`): it hides from all of
+them, or from its assigned partners only when the mission assigns sight-line pairs (none: it is
+planned for separation only), or flies its route at cruise speed when not even separation can be
+planned (``planned`` False). The result records which rule held.
 
     first = first_forecast(mission, routes)            # flown once, by the caller
     plan = plan_coordinated(mission, routes, first)
@@ -18,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from companion.planning.coordination.certificate import least_hold
+from companion.planning.coordination.certificate import hold_partner, least_hold
 from companion.planning.coordination.search import Blocking, near_margin_m, plan_vehicle
 from companion.planning.coordination.shadow import SightShadows
 from companion.planning.coordination.timed import forecast, held
@@ -46,15 +48,17 @@ class CoordinatedPlan:
 def departure_hold(mission: "Mission", first: TimedRoute, grid: OccupancyGrid, shadows: SightShadows,
                    memo: dict | None = None) -> float:
     """The least hold of the first vehicle within ``coordination.hold_s_max`` that lets the
-    second keep the line blocked the whole flight, else at closest approach (with the margin of
-    :func:`search.near_margin_m`, then without), else 0."""
+    vehicle its hold is for (:func:`certificate.hold_partner`: the second in priority, or the
+    first assigned to hide from it) keep the line blocked the whole flight, else at closest
+    approach (with the margin of :func:`search.near_margin_m`, then without), else 0."""
     order, limit_s = mission.by_priority, mission.coordination.hold_s_max
-    if len(order) < 2 or not limit_s > 0:
+    lower = hold_partner(mission) if len(order) >= 2 else None
+    if lower is None or not limit_s > 0:
         return 0.0
-    margin = near_margin_m(mission, order[1].name, order[0].speed_m_s)
+    margin = near_margin_m(mission, lower, order[0].speed_m_s)
     for blocking, margin_m in ((Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
                                (Blocking.CLOSEST_APPROACH, 0.0)):
-        found = least_hold(mission, first, blocking, limit_s, grid, shadows, memo, margin_m)
+        found = least_hold(mission, first, blocking, limit_s, grid, shadows, memo, margin_m, lower=lower)
         if found is not None:
             return found
     return 0.0
@@ -88,8 +92,8 @@ def plan_coordinated(mission: "Mission", routes: "Mapping[str, Route]", first: T
     return CoordinatedPlan(hold_s, steps, timed, blocking, planned)
 
 
-def route_forecast(mission: "Mission", routes: "Mapping[str, Route]") -> TimedRoute:
-    """The first vehicle in priority along its sparse A* route at cruise, departing at t = 0
-    (``coordination.forecast: route``, and any vehicle flown alone)."""
-    top = mission.by_priority[0]
-    return forecast(top.name, routes[top.name].sparse_enu_m, top.speed_m_s)
+def route_forecast(mission: "Mission", routes: "Mapping[str, Route]", name: str | None = None) -> TimedRoute:
+    """Vehicle ``name`` (default: the first in priority) along its sparse A* route at cruise,
+    departing at t = 0 (``coordination.forecast: route``, and any vehicle flown alone)."""
+    v = mission.vehicle(name) if name is not None else mission.by_priority[0]
+    return forecast(v.name, routes[v.name].sparse_enu_m, v.speed_m_s)

@@ -269,6 +269,9 @@ class ScheduleClocks:
         return TimedRoute(other, route.t_s + (t_s - self.now(other, t_s)), route.xy_enu_m)
 
     def _closest_s(self, name: str) -> float:
-        """The latest planned closest approach of ``name`` to a vehicle above it."""
+        """The latest planned closest approach of ``name`` to a vehicle above it (that it hides
+        from, when it is assigned partners)."""
         routes = self._against(name)
-        return max(closest_approach_s(routes[o], routes[name]) for o in self.order[:self.order.index(name)])
+        above = self.order[:self.order.index(name)]
+        above = [o for o in above if o in (self.mission.hides_from(name) or ())] or above
+        return max(closest_approach_s(routes[o], routes[name]) for o in above)

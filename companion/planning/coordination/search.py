@@ -3,15 +3,19 @@
 Every vehicle but the first in priority is planned on the space-time graph of :mod:`spacetime`
 against the forecasts of all vehicles above it (:mod:`plan`), the strictest rule first:
 
-    Blocking.WHOLE_FLIGHT       the sight line to every higher vehicle crosses a true obstacle at
-                                every step instant, from departure until everyone has arrived
+    Blocking.WHOLE_FLIGHT       the sight line to every higher vehicle it hides from crosses a
+                                true obstacle at every step instant, from departure until
+                                everyone has arrived
     Blocking.CLOSEST_APPROACH   the sight line is blocked at the closest approach: at a blocked
                                 instant no farther than any instant at which it is open (exact
                                 for two vehicles; with more it holds for one pair)
     Blocking.NONE               separation only (the line is not kept blocked)
 
 and, when even separation cannot be planned, None (the caller flies its route at cruise). A*
-cells of the inflated obstacles keep static clearance throughout.
+cells of the inflated obstacles keep static clearance throughout. A vehicle hides from every
+vehicle above it, or, when the mission assigns sight-line pairs, from its assigned partners
+above it only (``Mission.hides_from``); one that hides from none of them is planned for
+separation only (Blocking.NONE). Separation is kept from every vehicle above it.
 
 Closest approach: a path has its closest approach blocked iff some D has every open instant
 farther than D and some blocked instant within D. Forbidding open instants within D shrinks the
@@ -124,8 +128,8 @@ def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[All
 
 
 def _closest_blocked(problem: SpaceTimeProblem, fwd: Layers, bwd: Layers) -> tuple[float, tuple[int, int], int] | None:
-    """The least squared distance to the nearest higher vehicle over states on a full path that are
-    blocked from all of them: (squared distance, cell, step), earliest step on ties."""
+    """The least squared distance to the nearest higher vehicle it hides from over states on a full
+    path that are blocked from all of those: (squared distance, cell, step), earliest step on ties."""
     steps = sorted(set(range(0, fwd.first + len(fwd.head) + 1)) | set(range(len(bwd.head) + 1))
                    | set(range(problem.horizon - len(bwd.tail), problem.horizon + 1)))
     best = None
@@ -177,8 +181,11 @@ def to_timed(name: str, grid: OccupancyGrid, solution: Solution, start_xy, goal_
 def problem_for(mission: "Mission", grid: OccupancyGrid, shadows: SightShadows, name: str,
                 others: tuple[TimedRoute, ...], fastest_other_m_s: float, memo: dict | None = None, *,
                 from_xy: tuple[float, float] | None = None, t0_s: float = 0.0,
-                budget: Budget | None = None) -> SpaceTimeProblem:
-    """Vehicle ``name`` against ``others``; ``memo`` shares masks between problems on ``grid``.
+                budget: Budget | None = None, pair_alone: bool = False) -> SpaceTimeProblem:
+    """Vehicle ``name`` against ``others``, hiding from those the mission has it hide from (all of
+    them, or its assigned partners among them: ``Mission.hides_from``; ``pair_alone``: from every
+    one of ``others``, the higher vehicle of a pair judged alone); ``memo`` shares masks between
+    problems on ``grid``.
     A re-plan starts at ``from_xy`` at mission time ``t0_s`` (default: its station at 0).
     ``budget``: charged by the searches on the problem (:mod:`budget`)."""
     v = mission.vehicle(name)
@@ -186,7 +193,8 @@ def problem_for(mission: "Mission", grid: OccupancyGrid, shadows: SightShadows, 
     model = step_model(grid.resolution_m, v.speed_m_s, c.step_s, mission.safety.min_separation_m, fastest_other_m_s)
     start = v.start_enu_m if from_xy is None else (float(from_xy[0]), float(from_xy[1]))
     return SpaceTimeProblem(grid, shadows, model, start, v.goal_enu_m, others,
-                            mission.safety.time_limit_s, memo, t0_s, budget)
+                            mission.safety.time_limit_s, memo, t0_s, budget,
+                            None if pair_alone else mission.hides_from(name))
 
 
 def plan_vehicle(mission: "Mission", name: str, others: tuple[TimedRoute, ...], grid: OccupancyGrid,
@@ -194,14 +202,17 @@ def plan_vehicle(mission: "Mission", name: str, others: tuple[TimedRoute, ...], 
                  t0_s: float = 0.0) -> tuple[TimedRoute, Blocking, float] | None:
     """One lower-priority vehicle against ``others`` (forecasts of the vehicles above it), the
     strictest rule first: (timed route, rule kept, step s), or None when not even separation can
-    be planned. Before flight it starts at its station at 0; a re-plan (it strayed from its
+    be planned. A vehicle that hides from none of ``others`` (``Mission.hides_from``) is planned
+    for separation only. Before flight it starts at its station at 0; a re-plan (it strayed from its
     plan, or one above it did: re-forecast them with :func:`timed.forecast_from`) starts at
     ``from_xy`` at ``t0_s``."""
     fastest = max((mission.vehicle(o.vehicle).speed_m_s for o in others), default=0.0)
     problem = problem_for(mission, grid, shadows, name, others, fastest, memo, from_xy=from_xy, t0_s=t0_s)
-    margin = near_margin_m(mission, name, fastest)
+    partners = problem.sight_others
+    margin = near_margin_m(mission, name, max(mission.vehicle(o.vehicle).speed_m_s for o in partners)) \
+        if partners else 0.0
     ladder = [(Blocking.WHOLE_FLIGHT, 0.0), (Blocking.CLOSEST_APPROACH, margin),
-              (Blocking.CLOSEST_APPROACH, 0.0), (Blocking.NONE, 0.0)]
+              (Blocking.CLOSEST_APPROACH, 0.0), (Blocking.NONE, 0.0)] if partners else [(Blocking.NONE, 0.0)]
     v = mission.vehicle(name)
     start = v.start_enu_m if from_xy is None else from_xy
     for level, margin_m in ladder:

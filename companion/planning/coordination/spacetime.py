@@ -69,12 +69,14 @@ def step_model(resolution_m: float, speed_m_s: float, nominal_step_s: float, min
 
 class SpaceTimeProblem:
     """One lower-priority vehicle against the forecasts of the vehicles above it. Masks are
-    packed (:mod:`bitgrid`); ``memo`` may be shared by problems on the same grid and model."""
+    packed (:mod:`bitgrid`); ``memo`` may be shared by problems on the same grid and model.
+    ``sight``: the names among ``others`` whose sight line the rules keep blocked (None: all of
+    them); separation is kept from every one."""
 
     def __init__(self, grid: OccupancyGrid, shadows: SightShadows, model: StepModel,
                  start_xy: tuple[float, float], goal_xy: tuple[float, float],
                  others: tuple[TimedRoute, ...], horizon_s: float, memo: dict | None = None, t0_s: float = 0.0,
-                 budget: Budget | None = None):
+                 budget: Budget | None = None, sight: tuple[str, ...] | None = None):
         self.grid = grid
         self.budget = budget  # charged a unit per allowed mask and per grown set, and each shadow mask's cost
         self.shadows = shadows
@@ -88,6 +90,8 @@ class SpaceTimeProblem:
         self.free_bits = bitgrid.pack(free)
         self.nx = free.shape[1]
         self.others = others
+        self._sight = None if sight is None else tuple(i for i, o in enumerate(others) if o.vehicle in sight)
+        self.sight_others = others if self._sight is None else tuple(others[i] for i in self._sight)
         self.t0_s = t0_s  # step 0 is this mission time (a re-plan starts mid-flight)
         self.horizon = max(1, int((horizon_s - t0_s) // model.step_s))
         settled_s = max((o.arrival_s for o in others), default=t0_s)
@@ -106,6 +110,11 @@ class SpaceTimeProblem:
 
     def positions(self, k: int) -> list[tuple[float, float]]:
         return self._positions[min(k, self.settled)]
+
+    def sight_positions(self, k: int) -> list[tuple[float, float]]:
+        """The positions at step k of the vehicles whose sight line is kept blocked (``sight``)."""
+        at = self.positions(k)
+        return at if self._sight is None else [at[i] for i in self._sight]
 
     def _memoised(self, key: tuple, make) -> np.ndarray:
         value = self._memo.get(key)
@@ -131,6 +140,9 @@ class SpaceTimeProblem:
         ok = self.free_bits.copy()
         for xy in self.positions(k):
             ok &= self.far_bits(xy)
+        if rule is SightRule.FREE:
+            return ok
+        for xy in self.sight_positions(k):
             if rule is SightRule.BLOCKED:
                 ok &= self.shadow_bits(xy)
             elif rule is SightRule.BLOCKED_WHEN_NEAR:
@@ -139,13 +151,13 @@ class SpaceTimeProblem:
 
     def blocked_by_all(self, k: int) -> np.ndarray:
         out = self.free_bits.copy()
-        for xy in self.positions(k):
+        for xy in self.sight_positions(k):
             out &= self.shadow_bits(xy)
         return out
 
     def nearest_d2(self, k: int, bits: np.ndarray) -> tuple[float, tuple[int, int]]:
-        """The least squared distance to a higher vehicle over the cells of ``bits`` at step k."""
-        return bitgrid.nearest(bits, self._xs, self._ys, self.positions(k))
+        """The least squared distance to a vehicle of ``sight`` over the cells of ``bits`` at step k."""
+        return bitgrid.nearest(bits, self._xs, self._ys, self.sight_positions(k))
 
     def grow(self, bits: np.ndarray) -> np.ndarray:
         """Cells reachable from packed ``bits`` in one step (sub-steps ``model.moves``)."""

@@ -52,7 +52,7 @@ def flown_forecast(mission: "Mission", route: "Route", name: str, budget: "Budge
     itself absorbs as it absorbs any other difference from its forecast. ``budget``: charged a
     unit per tick (:mod:`budget`)."""
     vehicle = mission.vehicle(name)
-    alone = dataclasses.replace(mission, vehicles=(vehicle,))
+    alone = dataclasses.replace(mission, vehicles=(vehicle,), assigned_pairs=None)  # alone, it hides from nobody
     routes = {name: route}
     # Alone, it is planned against nobody: a timed variant tracks its route at cruise.
     fleet = build_fleet(alone, routes, first=route_forecast(alone, routes))
@@ -75,10 +75,16 @@ def first_forecast(mission: "Mission", routes: "Mapping[str, Route]", budget: "B
     certificate judges (``coordination.forecast``: flown alone headless, or its sparse route at
     cruise). A vehicle alone is planned against nobody: its route at cruise. ``budget``: charged
     a unit per tick flown."""
-    top = mission.by_priority[0]
+    return vehicle_forecast(mission, routes, mission.by_priority[0].name, budget)
+
+
+def vehicle_forecast(mission: "Mission", routes: "Mapping[str, Route]", name: str,
+                     budget: "Budget | None" = None) -> TimedRoute:
+    """Vehicle ``name`` forecast as :func:`first_forecast` forecasts the first: departing at
+    t = 0 and flying undisturbed (the higher vehicle of a sight-line pair, for its certificate)."""
     if len(mission.vehicles) > 1 and mission.coordination.forecast is Forecast.FLOWN:
-        return flown_forecast(mission, routes[top.name], top.name, budget)
-    return route_forecast(mission, routes)
+        return flown_forecast(mission, routes[name], name, budget)
+    return route_forecast(mission, routes, name)
 
 
 def forecast_key(mission: "Mission") -> VariantSpec:
@@ -92,20 +98,35 @@ def forecast_key(mission: "Mission") -> VariantSpec:
 def mission_certificate(mission: "Mission", routes: "Mapping[str, Route] | None" = None,
                         budget: "Budget | None" = None, *, first: TimedRoute | None = None
                         ) -> OcclusionCertificate | None:
-    """:func:`certify` of the forecast the mission's variant flies: ``first`` when the caller
-    has it already (:func:`first_forecast` of these routes), else flown here within ``budget``.
-    The routes are planned when there are none (station-goal variants plan none). None with a
-    single vehicle or when the first vehicle has no route."""
-    if len(mission.vehicles) < 2:
-        return None
-    if first is None and (not routes or mission.by_priority[0].name not in routes):
+    """The headline of :func:`mission_certificates`: the first scored pair's certificate alone
+    (None with a single vehicle or when its higher vehicle has no route)."""
+    found = mission_certificates(mission, routes, budget, first=first, pairs=mission.sight_pairs[:1])
+    return found[0] if found else None
+
+
+def mission_certificates(mission: "Mission", routes: "Mapping[str, Route] | None" = None,
+                         budget: "Budget | None" = None, *, first: TimedRoute | None = None,
+                         pairs: "tuple[tuple[str, str], ...] | None" = None) -> tuple[OcclusionCertificate, ...]:
+    """:func:`certify` of each scored pair (``pairs``, default ``Mission.sight_pairs``; the first
+    is the headline), each against its higher vehicle's forecast as the mission's variant flies
+    it (:func:`vehicle_forecast`): for the first vehicle ``first`` when the caller has it already
+    (:func:`first_forecast` of these routes), else flown here within ``budget``, one flight per
+    higher vehicle. The routes are planned when there are none (station-goal variants plan none).
+    Empty with a single vehicle or when a higher vehicle has no route."""
+    pairs = mission.sight_pairs if pairs is None else pairs
+    if len(mission.vehicles) < 2 or not pairs:
+        return ()
+    top = mission.by_priority[0].name
+    forecasts: dict[str, TimedRoute | None] = {} if first is None else {top: first}
+    wanted = [high for high, _ in pairs if high not in forecasts]
+    if wanted and (not routes or any(high not in routes for high in wanted)):
         try:
             routes = plan_routes(mission)
         except NoPath:
-            return None
-    if first is None:
+            return ()
+    for high in dict.fromkeys(wanted):
         try:
-            first = first_forecast(mission, routes, budget)
+            forecasts[high] = vehicle_forecast(mission, routes, high, budget)
         except BudgetSpent:
-            pass  # nothing is decided within the budget
-    return certify(mission, first, budget=budget)
+            forecasts[high] = None  # nothing is decided within the budget
+    return tuple(certify(mission, forecasts[high], pair=(high, low), budget=budget) for high, low in pairs)

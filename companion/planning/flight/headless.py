@@ -16,7 +16,7 @@ import time
 from typing import TYPE_CHECKING
 
 from companion.planning.flight.fleet_setup import build_fleet
-from companion.planning.flight.forecast import first_forecast, mission_certificate
+from companion.planning.flight.forecast import first_forecast, mission_certificates
 from companion.planning.flight.loop import RunResult, fly
 from companion.planning.routes import plan_routes
 from companion.planning.vehicle_planner import VARIANTS, variant_needs_route
@@ -73,12 +73,13 @@ def flight_inputs(mission: Mission) -> tuple[dict[str, Route], TimedRoute | None
 
 def simulate_certified(mission: Mission, variant: str | None = None, *,
                        inputs: tuple[dict[str, Route], TimedRoute | None] | None = None,
-                       ) -> tuple[RunResult, OcclusionCertificate | None]:
-    """:func:`simulate`, and the occlusion certificate of the forecast that ``variant`` flies
-    (:func:`forecast.mission_certificate`): the first vehicle is flown alone once, for both.
+                       ) -> tuple[RunResult, tuple[OcclusionCertificate, ...]]:
+    """:func:`simulate`, and the occlusion certificate of each scored pair, of the forecasts that
+    ``variant`` flies (:func:`forecast.mission_certificates`, the headline first): the first
+    vehicle is flown alone once, for both.
     ``inputs``: :func:`flight_inputs` of this mission and variant, when the caller has them."""
     if variant is not None:
         mission = mission.with_variant(variant)
     routes, first = flight_inputs(mission) if inputs is None else inputs
     run = simulate(mission, routes=routes, first=first)
-    return run, mission_certificate(mission, routes, first=first)
+    return run, mission_certificates(mission, routes, first=first)
