@@ -150,9 +150,12 @@ def _rules(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig) -> _Ru
         if config.row_of is None:  # (O, S * (K + 1)); the rule per rollout too when compiled
             clear, ok_by_rule[Rule.OBSTACLE], distance, legal = config.backend.obstacle_rule(
                 window.px, window.py, scene.culled, config)
-        else:  # computed on the distinct rollouts only, then spread to all
-            ok_by_rule[Rule.OBSTACLE], distance, clear = _obstacle_terms(window.gx, window.gy, scene.culled.subset(),
-                                                                         config)
+        else:  # computed on the distinct rollouts only (clear: (O, G * (K + 1))), then spread to all
+            clear, ok, distance, legal = config.backend.obstacle_rule(window.gx, window.gy, scene.culled, config,
+                                                                      config.geo_point_times_s)
+            row_of = config.row_of
+            ok_by_rule[Rule.OBSTACLE], distance = ok[row_of], distance[row_of]
+            legal = None if legal is None else legal[row_of]
     else:
         distance = no_obstacle_in_reach(config)
     if scene.binding:
@@ -172,10 +175,14 @@ def _recover(pose: Pose, goals: LocalGoals, other: OtherUav | None, scene: _Scen
 
     def clearances() -> np.ndarray | None:
         clear = rules.clear
+        if scene.culled.count and clear is None:  # the compiled pass left some out
+            if config.row_of is None:
+                return config.backend.inflated_clearance(window.px.ravel(), window.py.ravel(), config.point_times_s,
+                                                         near)
+            clear = config.backend.inflated_clearance(window.gx.ravel(), window.gy.ravel(), config.geo_point_times_s,
+                                                      near)
         if clear is not None and config.row_of is not None:  # the escape reads every rollout's
             return clear.reshape(len(clear), *window.gx.shape)[:, config.row_of].reshape(len(clear), -1)
-        if scene.culled.count and config.row_of is None and clear is None:  # the compiled pass left some out
-            return config.backend.inflated_clearance(window.px.ravel(), window.py.ravel(), config.point_times_s, near)
         return clear
 
     heading = config.backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad,
@@ -279,17 +286,6 @@ def _placed(place: np.ndarray, config: DwaConfig,
     xy = place @ config.geo_hom_m
     gx, gy = xy[0].reshape(-1, shape[1]), xy[1].reshape(-1, shape[1])
     return gx[config.row_of], gy[config.row_of], gx, gy
-
-
-def _obstacle_terms(gx: np.ndarray, gy: np.ndarray, near: ObstacleSnapshot,
-                    config: DwaConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The obstacle rule (S, K + 1) and the distance critic (S,), computed on the distinct
-    rollouts (gx, gy) and spread to every rollout, and their clearances (O, G * (K + 1))."""
-    g_shape = gx.shape
-    clear = config.backend.inflated_clearance(gx.ravel(), gy.ravel(), config.geo_point_times_s, near)
-    ok, distance = config.backend.obstacle_and_distance(clear, g_shape, config.distance_saturation_m)
-    row_of = config.row_of
-    return ok.reshape(g_shape)[row_of], distance[row_of], clear
 
 
 def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig, ex: np.ndarray,
