@@ -142,6 +142,8 @@ class TimedRoute:
 
     def planned_along_at(self, t_s: np.ndarray | float) -> np.ndarray:
         """How far along the route (m, ...) the plan is at ``t_s``."""
+        if isinstance(t_s, float) and len(self.t_s) > 1:  # one time (every tick): no arrays
+            return np.float64(interp_one(t_s, self._t_list, self._along_list))
         return np.interp(np.asarray(t_s, dtype=float), self.t_s, self._along_m)
 
     def progress_at(self, xy_enu_m: np.ndarray, near_along_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -231,6 +233,27 @@ class TimedRoute:
 
 _FEET_BACK, _FEET_AHEAD = 4, 12  # segments beyond a progress window its position's feet cover (see _feet)
 PROGRESS_BACK_M, PROGRESS_AHEAD_M = 30.0, 60.0  # a vehicle flies ~5 m a tick; see progress_window
+
+
+def interp_one(x: float, xp: list[float], fp: list[float]) -> float:
+    """``np.interp(x, xp, fp)`` of one finite ``x`` on lists (two points or more), bit for bit:
+    numpy's own steps (the held ends, the exact node, the slope, and the other end when that
+    gives NaN) in plain floats, without numpy's per-call cost."""
+    if x < xp[0]:
+        return fp[0]
+    last = len(xp) - 1
+    if x >= xp[last]:
+        return fp[last]
+    j = bisect_right(xp, x) - 1
+    if xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    y = slope * (x - xp[j]) + fp[j]
+    if y != y:
+        y = slope * (x - xp[j + 1]) + fp[j + 1]
+        if y != y and fp[j] == fp[j + 1]:
+            y = fp[j]
+    return y
 
 
 def progress_window(near_along_m: float) -> tuple[float, float]:

@@ -77,3 +77,15 @@ def test_compiled_progress_gives_the_numpy_bits(route, x, y, near):
     route._last_progress.clear()  # asked afresh, compiled
     found = route.progress_at(np.array([x, y]), near)
     assert (float(found[0]), float(found[1])) == (float(expected[0]), float(expected[1]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(routes(), st.lists(st.floats(-10.0, 400.0), min_size=1, max_size=8), st.data())
+def test_one_time_interpolation_is_numpys(route: TimedRoute, times: list[float], data) -> None:
+    """How far along the plan is at one time, the per-tick query, in plain floats: numpy's bits
+    at any time, the route's own times (a wait's both ends) and its ends included."""
+    times = times + [float(data.draw(st.sampled_from(route.t_s.tolist())))]
+    for t in times:
+        got = route.planned_along_at(t)
+        reference = np.interp(np.asarray(t), route.t_s, route._along_m)
+        assert type(got) is np.float64 and got.tobytes() == np.float64(reference).tobytes()
