@@ -89,3 +89,18 @@ def test_one_time_interpolation_is_numpys(route: TimedRoute, times: list[float],
         got = route.planned_along_at(t)
         reference = np.interp(np.asarray(t), route.t_s, route._along_m)
         assert type(got) is np.float64 and got.tobytes() == np.float64(reference).tobytes()
+
+
+@settings(max_examples=300, deadline=None)
+@given(routes(), st.floats(-450.0, 450.0), st.floats(-450.0, 450.0), st.floats(-10.0, 400.0),
+       st.one_of(st.none(), st.floats(0.0, 900.0)), st.sampled_from([0.5, 5.0, 10.0, 30.0]))
+def test_one_position_target_speed_is_the_vectorised_formula(route: TimedRoute, x: float, y: float, t: float,
+                                                             near, max_speed: float) -> None:
+    """The speed a tick asks for (one position, one time, plain floats) is the vectorised
+    formula's on that position's progress, to the bit, and the array query's progress is its."""
+    along, off = route.progress_of(x, y, near)
+    got = route.target_speed_of(x, y, t, max_speed, near_along_m=near)
+    gap = route.planned_along_at(np.asarray([t + 5.0])) - along
+    reference = np.where(gap > 0, np.minimum(np.hypot(gap, off) / 5.0, max_speed), 0.0)[0]
+    assert type(got) is np.float64 and got.tobytes() == reference.tobytes()
+    assert route.progress_at(np.array([x, y]), near) == (along, off)
