@@ -122,7 +122,7 @@ class TimedRoute:
     def planned_speed_at(self, t_s: np.ndarray | float) -> np.ndarray:
         """Speed (...,) of the plan itself at ``t_s``: 0 while waiting and outside the route."""
         if isinstance(t_s, float) and len(self.t_s) > 1:  # one time (every tick): no arrays
-            if not self.t_s[0] <= t_s < self.t_s[-1]:
+            if not self._t_list[0] <= t_s < self._t_list[-1]:
                 return np.float64(0.0)
             i = bisect_right(self._t_list, t_s) - 1
             return self._speed[min(max(i, 0), len(self.t_s) - 2)]
@@ -142,6 +142,8 @@ class TimedRoute:
 
     def planned_along_at(self, t_s: np.ndarray | float) -> np.ndarray:
         """How far along the route (m, ...) the plan is at ``t_s``."""
+        if isinstance(t_s, float) and len(self.t_s) > 1:  # one time (every tick): no arrays
+            return np.float64(interp_one(t_s, self._t_list, self._along_list))
         return np.interp(np.asarray(t_s, dtype=float), self.t_s, self._along_m)
 
     def progress_at(self, xy_enu_m: np.ndarray, near_along_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -151,22 +153,32 @@ class TimedRoute:
         that window counts, so a path that passes near itself (out and back round a shadow, a wait
         beside a later leg) cannot throw the vehicle hundreds of metres ahead or behind."""
         point = np.asarray(xy_enu_m, dtype=float)
-        key = (float(point[0]), float(point[1]), near_along_m) if point.shape == (2,) else None
-        known = self._last_progress.get(key) if key is not None else None
+        if point.shape == (2,):
+            return self.progress_of(float(point[0]), float(point[1]), near_along_m)
+        return self._progress(point[..., None, :], near_along_m)
+
+    def progress_of(self, x_m: float, y_m: float, near_along_m: float | None = None) -> tuple[np.float64, np.float64]:
+        """:meth:`progress_at` of one position (x, y): what every tick asks, two or three times
+        (the last few answers are kept)."""
+        key = (x_m, y_m, near_along_m)
+        known = self._last_progress.get(key)
         if known is not None:
             return known
-        found = self._progress(point[..., None, :], near_along_m)
-        if key is not None:
-            if len(self._last_progress) >= 4:
-                self._last_progress.clear()
-            self._last_progress[key] = found
+        if progress_in is not None and len(self.t_s) > 1:  # one compiled call, no arrays made
+            lo_i, hi_i = self._window_segments(near_along_m)
+            along, off = progress_in(self._start, self._d, self._len2_div, self._along_m, self._len, x_m, y_m,
+                                     lo_i, hi_i)
+            found = (np.float64(along), np.float64(off))
+        else:
+            found = self._progress(np.array([[x_m, y_m]]), near_along_m)
+        if len(self._last_progress) >= 4:
+            self._last_progress.clear()
+        self._last_progress[key] = found
         return found
 
-    def _progress(self, xy: np.ndarray, near_along_m: float | None) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`progress_at` of ``xy`` (..., 1, 2), over the segments in the window only: the
-        window is a contiguous run of segments (``_along_m`` never decreases), found by bisection."""
-        if len(self.t_s) == 1:
-            return np.zeros(xy.shape[:-2]), np.hypot(*np.moveaxis(xy[..., 0, :] - self.xy_enu_m[0], -1, 0))
+    def _window_segments(self, near_along_m: float | None) -> tuple[int, int]:
+        """The segments ``lo_i`` to ``hi_i`` that the progress window of ``near_along_m`` reaches
+        into (every segment without one, or when none does): a contiguous run, found by bisection."""
         lo_i, hi_i = 0, len(self._len2)
         if near_along_m is not None:
             lo, hi = progress_window(near_along_m)
@@ -175,6 +187,14 @@ class TimedRoute:
             end = bisect_right(along, hi, 0, len(along) - 1)
             if first < end:  # some segment reaches into the window; else the whole route counts
                 lo_i, hi_i = first, end
+        return lo_i, hi_i
+
+    def _progress(self, xy: np.ndarray, near_along_m: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`progress_at` of ``xy`` (..., 1, 2), over the segments in the window only: the
+        window is a contiguous run of segments (``_along_m`` never decreases), found by bisection."""
+        if len(self.t_s) == 1:
+            return np.zeros(xy.shape[:-2]), np.hypot(*np.moveaxis(xy[..., 0, :] - self.xy_enu_m[0], -1, 0))
+        lo_i, hi_i = self._window_segments(near_along_m)
         if xy.shape == (1, 2) and progress_in is not None:  # one position (every tick): one compiled call
             along, off = progress_in(self._start, self._d, self._len2_div, self._along_m, self._len,
                                      float(xy[0, 0]), float(xy[0, 1]), lo_i, hi_i)
@@ -223,14 +243,48 @@ class TimedRoute:
         for the plan, however far ahead it is). ``near_along_m`` as for :meth:`progress_at`."""
         along, off = self.progress_at(xy_enu_m, near_along_m)
         if isinstance(t_s, float) and np.ndim(along) == 0:  # one position at one time
-            gap = self.planned_along_at(t_s + lookahead_s) - along
-            return np.minimum(np.hypot(gap, off) / lookahead_s, max_speed_m_s) if gap > 0 else np.float64(0.0)
+            return self._target_speed(along, off, t_s, max_speed_m_s, lookahead_s)
         gap = self.planned_along_at(np.asarray(t_s, dtype=float) + lookahead_s) - along
         return np.where(gap > 0, np.minimum(np.hypot(gap, off) / lookahead_s, max_speed_m_s), 0.0)
+
+    def target_speed_of(self, x_m: float, y_m: float, t_s: float, max_speed_m_s: float, lookahead_s: float = 5.0,
+                        near_along_m: float | None = None) -> np.float64:
+        """:meth:`target_speed_at` of one position at one time: what every tick asks."""
+        along, off = self.progress_of(x_m, y_m, near_along_m)
+        return self._target_speed(along, off, float(t_s), max_speed_m_s, lookahead_s)
+
+    def _target_speed(self, along: np.float64, off: np.float64, t_s: float, max_speed_m_s: float,
+                      lookahead_s: float) -> np.float64:
+        gap = self.planned_along_at(t_s + lookahead_s) - along
+        if not gap > 0:
+            return np.float64(0.0)
+        speed = np.hypot(gap, off) / lookahead_s  # never NaN, never -0.0: min picks what np.minimum picks
+        return np.float64(speed if speed < max_speed_m_s else max_speed_m_s)
 
 
 _FEET_BACK, _FEET_AHEAD = 4, 12  # segments beyond a progress window its position's feet cover (see _feet)
 PROGRESS_BACK_M, PROGRESS_AHEAD_M = 30.0, 60.0  # a vehicle flies ~5 m a tick; see progress_window
+
+
+def interp_one(x: float, xp: list[float], fp: list[float]) -> float:
+    """``np.interp(x, xp, fp)`` of one finite ``x`` on lists (two points or more), bit for bit:
+    numpy's own steps (the held ends, the exact node, the slope, and the other end when that
+    gives NaN) in plain floats, without numpy's per-call cost."""
+    if x < xp[0]:
+        return fp[0]
+    last = len(xp) - 1
+    if x >= xp[last]:
+        return fp[last]
+    j = bisect_right(xp, x) - 1
+    if xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    y = slope * (x - xp[j]) + fp[j]
+    if y != y:
+        y = slope * (x - xp[j + 1]) + fp[j + 1]
+        if y != y and fp[j] == fp[j + 1]:
+            y = fp[j]
+    return y
 
 
 def progress_window(near_along_m: float) -> tuple[float, float]:

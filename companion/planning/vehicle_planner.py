@@ -296,9 +296,9 @@ class VehiclePlanner:
         route = self.timed_route
         if route is None:
             return None, False
-        xy = np.array([own.x_m, own.y_m])
-        self._along_m = float(route.progress_at(xy, self._along_m)[0])  # where it is along its path
-        speed = float(route.target_speed_at(xy, t_s, self.config.speed_m_s, near_along_m=self._along_m))
+        x, y = own.x_m, own.y_m
+        self._along_m = float(route.progress_of(x, y, self._along_m)[0])  # where it is along its path
+        speed = float(route.target_speed_of(x, y, t_s, self.config.speed_m_s, near_along_m=self._along_m))
         self.lead_m = self._along_m - float(route.planned_along_at(t_s))
         if self._goals_on_path:
             # A space-time path can step out and back (a cell or a few beside a wait, round a

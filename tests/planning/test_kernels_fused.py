@@ -28,24 +28,30 @@ def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
 @needs_numba
 @settings(max_examples=80, deadline=None)
 @given(worlds(), st.integers(0, 2**31), st.sampled_from([1, 7, 31]), st.sampled_from([2, 5, 23]),
-       st.floats(-250.0, 250.0), st.floats(-250.0, 250.0), st.floats(-3.2, 3.2), st.floats(20.0, 600.0))
+       st.floats(-250.0, 250.0), st.floats(-250.0, 250.0), st.floats(-3.2, 3.2), st.floats(20.0, 600.0),
+       st.sampled_from([1, 4]))
 def test_obstacle_pass_matches_numpy(snap: ObstacleSnapshot, seed: int, samples: int, steps: int, x: float, y: float,
-                                     heading: float, reach: float) -> None:
+                                     heading: float, reach: float, speeds: int) -> None:
     """Rollouts of a real window placed anywhere among the obstacles (inside some of them too),
     over the obstacles culling keeps (the compiled pass reads the snapshot through the mask, the
-    numpy code the culled subset)."""
+    numpy code the culled subset). A speed window's distinct rollouts (its hovers as one) with
+    their own times, as a tick passes them."""
     config = DwaConfig(speed_m_s=10.0, max_yaw_rate_rad_s=0.3, samples=samples, dt_s=0.5,
                        prediction_time_s=0.5 * (steps - 1), w_h=1.0, w_d=1.0, w_s=1.0, sightline_cap_m=50.0,
-                       distance_saturation_m=float(np.random.default_rng(seed).choice([0.0, 10.0, 30.0])))
-    shape = (config.count, config.steps + 1)
+                       distance_saturation_m=float(np.random.default_rng(seed).choice([0.0, 10.0, 30.0])),
+                       speed_samples=speeds)
+    hom, times = (config.body_hom_m, None) if config.row_of is None else (config.geo_hom_m, config.geo_point_times_s)
+    assert (config.row_of is None) == (speeds == 1 or samples == 1)  # a speed window keeps one hover
     c, s = np.cos(heading), np.sin(heading)
-    xy = np.array([[c, -s, x], [s, c, y]]) @ config.body_hom_m
+    xy = np.array([[c, -s, x], [s, c, y]]) @ hom
+    shape = (xy.shape[1] // (config.steps + 1), config.steps + 1)
     px, py = xy[0].reshape(shape), xy[1].reshape(shape)
     culled = COMPILED.cull(snap, x, y, reach, config.horizon_s)
     assume(culled.count)
-    clear, ok, distance, legal = COMPILED.obstacle_rule(px, py, culled, config)
+    clear, ok, distance, legal = COMPILED.obstacle_rule(px, py, culled, config, times)
     ref_clear, ref_ok, ref_distance, ref_legal = NUMPY.obstacle_rule(px, py, NUMPY.cull(snap, x, y, reach,
-                                                                                         config.horizon_s), config)
+                                                                                         config.horizon_s), config,
+                                                                     times)
     assert ref_legal is None  # the numpy row leaves the rule per rollout to legal_rollouts
     ref_legal = legal_rollouts({Rule.OBSTACLE: ref_ok}, config)
     assert same_bits(ok, ref_ok) and same_bits(distance, ref_distance) and same_bits(legal, ref_legal)

@@ -77,3 +77,30 @@ def test_compiled_progress_gives_the_numpy_bits(route, x, y, near):
     route._last_progress.clear()  # asked afresh, compiled
     found = route.progress_at(np.array([x, y]), near)
     assert (float(found[0]), float(found[1])) == (float(expected[0]), float(expected[1]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(routes(), st.lists(st.floats(-10.0, 400.0), min_size=1, max_size=8), st.data())
+def test_one_time_interpolation_is_numpys(route: TimedRoute, times: list[float], data) -> None:
+    """How far along the plan is at one time, the per-tick query, in plain floats: numpy's bits
+    at any time, the route's own times (a wait's both ends) and its ends included."""
+    times = times + [float(data.draw(st.sampled_from(route.t_s.tolist())))]
+    for t in times:
+        got = route.planned_along_at(t)
+        reference = np.interp(np.asarray(t), route.t_s, route._along_m)
+        assert type(got) is np.float64 and got.tobytes() == np.float64(reference).tobytes()
+
+
+@settings(max_examples=300, deadline=None)
+@given(routes(), st.floats(-450.0, 450.0), st.floats(-450.0, 450.0), st.floats(-10.0, 400.0),
+       st.one_of(st.none(), st.floats(0.0, 900.0)), st.sampled_from([0.5, 5.0, 10.0, 30.0]))
+def test_one_position_target_speed_is_the_vectorised_formula(route: TimedRoute, x: float, y: float, t: float,
+                                                             near, max_speed: float) -> None:
+    """The speed a tick asks for (one position, one time, plain floats) is the vectorised
+    formula's on that position's progress, to the bit, and the array query's progress is its."""
+    along, off = route.progress_of(x, y, near)
+    got = route.target_speed_of(x, y, t, max_speed, near_along_m=near)
+    gap = route.planned_along_at(np.asarray([t + 5.0])) - along
+    reference = np.where(gap > 0, np.minimum(np.hypot(gap, off) / 5.0, max_speed), 0.0)[0]
+    assert type(got) is np.float64 and got.tobytes() == reference.tobytes()
+    assert route.progress_at(np.array([x, y]), near) == (along, off)

@@ -63,11 +63,14 @@ class MulticopterLimits:
     max_alt_m: float = 500.0  # above home; not a PX4 parameter (the stub's ceiling)
     # (drag 1/s, tilt-limited acceleration m/s^2, yaw-rate limit rad/s): computed once, read every step
     derived: tuple[float, float, float] = field(init=False, repr=False, compare=False)
+    # step length (s) -> the constants of a step of that length (see _step_constants), made at its first step
+    per_step: dict = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "derived", (
             self.sih_kdv / self.sih_mass, GRAVITY_M_S2 * math.tan(math.radians(self.mpc_tiltmax_air)),
             math.radians(self.mc_yawrate_max)))
+        object.__setattr__(self, "per_step", {})
 
     @classmethod
     def from_params(cls, params: Mapping[str, float], **overrides: float) -> "MulticopterLimits":
@@ -148,23 +151,34 @@ def _substeps(limits: MulticopterLimits, dt_s: float) -> tuple[int, float, float
             1.0 - math.exp(-h * limits.mpc_z_vel_p_acc))
 
 
+def _step_constants(limits: MulticopterLimits, dt_s: float) -> tuple:
+    """What :func:`step` passes the substep loop that depends on the limits and the step length
+    alone, worked out at the first step of that length (a flight steps at one length)."""
+    n, h, k_att, k_yaw, k_z = _substeps(limits, dt_s)
+    drag, a_max, r_max = limits.derived
+    p = limits.mpc_xy_vel_p_acc
+    return (n, h, k_att, k_yaw, k_z, drag, a_max, p, limits.mpc_xy_vel_i_acc * h, limits.mpc_xy_vel_d_acc,
+            2.0 / p,  # PX4's tracking anti-windup gain
+            limits.mpc_xy_vel_max, 1.0 / (1.0 + h * drag), r_max, limits.mpc_z_vel_max_up, limits.mpc_z_vel_max_dn,
+            limits.mpc_acc_up_max * h, limits.mpc_acc_down_max * h)
+
+
 def step(state: KinematicState, command: VelocityCommand, limits: MulticopterLimits, dt_s: float) -> KinematicState:
     """Advance the multicopter by ``dt_s`` seconds under ``command``. Pure; non-finite commands hover."""
     isfinite = math.isfinite
     if not (isfinite(command.x_m_s) and isfinite(command.y_m_s) and isfinite(command.z_m_s)
             and isfinite(command.yawspeed_rad_s)):
         command = HOVER
-    n, h, k_att, k_yaw, k_z = _substeps(limits, dt_s)
-    drag, a_max, r_max = limits.derived
-    p = limits.mpc_xy_vel_p_acc
+    constants = limits.per_step.get(dt_s)
+    if constants is None:
+        constants = limits.per_step[dt_s] = _step_constants(limits, dt_s)
+    n, h, k_att, k_yaw, k_z, drag, a_max, p, i_h, d, arw, v_max, inv_drag, r_max, up_max, dn_max, dvd_up, dvd_dn = \
+        constants
     s = state
     (north, east, down, vn, ve, vd, yaw, r, an, ae, i_n, i_e) = _substep_loop(
-        n, h, k_att, k_yaw, k_z, drag, a_max, p, limits.mpc_xy_vel_i_acc * h, limits.mpc_xy_vel_d_acc,
-        2.0 / p,  # PX4's tracking anti-windup gain
-        limits.mpc_xy_vel_max, 1.0 / (1.0 + h * drag),
-        max(-r_max, min(r_max, command.yawspeed_rad_s)),
-        max(-limits.mpc_z_vel_max_up, min(limits.mpc_z_vel_max_dn, command.z_m_s)),
-        limits.mpc_acc_up_max * h, limits.mpc_acc_down_max * h, command.frame is VelocityFrame.BODY_NED,
+        n, h, k_att, k_yaw, k_z, drag, a_max, p, i_h, d, arw, v_max, inv_drag,
+        max(-r_max, min(r_max, command.yawspeed_rad_s)), max(-up_max, min(dn_max, command.z_m_s)),
+        dvd_up, dvd_dn, command.frame is VelocityFrame.BODY_NED,
         command.x_m_s, command.y_m_s, s.north_m, s.east_m, s.down_m, s.vn_m_s, s.ve_m_s, s.vd_m_s, s.yaw_rad,
         s.yawspeed_rad_s, s.accel_n_m_s2, s.accel_e_m_s2, s.vel_int_n_m_s2, s.vel_int_e_m_s2)
     if down > 0.0 or down < -limits.max_alt_m:

@@ -130,7 +130,8 @@ class ScheduleClocks:
         self._seen_s[name] = t_s
         route = self.routes.get(name)
         if route is not None and self._may_stray(name):  # where it is along its path, windowed as the planner's own
-            self._along[name] = float(route.progress_at(self._xy[name], self._along.get(name))[0])
+            xy = self._xy[name]
+            self._along[name] = float(route.progress_of(float(xy[0]), float(xy[1]), self._along.get(name))[0])
         self.clocks.observe(name, xy_enu_m, t_s)
 
     def done(self, name: str) -> None:

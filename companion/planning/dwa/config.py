@@ -140,7 +140,9 @@ class DwaConfig:
         row_of = None if len(distinct) == len(w) else np.maximum(np.arange(len(w)) - (len(rates) - 1), 0)
         object.__setattr__(self, "row_of", row_of)
         object.__setattr__(self, "geo_hom_m", homogeneous(body[distinct].reshape(-1, 2)))
-        object.__setattr__(self, "geo_point_times_s", np.tile(t, len(distinct)))
+        geo_times = np.tile(t, len(distinct))
+        geo_times.setflags(write=False)  # read-only as point_times_s: one compiled signature for either
+        object.__setattr__(self, "geo_point_times_s", geo_times)
         for name, value in (("yaw_rates_rad_s", w), ("speeds_m_s", v), ("times_s", t), ("body_xy_m", body),
                             ("final_dheading_rad", dheading[:, -1].copy()), ("point_times_s", np.tile(t, len(w))),
                             ("body_hom_m", homogeneous(body.reshape(-1, 2))),

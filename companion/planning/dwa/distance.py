@@ -25,13 +25,16 @@ def obstacle_and_distance(clear: np.ndarray, shape: tuple[int, int],
     return obstacle_ok(clear, lowest), distance
 
 
-def obstacle_rule(px: np.ndarray, py: np.ndarray, culled: Culled,
-                  config: DwaConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, None]:
+def obstacle_rule(px: np.ndarray, py: np.ndarray, culled: Culled, config: DwaConfig,
+                  times_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, None]:
     """The clearances (O, S * (K + 1)) of the rollouts (px, py) (S, K + 1) to the obstacles
     ``culled`` keeps, the obstacle rule (S, K + 1), D (S,), and the rule per rollout: None here
-    (:func:`.legality.legal_rollouts` works it out; the compiled twin returns it)."""
+    (:func:`.legality.legal_rollouts` works it out; the compiled twin returns it). ``times_s``:
+    the points' times (default ``config.point_times_s``, every rollout of the window; the
+    distinct rollouts pass ``config.geo_point_times_s``)."""
     shape = px.shape
-    clear = inflated_clearance(px.ravel(), py.ravel(), config.point_times_s, culled.subset())
+    times_s = config.point_times_s if times_s is None else times_s
+    clear = inflated_clearance(px.ravel(), py.ravel(), times_s, culled.subset())
     ok, distance = obstacle_and_distance(clear, shape, config.distance_saturation_m)
     return clear, ok.reshape(shape), distance, None
 

@@ -23,15 +23,16 @@ def obstacle_and_distance(clear: np.ndarray, shape: tuple[int, int],
     return _obstacle_terms(one_layout(clear), int(shape[1]), float(saturation_m))
 
 
-def obstacle_rule(px: np.ndarray, py: np.ndarray, culled: Culled,
-                  config: DwaConfig) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray]:
+def obstacle_rule(px: np.ndarray, py: np.ndarray, culled: Culled, config: DwaConfig,
+                  times_s: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`.distance.obstacle_rule` in one compiled pass over the snapshot's obstacles that
     ``culled`` keeps (read through its mask: the culled subset is built only if read), with the
     rule per rollout too. The clearances are None when the pass left out those that cannot
     matter (above the saturation)."""
     shape = px.shape
     clear, ok, distance, legal, exact = _obstacle_pass(
-        one_layout(px.ravel()), one_layout(py.ravel()), config.point_times_s, culled.snapshot.arrays(), culled.keep,
+        one_layout(px.ravel()), one_layout(py.ravel()), config.point_times_s if times_s is None else times_s,
+        culled.snapshot.arrays(), culled.keep,
         shape[1], config.distance_saturation_m)
     return clear if exact else None, ok.reshape(shape), distance, legal
 

@@ -125,9 +125,17 @@ class _Window(NamedTuple):
     @classmethod
     def of(cls, pose: Pose, scene: _Scene, config: DwaConfig) -> "_Window":
         place = placement(pose)
-        if scene.culled.count or scene.binding or scene.fence_here is not None or not scene.single:
-            px, py, gx, gy = _placed(place, config, (config.count, config.steps + 1))
-            return cls(px[:, -1], py[:, -1], px, py, gx, gy)
+        spread = scene.binding or scene.fence_here is not None or not scene.single  # reads every rollout
+        if scene.culled.count or spread:
+            gx, gy = _placed(place, config)
+            row_of = config.row_of
+            if row_of is None:
+                return cls(gx[:, -1], gy[:, -1], gx, gy, gx, gy)
+            if spread:
+                px, py = np.take(gx, row_of, axis=0), np.take(gy, row_of, axis=0)
+                return cls(px[:, -1], py[:, -1], px, py, gx, gy)
+            # the obstacle rule alone reads the distinct rollouts: only the prediction points spread
+            return cls(gx[:, -1][row_of], gy[:, -1][row_of], None, None, gx, gy)
         ex, ey = place @ config.end_hom_m
         return cls(ex, ey, None, None, None, None)
 
@@ -150,9 +158,12 @@ def _rules(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig) -> _Ru
         if config.row_of is None:  # (O, S * (K + 1)); the rule per rollout too when compiled
             clear, ok_by_rule[Rule.OBSTACLE], distance, legal = config.backend.obstacle_rule(
                 window.px, window.py, scene.culled, config)
-        else:  # computed on the distinct rollouts only, then spread to all
-            ok_by_rule[Rule.OBSTACLE], distance, clear = _obstacle_terms(window.gx, window.gy, scene.culled.subset(),
-                                                                         config)
+        else:  # computed on the distinct rollouts only (clear: (O, G * (K + 1))), then spread to all
+            clear, ok, distance, legal = config.backend.obstacle_rule(window.gx, window.gy, scene.culled, config,
+                                                                      config.geo_point_times_s)
+            row_of = config.row_of
+            ok_by_rule[Rule.OBSTACLE], distance = ok[row_of], distance[row_of]
+            legal = None if legal is None else legal[row_of]
     else:
         distance = no_obstacle_in_reach(config)
     if scene.binding:
@@ -172,10 +183,14 @@ def _recover(pose: Pose, goals: LocalGoals, other: OtherUav | None, scene: _Scen
 
     def clearances() -> np.ndarray | None:
         clear = rules.clear
+        if scene.culled.count and clear is None:  # the compiled pass left some out
+            if config.row_of is None:
+                return config.backend.inflated_clearance(window.px.ravel(), window.py.ravel(), config.point_times_s,
+                                                         near)
+            clear = config.backend.inflated_clearance(window.gx.ravel(), window.gy.ravel(), config.geo_point_times_s,
+                                                      near)
         if clear is not None and config.row_of is not None:  # the escape reads every rollout's
             return clear.reshape(len(clear), *window.gx.shape)[:, config.row_of].reshape(len(clear), -1)
-        if scene.culled.count and config.row_of is None and clear is None:  # the compiled pass left some out
-            return config.backend.inflated_clearance(window.px.ravel(), window.py.ravel(), config.point_times_s, near)
         return clear
 
     heading = config.backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad,
@@ -195,7 +210,7 @@ def _critics(pose: Pose, goals: LocalGoals, other: OtherUav | None, sighted: Obs
              rules: _Rules, config: DwaConfig, scheduled_speed_m_s: float | None) -> Critics:
     """The critics besides the heading (which the pick may fuse with the choice), and the
     turn-around preference."""
-    distinct = None if window.px is None else (window.gx, window.gy)
+    distinct = None if window.gx is None else (window.gx, window.gy)
     sightline = _sightline(pose, other, sighted, config, window.ex, window.ey, distinct)
     speed = None
     if config.count > config.samples:
@@ -268,28 +283,12 @@ def _toward_only_hovers(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_
     return not np.count_nonzero(legal & moving & toward) and bool(np.count_nonzero(legal & moving))
 
 
-def _placed(place: np.ndarray, config: DwaConfig,
-            shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Every rollout placed at the pose (px, py (S, K + 1)) and the distinct ones (gx, gy (G, K + 1);
-    the same arrays when all differ)."""
-    if config.row_of is None:
-        xy = place @ config.body_hom_m
-        px, py = xy[0].reshape(shape), xy[1].reshape(shape)
-        return px, py, px, py
-    xy = place @ config.geo_hom_m
-    gx, gy = xy[0].reshape(-1, shape[1]), xy[1].reshape(-1, shape[1])
-    return gx[config.row_of], gy[config.row_of], gx, gy
-
-
-def _obstacle_terms(gx: np.ndarray, gy: np.ndarray, near: ObstacleSnapshot,
-                    config: DwaConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The obstacle rule (S, K + 1) and the distance critic (S,), computed on the distinct
-    rollouts (gx, gy) and spread to every rollout, and their clearances (O, G * (K + 1))."""
-    g_shape = gx.shape
-    clear = config.backend.inflated_clearance(gx.ravel(), gy.ravel(), config.geo_point_times_s, near)
-    ok, distance = config.backend.obstacle_and_distance(clear, g_shape, config.distance_saturation_m)
-    row_of = config.row_of
-    return ok.reshape(g_shape)[row_of], distance[row_of], clear
+def _placed(place: np.ndarray, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rollouts placed at the pose (gx, gy (G, K + 1)): every rollout when all
+    differ (``config.row_of`` None), else ``row_of`` spreads them to all."""
+    xy = place @ (config.body_hom_m if config.row_of is None else config.geo_hom_m)
+    n_k = config.steps + 1
+    return xy[0].reshape(-1, n_k), xy[1].reshape(-1, n_k)
 
 
 def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig, ex: np.ndarray,
