@@ -199,12 +199,14 @@ def _separation(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig, c
     plant that lags, on its flight of them too (:func:`.shapes.lagged_rollouts`): it flies wide
     of a turn by up to 17 m, far more than the separation's margin, and a turn that keeps the
     separation on the rollout loses it as flown (``courtesy``: see :func:`.legality.kept_from`)."""
-    ok = separation_ok(window.px, window.py, config.times_s, pose, scene.binding, config, courtesy)
     xy = lagged_points(pose, config)
-    if xy is not None:
-        ok &= separation_ok(xy[0].reshape(ok.shape), xy[1].reshape(ok.shape), config.times_s, pose, scene.binding,
-                            config, courtesy)
-    return ok
+    if xy is None:
+        return separation_ok(window.px, window.py, config.times_s, pose, scene.binding, config, courtesy)
+    shape = window.px.shape  # both in one array operation: (2 S, K + 1)
+    ok = separation_ok(np.concatenate([window.px, xy[0].reshape(shape)]),
+                       np.concatenate([window.py, xy[1].reshape(shape)]), config.times_s, pose, scene.binding,
+                       config, courtesy)
+    return ok[:shape[0]] & ok[shape[0]:]
 
 
 def _critics(pose: Pose, goals: LocalGoals, other: OtherUav | None, sighted: ObstacleSnapshot, window: _Window,
