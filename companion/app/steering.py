@@ -53,7 +53,7 @@ class Steering:
         return pose.t_sim_s - (self.outcome.t_depart_sim_s or pose.t_sim_s)
 
     def _tick(self, pose: PoseSample) -> TickResult:
-        own = Pose(pose.x_east_m, pose.y_north_m, pose.heading_enu_rad)
+        own = Pose(pose.x_east_m, pose.y_north_m, pose.heading_enu_rad, pose.vx_east_m_s, pose.vy_north_m_s)
         self._snapshot = self.ctx.field.from_tracks(self._obstacle_tracks(pose))
         self._t_plan = self.ctx.schedule_time(self, pose)
         reaction = self._reaction(pose)

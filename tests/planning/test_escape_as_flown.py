@@ -14,11 +14,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from companion.planning.dwa import (DwaConfig, LocalGoals, NoLegalRollout, ObstacleSnapshot, OtherUav, Pose,
                                     plan_step)
 from companion.planning.dwa.geometry import inflated_clearance
-from companion.planning.dwa.shapes import placement
+from companion.planning.dwa.shapes import lagged_points, placement
 from companion.planning.flight.loop import body_command
 from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, ned_to_enu
 from uav_model.plant import TRACKING_LAG_S, KinematicState, Plant, initial_state, limits_for, step_for
@@ -68,13 +69,18 @@ def escape_rollout_clearance(yaw_rate_rad_s: float, speed_m_s: float) -> float:
     return float(true_clearance(x[1:], y[1:], CONFIG.times_s[1:]).min())
 
 
-def test_the_lagged_rollouts_are_what_the_multicopter_flies_the_arcs_are_not():
+@pytest.mark.parametrize("speed_m_s", [10.0, 5.0, 0.0])
+def test_the_lagged_rollouts_are_what_the_multicopter_flies_the_arcs_are_not(speed_m_s):
+    """From cruise (a pose without its velocity is taken to be at cruise along its heading), from
+    half of it and from rest: the plant's velocity lag is linear, so the rollouts flown from a
+    velocity are those from rest plus that velocity carried on."""
     plant = Plant.MULTICOPTER
     limits = limits_for(plant, speed_m_s=10.0, max_yaw_rate_rad_s=1.0 / 3.0, max_accel_m_s2=3.0)
-    lagged = (CONFIG.lagged_hom_m[:2].T.reshape(CONFIG.body_xy_m.shape))
+    pose = Pose(0.0, 0.0, 0.0) if speed_m_s == 10.0 else Pose(0.0, 0.0, 0.0, speed_m_s, 0.0)
+    lagged = lagged_points(pose, CONFIG).T.reshape(CONFIG.body_xy_m.shape)
     off_arc, off_lagged = [], []
     for i in range(0, CONFIG.count, 5):
-        vn, ve, _ = enu_to_ned(10.0, 0.0)
+        vn, ve, _ = enu_to_ned(speed_m_s, 0.0)
         state = initial_state(plant, KinematicState(north_m=0.0, east_m=0.0, down_m=-50.0, vn_m_s=vn, ve_m_s=ve,
                                                     yaw_rad=enu_heading_to_ned_yaw(0.0)), limits)
         for k in range(1, CONFIG.steps + 1):
@@ -83,7 +89,7 @@ def test_the_lagged_rollouts_are_what_the_multicopter_flies_the_arcs_are_not():
             off_arc.append(np.hypot(*(xy - CONFIG.body_xy_m[i, k])))
             off_lagged.append(np.hypot(*(xy - lagged[i, k])))
     assert max(off_lagged) < 5.0 < 20.0 < max(off_arc)
-    assert dataclasses.replace(CONFIG, tracking_lag_s=0.0).lagged_hom_m is None  # the unicycle flies the arcs
+    assert lagged_points(pose, dataclasses.replace(CONFIG, tracking_lag_s=0.0)) is None  # the unicycle flies the arcs
 
 
 def test_the_turn_that_grazes_the_true_footprint_is_flown_into_it_by_the_lagging_plant():

@@ -17,7 +17,8 @@ import math
 import numpy as np
 import pytest
 
-from companion.planning.dwa import DwaConfig, NoLegalRollout, ObstacleSnapshot, Pose, plan_step
+from companion.planning.dwa import DwaConfig, NoLegalRollout, ObstacleSnapshot, OtherUav, Pose, plan_step
+from companion.planning.dwa.recovery import hover_check
 from companion.planning.flight.loop import body_command
 from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, ned_to_enu, ned_yaw_to_enu_heading
 from uav_model.plant import HOVER, TRACKING_LAG_S, KinematicState, Plant, initial_state, limits_for, step_for
@@ -74,10 +75,37 @@ def test_hover_is_judged_on_the_braking_segment():
     # the point the multicopter stops at (20 m ahead) is not.
     config = DwaConfig(speed_m_s=10.0, max_yaw_rate_rad_s=1.0 / 3.0, samples=31, dt_s=0.5, prediction_time_s=11.0,
                        w_h=0.37, w_d=0.6, w_s=0.0, sightline_cap_m=100.0, tracking_lag_s=2.0)
-    from companion.planning.dwa.recovery import hover_check
     snap = ObstacleSnapshot.build([("d", 130.0, 0.0, 100.0, 20.0, 0.0, 0.0)], [])
     assert config.stop_drift_m == pytest.approx(20.0)
     assert not hover_check(Pose(0.0, 0.0, 0.0), (), snap, config).inflated[-1]  # stops 10 m inside it
     assert hover_check(Pose(0.0, 0.0, math.pi), (), snap, config).inflated[-1]  # braking away from it
     still = hover_check(Pose(0.0, 0.0, 0.0), (), snap, dataclasses.replace(config, tracking_lag_s=0.0))
     assert still.inflated[-1] and np.all(still.true)
+
+
+HOVER_CONFIG = DwaConfig(speed_m_s=10.0, max_yaw_rate_rad_s=1.0 / 3.0, samples=31, dt_s=0.5, prediction_time_s=11.0,
+                         w_h=0.37, w_d=0.6, w_s=0.0, sightline_cap_m=100.0, min_separation_m=55.0,
+                         tracking_lag_s=2.0)
+NOTHING = ObstacleSnapshot.build([], [])
+
+
+def test_the_braking_segment_is_the_own_velocity_carried_on_and_binds_the_separation_too():
+    """Seed 9192 scenario 6 with 16 vehicles: o and p stood 53 m apart, facing each other, and
+    held for ever, each planner taking itself to be at cruise and so to stop 20 m nearer the
+    other; and a vehicle at cruise that hovers 56 m short of another ends 36 m from it."""
+    other = (OtherUav(53.0, 0.0, 0.0, 0.0),)
+    at_rest = hover_check(Pose(0.0, 0.0, 0.0, 0.0, 0.0), other, NOTHING, HOVER_CONFIG)
+    assert at_rest.inflated[-1] and at_rest.true[-1]
+    cruising = hover_check(Pose(0.0, 0.0, 0.0), other, NOTHING, HOVER_CONFIG)  # no velocity: cruise along the heading
+    assert not cruising.true[1]
+    sideways = hover_check(Pose(0.0, 0.0, 0.0, 0.0, 10.0), other, NOTHING, HOVER_CONFIG)  # the velocity, not the nose
+    assert sideways.true[-1]
+
+
+def test_on_the_true_footprints_the_hover_may_use_the_right_of_ways_margin_not_the_separation():
+    """A vehicle with right of way is kept 15 m farther (70 m here) than the separation (55 m);
+    only the hover on the inflated footprints keeps that margin."""
+    coming = (OtherUav(65.0, 0.0, -1.0, 0.0, right_of_way=True),)  # 10 s from 55 m
+    hover = hover_check(Pose(0.0, 0.0, 0.0, 0.0, 0.0), coming, NOTHING, HOVER_CONFIG)
+    assert not hover.inflated[1]
+    assert hover.true[int(9.5 / HOVER_CONFIG.dt_s)] and not hover.true[int(10.5 / HOVER_CONFIG.dt_s)]

@@ -195,19 +195,27 @@ class DwaConfig:
 
     @property
     def stop_drift_m(self) -> float:
-        """How far the plant carries on along its heading after a hover command at cruise."""
+        """How far the plant carries on along its heading after a hover command at cruise (the
+        most it carries on)."""
         return self.tracking_lag_s * self.speed_m_s
 
     @cached_property
-    def lagged_hom_m(self) -> np.ndarray | None:
-        """The rollouts as the lagging plant flies them (:func:`.shapes.lagged_rollouts`), as
-        body_hom_m's homogeneous columns; None when the plant flies them exactly. Built on first
-        use: only the escape reads them."""
+    def lagged_rest_hom_m(self) -> np.ndarray | None:
+        """The rollouts as the lagging plant flies them from rest (:func:`.shapes.lagged_rollouts`),
+        as body_hom_m's homogeneous columns; None when the plant flies them exactly. The plant's
+        velocity lag is linear, so from a velocity v it flies these plus v times
+        :attr:`lagged_drift_s` (:func:`.shapes.lagged_points`). Built on first use."""
         if self.tracking_lag_s <= 0.0:
             return None
-        body = lagged_rollouts(self.speeds_m_s, self.yaw_rates_rad_s, self.speed_m_s, self.dt_s, self.steps,
+        body = lagged_rollouts(self.speeds_m_s, self.yaw_rates_rad_s, 0.0, self.dt_s, self.steps,
                                self.tracking_lag_s)
         return homogeneous(body.reshape(-1, 2))
+
+    @cached_property
+    def lagged_drift_s(self) -> np.ndarray:
+        """(S * (K + 1),) how far the lagging plant carries on per m/s it has, at each rollout point's time."""
+        drift = lagged_rollouts(np.zeros(1), np.zeros(1), 1.0, self.dt_s, self.steps, max(self.tracking_lag_s, 1e-9))
+        return np.tile(drift[0, :, 0], self.count)
 
     @property
     def spin_time_s(self) -> float:

@@ -36,9 +36,13 @@ class Rule(str, Enum):
     GEOFENCE = "geofence"
 
 
-def kept_from(other: OtherUav, config: DwaConfig) -> float:
-    """The separation a rollout keeps from ``other``: more when it has right of way."""
-    return config.min_separation_m + config.yield_margin_m if other.right_of_way else config.min_separation_m
+def kept_from(other: OtherUav, config: DwaConfig, courtesy: bool = True) -> float:
+    """The separation a rollout keeps from ``other``: more when it has right of way, unless
+    ``courtesy`` is off (the bare separation: a vehicle with no legal rollout may use the right
+    of way's margin, as it may use an obstacle's inflation)."""
+    if other.right_of_way and courtesy:
+        return config.min_separation_m + config.yield_margin_m
+    return config.min_separation_m
 
 
 def separation_can_bind(pose: Pose, other: OtherUav | None, config: DwaConfig) -> bool:
@@ -81,11 +85,12 @@ def binding_uavs(pose: Pose, others: Sequence[OtherUav], config: DwaConfig) -> t
     return tuple(o for o in others if separation_can_bind(pose, o, config))
 
 
-def separation_limits2(pose: Pose, others: Sequence[OtherUav], config: DwaConfig) -> np.ndarray:
+def separation_limits2(pose: Pose, others: Sequence[OtherUav], config: DwaConfig,
+                       courtesy: bool = True) -> np.ndarray:
     """(N,): the squared separation kept from each UAV (:func:`kept_from`), or the distance now
     when it is already closer (a rollout may then not get any closer); 1e-6 m of slack."""
-    return np.array([(min(kept_from(o, config), math.hypot(pose.x_m - o.x_m, pose.y_m - o.y_m)) - 1e-6) ** 2
-                     for o in others])
+    return np.array([(min(kept_from(o, config, courtesy), math.hypot(pose.x_m - o.x_m, pose.y_m - o.y_m)) - 1e-6)
+                     ** 2 for o in others])
 
 
 def uav_distance2(px: np.ndarray, py: np.ndarray, times: np.ndarray, others: Sequence[OtherUav]) -> np.ndarray:
@@ -98,10 +103,10 @@ def uav_distance2(px: np.ndarray, py: np.ndarray, times: np.ndarray, others: Seq
 
 
 def separation_ok(px: np.ndarray, py: np.ndarray, times: np.ndarray, pose: Pose, others: Sequence[OtherUav],
-                  config: DwaConfig) -> np.ndarray:
+                  config: DwaConfig, courtesy: bool = True) -> np.ndarray:
     """(S, K + 1): rollout points far enough from every UAV of ``others`` predicted at constant
-    velocity."""
-    ok = uav_distance2(px, py, times, others) >= separation_limits2(pose, others, config).reshape(-1, 1, 1)
+    velocity (``courtesy``: see :func:`kept_from`)."""
+    ok = uav_distance2(px, py, times, others) >= separation_limits2(pose, others, config, courtesy).reshape(-1, 1, 1)
     return ok[0] if len(ok) == 1 else ok.all(axis=0)
 
 

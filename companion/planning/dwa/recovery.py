@@ -60,6 +60,7 @@ class HoverCheck:
     floor_true: np.ndarray | None
     sep_from: tuple[OtherUav, ...]  # the UAVs kept separated from
     sep_limit2: np.ndarray | None  # (N, 1, 1) the squared separation kept from each, when any
+    sep_bare2: np.ndarray | None  # the same without the right of way's margin (on the true footprints)
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,6 +75,9 @@ class Stuck:
     near: ObstacleSnapshot
     clearances: Callable[[], np.ndarray | None]
     lagged_clearances: Callable[[], np.ndarray | None] = lambda: None  # the same, as a lagging plant flies them
+    # The separation rule (S, K + 1) without the right of way's margin, on the rollouts and as a
+    # lagging plant flies them (None: no UAV can bind).
+    bare_separation: Callable[[], np.ndarray | None] = lambda: None
 
     @cached_property
     def clear(self) -> np.ndarray | None:
@@ -82,6 +86,10 @@ class Stuck:
     @cached_property
     def lagged(self) -> np.ndarray | None:
         return self.lagged_clearances()
+
+    @cached_property
+    def separation(self) -> np.ndarray | None:
+        return self.bare_separation()
 
 
 def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
@@ -117,12 +125,13 @@ def no_legal_rollout(pose: Pose, goals: LocalGoals, other: OtherUav | None, snap
 def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: ObstacleSnapshot,
                 config: DwaConfig) -> HoverCheck:
     """The hover point over a spin plus a horizon, inflated and true, against the obstacles and
-    every UAV of ``separate_from``; separation is never relaxed.
+    every UAV of ``separate_from``: the true check keeps the bare separation (without the right
+    of way's margin, :func:`.legality.kept_from`), never less.
 
     A plant that lags (``config.tracking_lag_s``) does not hover where it is: the multicopter
-    commanded to hover at cruise carries on ~18 m along its heading (``config.stop_drift_m``),
-    and gets going again that lag after its yaw. The obstacles are judged on the whole braking
-    segment (the worst point of it at every time) and over the spin plus the lag plus a horizon,
+    commanded to hover at cruise carries on ~18 m along its velocity (:func:`braking_segment`),
+    and gets going again that lag after its yaw. The obstacles and the other UAVs are judged on
+    the whole braking segment (the worst point of it at every time) and over the spin plus the lag plus a horizon,
     so that a recovery never parks the vehicle in the path of a moving obstacle that only misses
     the pose (a shuttling disc that reverses while the braking vehicle ends up inside its path
     and yaws there is otherwise a collision)."""
@@ -140,28 +149,40 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
         # others stay clear of it, so their floors are 0 and they never bind.
         close = config.backend.cull(field_h, pose.x_m, pose.y_m, config.stop_drift_m + 1.0, float(t_hover[-1]))
         floor_inf, floor_true = np.zeros((field_h.count, 1)), np.zeros((field_h.count, 1))
+    bx, by = braking_segment(pose, config)
     if floor_inf is not None and close.count:
-        ahead = np.linspace(0.0, config.stop_drift_m, 1 + math.ceil(config.stop_drift_m / _DRIFT_STEP_M))
-        sx = np.repeat(pose.x_m + ahead * math.cos(pose.heading_rad), hover_steps + 1)
-        sy = np.repeat(pose.y_m + ahead * math.sin(pose.heading_rad), hover_steps + 1)
-        hc = config.backend.inflated_clearance(sx, sy, np.tile(t_hover, len(ahead)), close.subset())
-        if len(ahead) > 1:  # the worst point of the braking segment at each time; the floor is the pose's
-            hc = np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(ahead), -1).min(axis=1)[:, 1:]], axis=1)
+        sx, sy = np.repeat(bx, hover_steps + 1), np.repeat(by, hover_steps + 1)
+        hc = config.backend.inflated_clearance(sx, sy, np.tile(t_hover, len(bx)), close.subset())
+        if len(bx) > 1:  # the worst point of the braking segment at each time; the floor is the pose's
+            hc = np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(bx), -1).min(axis=1)[:, 1:]], axis=1)
         near_margins = margins[close.keep]
         floor_inf[close.keep] = np.minimum(hc[:, 0:1], 0.0)
         floor_true[close.keep] = np.minimum(hc[:, 0:1] + near_margins, 0.0)
         hover_inf &= (hc >= floor_inf[close.keep] - 1e-9).all(axis=0)
         hover_true &= (hc + near_margins >= floor_true[close.keep] - 1e-9).all(axis=0)
     sep_from = tuple(separate_from) if config.min_separation_m > 0 else ()
-    sep_limit2 = None
+    sep_limit2 = sep_bare2 = None
     if sep_from:
         sep_limit2 = separation_limits2(pose, sep_from, config).reshape(-1, 1, 1)
-        d2 = uav_distance2(np.full(hover_steps + 1, pose.x_m), np.full(hover_steps + 1, pose.y_m), t_hover, sep_from)
-        apart = (d2 >= sep_limit2[:, 0]).all(axis=0)
-        hover_inf &= apart
-        hover_true &= apart
+        sep_bare2 = separation_limits2(pose, sep_from, config, courtesy=False).reshape(-1, 1, 1)
+        # On the braking segment too (the worst point of it at each time), as for the obstacles:
+        # a vehicle stopping 20 m short of another that it keeps clear of by 5 m is too close.
+        d2 = uav_distance2(bx[:, None], by[:, None], t_hover, sep_from)  # (N, braking points, steps + 1)
+        d2 = np.concatenate([d2[:, 0, 0:1], d2[:, :, 1:].min(axis=1)], axis=1)  # the pose itself now
+        hover_inf &= (d2 >= sep_limit2[:, 0]).all(axis=0)
+        hover_true &= (d2 >= sep_bare2[:, 0]).all(axis=0)
     return HoverCheck(hover_steps, np.logical_and.accumulate(hover_inf), np.logical_and.accumulate(hover_true),
-                      field_h, margins, floor_inf, floor_true, sep_from, sep_limit2)
+                      field_h, margins, floor_inf, floor_true, sep_from, sep_limit2, sep_bare2)
+
+
+def braking_segment(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Points (x, y) every 2 m or less along where the plant carries on when commanded to hover:
+    its lag times its velocity (:meth:`.Pose.velocity_m_s`) from the pose; the pose alone
+    when it does not lag, or stands still."""
+    vx, vy = pose.velocity_m_s(config.speed_m_s)
+    drift = config.tracking_lag_s * math.hypot(vx, vy)
+    ahead = np.linspace(0.0, 1.0, 1 + math.ceil(drift / _DRIFT_STEP_M))
+    return pose.x_m + ahead * (config.tracking_lag_s * vx), pose.y_m + ahead * (config.tracking_lag_s * vy)
 
 
 # Spacing of the points a braking segment is judged on (m): far below any obstacle's size.
@@ -178,18 +199,20 @@ def spin_candidates(pose: Pose, config: DwaConfig, hover: HoverCheck) -> tuple[n
     px, py = pts[..., 0], pts[..., 1]
     n_r = len(pts)
     rules = np.ones(px.shape, dtype=bool)
-    if hover.sep_limit2 is not None:  # (N, R, K + 1) at once
-        t = config.rec_point_times_s.reshape(n_r, -1)
-        ox, oy, ovx, ovy = np.array([(o.x_m, o.y_m, o.vx_m_s, o.vy_m_s) for o in hover.sep_from]).T[:, :, None, None]
-        rules &= (((px - ox - ovx * t) ** 2 + (py - oy - ovy * t) ** 2) >= hover.sep_limit2).all(axis=0)
     fence = config.fence_m
     if fence is not None:
         here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
         rules &= inside_fence_by(px, py, fence) >= min(here, 0.0) - 1e-9
-    rules = rules[:, 1:].all(axis=1)
+    rules_true = rules
+    if hover.sep_limit2 is not None:  # (N, R, K + 1) at once; on the true footprints, the bare separation
+        t = config.rec_point_times_s.reshape(n_r, -1)
+        ox, oy, ovx, ovy = np.array([(o.x_m, o.y_m, o.vx_m_s, o.vy_m_s) for o in hover.sep_from]).T[:, :, None, None]
+        d2 = (px - ox - ovx * t) ** 2 + (py - oy - ovy * t) ** 2
+        rules = rules & (d2 >= hover.sep_limit2).all(axis=0)
+        rules_true = rules_true & (d2 >= hover.sep_bare2).all(axis=0)
     delay_k = np.rint((config.rec_delay_s + config.tracking_lag_s) / dt).astype(int)  # hovers until it gets going
-    ok_inf = hover.inflated[delay_k] & rules
-    ok_true = hover.true[delay_k] & rules
+    ok_inf = hover.inflated[delay_k] & rules[:, 1:].all(axis=1)
+    ok_true = hover.true[delay_k] & rules_true[:, 1:].all(axis=1)
     if not hover.field.count:
         return pts, ok_inf, ok_true, np.full(n_r, config.distance_saturation_m)
     return (pts, *config.backend.spin_checks(px, py, config, hover, ok_inf, ok_true))
@@ -260,7 +283,9 @@ def escape(config: DwaConfig, stuck: Stuck, hover: HoverCheck, reason: str,
     ok_by_rule, heading, near, clear = stuck.ok_by_rule, stuck.heading, stuck.near, stuck.clear
     ok_pts = np.ones((config.count, steps + 1), dtype=bool)
     for rule, ok in ok_by_rule.items():
-        if rule is not Rule.OBSTACLE:
+        if rule is Rule.SEPARATION and stuck.separation is not None:
+            ok_pts &= stuck.separation  # the right of way's margin is a reserve, as the inflation is
+        elif rule is not Rule.OBSTACLE:
             ok_pts &= ok
     kept = None  # (S,) the least true clearance each rollout keeps over the horizon
     if clear is not None:

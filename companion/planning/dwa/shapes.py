@@ -78,6 +78,18 @@ def lagged_rollouts(speeds_m_s: np.ndarray, rates_rad_s: np.ndarray, cruise_m_s:
     return out
 
 
+def lagged_points(pose: Pose, config: DwaConfig) -> np.ndarray | None:
+    """(2, S * (K + 1)): the rollouts' points as the lagging plant flies them from the pose's
+    velocity (:meth:`.Pose.velocity_m_s`); None when the plant flies the rollouts exactly."""
+    if config.lagged_rest_hom_m is None:
+        return None
+    xy = placement(pose) @ config.lagged_rest_hom_m
+    vx, vy = pose.velocity_m_s(config.speed_m_s)
+    xy[0] += vx * config.lagged_drift_s
+    xy[1] += vy * config.lagged_drift_s
+    return xy
+
+
 def rollouts(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
     """All rollouts for ``pose``: points (S, K + 1, 2) at config.times_s (the first is the pose
     itself) and the headings (S,) at the prediction point."""

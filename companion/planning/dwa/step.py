@@ -17,7 +17,7 @@ from companion.planning.dwa.heading import single_target
 from companion.planning.dwa.legality import (Rule, binding_uavs, fence_distance, fence_ok, legal_rollouts,
                                              separation_ok, turn_error)
 from companion.planning.dwa.recovery import Stuck, no_legal_rollout
-from companion.planning.dwa.shapes import placement
+from companion.planning.dwa.shapes import lagged_points, placement
 from companion.planning.dwa.sightline import sightline_term
 from companion.planning.dwa.snapshot import Culled, ObstacleSnapshot, with_turned_back
 from companion.planning.dwa.speed import reference_speed_m_s, speed_scores
@@ -167,7 +167,7 @@ def _rules(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig) -> _Ru
     else:
         distance = no_obstacle_in_reach(config)
     if scene.binding:
-        ok_by_rule[Rule.SEPARATION] = separation_ok(window.px, window.py, config.times_s, pose, scene.binding, config)
+        ok_by_rule[Rule.SEPARATION] = _separation(pose, scene, window, config)
     if scene.fence_here is not None:
         ok_by_rule[Rule.GEOFENCE] = fence_ok(window.px, window.py, config.fence_m, scene.fence_here)
     if legal is None or len(ok_by_rule) > 1:
@@ -197,13 +197,31 @@ def _recover(pose: Pose, goals: LocalGoals, other: OtherUav | None, scene: _Scen
                                                goals, (pose.x_m, pose.y_m), window.px, window.py, scene.single,
                                                _soonest(config))
     def lagged_clearances() -> np.ndarray | None:
-        if config.lagged_hom_m is None or not scene.culled.count:
+        xy = lagged_points(pose, config) if scene.culled.count else None
+        if xy is None:
             return None
-        xy = placement(pose) @ config.lagged_hom_m
         return config.backend.inflated_clearance(xy[0], xy[1], config.point_times_s, near)
 
-    stuck = Stuck(rules.ok_by_rule, heading, near, clearances, lagged_clearances)
+    def bare_separation() -> np.ndarray | None:
+        return _separation(pose, scene, window, config, courtesy=False) if scene.binding else None
+
+    stuck = Stuck(rules.ok_by_rule, heading, near, clearances, lagged_clearances, bare_separation)
     return no_legal_rollout(pose, goals, other, scene.culled.snapshot, config, stuck, scene.separate_from)
+
+
+def _separation(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig, courtesy: bool = True) -> np.ndarray:
+    """The separation rule (S, K + 1) from the UAVs that can bind, on the rollouts and, for a
+    plant that lags, on its flight of them too (:func:`.shapes.lagged_rollouts`): it flies wide
+    of a turn by up to 17 m, far more than the separation's margin, and a turn that keeps the
+    separation on the rollout loses it as flown (``courtesy``: see :func:`.legality.kept_from`)."""
+    xy = lagged_points(pose, config)
+    if xy is None:
+        return separation_ok(window.px, window.py, config.times_s, pose, scene.binding, config, courtesy)
+    shape = window.px.shape  # both in one array operation: (2 S, K + 1)
+    ok = separation_ok(np.concatenate([window.px, xy[0].reshape(shape)]),
+                       np.concatenate([window.py, xy[1].reshape(shape)]), config.times_s, pose, scene.binding,
+                       config, courtesy)
+    return ok[:shape[0]] & ok[shape[0]:]
 
 
 def _critics(pose: Pose, goals: LocalGoals, other: OtherUav | None, sighted: ObstacleSnapshot, window: _Window,

@@ -3,6 +3,7 @@ why there is none, and the local-goal window the heading critic scores toward.""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,6 +16,16 @@ class Pose:
     x_m: float
     y_m: float
     heading_rad: float
+    # The velocity over ground (ENU, m/s), where the caller knows it: a plant that lags its
+    # commands (DwaConfig.tracking_lag_s) carries it on. None: at cruise along the heading.
+    vx_m_s: float | None = None
+    vy_m_s: float | None = None
+
+    def velocity_m_s(self, cruise_m_s: float) -> tuple[float, float]:
+        """(vx, vy): the velocity given, else ``cruise_m_s`` along the heading."""
+        if self.vx_m_s is None or self.vy_m_s is None:
+            return cruise_m_s * math.cos(self.heading_rad), cruise_m_s * math.sin(self.heading_rad)
+        return self.vx_m_s, self.vy_m_s
 
 
 @dataclass(frozen=True, slots=True)

@@ -159,7 +159,8 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
                 reaction = view.reaction(rank[name])
                 other, separate_from = reaction.other, reaction.separate_from
             planner = planners[name]
-            result = planner.tick(Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad)), other, snapshot, t,
+            vx, vy, _ = ned_to_enu(own.vn_m_s, own.ve_m_s)
+            result = planner.tick(Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad), vx, vy), other, snapshot, t,
                                   separate_from=separate_from,
                                   schedule_t_s=None if clocks is None else clocks.now(name, t))
             if planner.detour_due:  # no progress for a while: a new route from here, at once
