@@ -77,6 +77,18 @@ def test_boxed_in_vehicles_escape_without_flying_into_an_obstacle(seed, index, v
     assert_safe_arrivals(Flown(simulate(scenario.mission, "astar-bdwa", routes=scenario.routes)))
 
 
+def test_a_vehicle_yawing_in_place_keeps_its_way_round_until_it_faces_the_heading_it_set_out_for():
+    """Seed 9293, scenario 14 of 8: e, having given way, ended up 47 m outside the fence, every
+    rollout from its heading leading further out. The spin recovery's best heading flipped each
+    tick between one 153 deg to its left and one 172 deg to its right (the goal straight behind
+    it): e yawed one tick left, one tick right, for 2,000 s, until the time limit."""
+    scenario = generate_scenario(9293, 14, ScenarioConfig(vehicles=8))
+    flown = Flown(simulate(scenario.mission, "astar-bdwa", routes=scenario.routes))
+    assert_safe_arrivals(flown)
+    kept = [t for t in flown.run.ticks["e"] if t.recovery_reason and "kept turning" in t.recovery_reason]
+    assert kept  # the overruled picks, which turned it back the other way
+
+
 @pytest.mark.parametrize("seed, index, vehicles", [(9192, 3, 16), (9192, 6, 16), (9192, 8, 16)])
 def test_the_first_240_s_of_a_crowded_meeting_touch_nothing_and_keep_the_separation(seed, index, vehicles):
     """Generated scenarios of 16 where, by 200 s, a vehicle boxed in by the others and an obstacle

@@ -199,6 +199,7 @@ class VehiclePlanner:
         self.detours = 0  # how many detours were planned after a stall (adopted or not)
         self._progress: tuple[float, float] | None = None  # (best remaining route m, sim time it was reached)
         self._grid = None  # the static grid, rasterised at the first detour
+        self._turning_to: float | None = None  # the heading a yaw in place set out for (spin recovery)
         self._station_xy = (float(tracker.nodes[-1][0]), float(tracker.nodes[-1][1]))
 
     @classmethod
@@ -333,7 +334,7 @@ class VehiclePlanner:
         sx, sy = self.station_xy
         to_station_m = math.hypot(own.x_m - sx, own.y_m - sy)
         if self.arrived or to_station_m <= self.arrival_radius_m:
-            self.arrived = True
+            self.arrived, self._turning_to = True, None
             return TickResult(t_s, None, (sx, sy), self.tracker.index, True,
                               (time.perf_counter() - started) * 1e3, "arrived")
         goal = self.tracker.update(own.x_m, own.y_m)
@@ -352,11 +353,34 @@ class VehiclePlanner:
         goals = self.tracker.window(own.x_m, own.y_m, reach, aim_m)
         decision = plan_step(own, goals, other, snapshot, config, scheduled, separate_from)
         ms = (time.perf_counter() - started) * 1e3
+        if isinstance(decision, NoLegalRollout) and decision.recovery is not None:
+            command, why = self._keep_turning(own, decision, config)
+            return TickResult(t_s, command, goal, self.tracker.index, False, ms, recovery_reason=why)
+        self._turning_to = None
         if isinstance(decision, NoLegalRollout):
-            if decision.recovery is not None:
-                return TickResult(t_s, decision.recovery, goal, self.tracker.index, False, ms,
-                                  recovery_reason=decision.reason)
             if decision.escape is not None:
                 return TickResult(t_s, decision.escape, goal, self.tracker.index, False, ms, None, decision.reason)
             return TickResult(t_s, None, goal, self.tracker.index, False, ms, decision.reason)
         return TickResult(t_s, decision, goal, self.tracker.index, False, ms)
+
+    def _keep_turning(self, own: Pose, decision: NoLegalRollout, config: DwaConfig) -> tuple[Command, str]:
+        """A yaw in place keeps its way round until it faces the heading it set out for.
+
+        Each tick the spin recovery picks the best heading afresh, and two headings on either
+        side of the vehicle can score within a hair of each other (the goal straight behind it):
+        picked by turns, the vehicle yaws one tick left, one tick right, and never faces either
+        (a vehicle outside the fence, every rollout from its heading leading further out, turned
+        in place until the time limit). So while the heading set out for is more than a tick's
+        yaw away, a pick that turns the other way is overruled: the yaw in place is judged safe
+        by the hover check whatever the heading, and on arrival the window decides afresh."""
+        command, target = decision.recovery, own.heading_rad + decision.turn_rad
+        before = self._turning_to
+        if before is not None and command is not None:
+            left = math.remainder(before - own.heading_rad, math.tau)
+            tick = config.max_yaw_rate_rad_s * config.dt_s
+            if abs(left) > tick + 1e-9 and left * command.yaw_rate_rad_s < 0.0:
+                rate = math.copysign(config.max_yaw_rate_rad_s, left)
+                return (replace(command, yaw_rate_rad_s=rate),
+                        f"{decision.reason}; kept turning {math.degrees(left):+.0f} deg to the heading set out for")
+        self._turning_to = target
+        return command, decision.reason

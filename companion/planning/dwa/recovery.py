@@ -271,7 +271,7 @@ def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapsho
                       distance_score=float(distance[i]),
                       sightline_score=0.0 if sight is None else float(sight[i]),
                       eval_score=float(total[i]), legal_count=int(np.count_nonzero(legal)))
-    return NoLegalRollout(f"{reason}: yaw {math.degrees(turn):+.0f} deg in place", recovery=command)
+    return NoLegalRollout(f"{reason}: yaw {math.degrees(turn):+.0f} deg in place", recovery=command, turn_rad=turn)
 
 
 def escape(config: DwaConfig, stuck: Stuck, hover: HoverCheck, reason: str,

@@ -65,6 +65,7 @@ class NoLegalRollout:
     reason: str
     escape: Command | None = None
     recovery: Command | None = None
+    turn_rad: float = 0.0  # with ``recovery``: the yaw in place it turns by (left positive)
 
 
 @dataclass(frozen=True, eq=False)
