@@ -98,12 +98,13 @@ class FleetView:
     leaves out the UAVs that cannot bind: those farther than ``reach[i]``'s metres plus their
     speed times its seconds (:func:`.dwa.legality.separation_reach`)."""
 
-    def __init__(self, xy_m: np.ndarray, uavs: Sequence[OtherUav], names: Sequence[str],
+    def __init__(self, xy_m: Sequence[tuple[float, float]] | np.ndarray, uavs: Sequence[OtherUav], names: Sequence[str],
                  partners: Sequence[Collection[str] | None], reach: Sequence[tuple[float, float]]):
         self.uavs, self.names, self.partners, self.reach = list(uavs), names, partners, reach
-        self.speed = np.array([math.hypot(u.vx_m_s, u.vy_m_s) for u in uavs])
         if len(self.uavs) == 2:  # a pair (the paper's case, most flights): no matrix
             return
+        self.speed = np.array([math.hypot(u.vx_m_s, u.vy_m_s) for u in uavs])
+        xy_m = np.asarray(xy_m)
         self.gap = np.hypot(xy_m[:, None, 0] - xy_m[None, :, 0], xy_m[:, None, 1] - xy_m[None, :, 1])
         self.flying = np.array([not u.arrived for u in uavs])
         self.ranks = np.arange(len(uavs))
@@ -113,8 +114,8 @@ class FleetView:
         """Vehicle i has arrived this tick: the others see it parked at its place."""
         u = self.uavs[i]
         self.uavs[i] = OtherUav(u.x_m, u.y_m, 0.0, 0.0, arrived=True)
-        self.speed[i] = 0.0
         if len(self.uavs) > 2:
+            self.speed[i] = 0.0
             self.with_way[i], self.flying[i] = self.uavs[i], False
 
     def reaction(self, i: int) -> Reaction:

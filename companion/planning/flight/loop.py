@@ -148,7 +148,8 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         # Each vehicle as the others see it this tick (an arrived one parked at its station: kept
         # clear of, no longer flying anywhere), and whom each reacts to, from one distance matrix.
         view = None if len(names) == 1 else FleetView(  # flying alone (a forecast): nobody to react to
-            np.asarray(rows[-1]), [_other(states[n], here[n], parked=n not in active) for n in names],
+            rows[-1],
+            [_other(states[n], here[n], parked=n not in active) for n in names],
             names, hides, reach)
         for name in list(active):
             own = states[name]
