@@ -125,7 +125,24 @@ def dilate_within(m: np.ndarray, free: np.ndarray, moves: tuple[int, ...]) -> np
     return m
 
 
-_dilate_within_jit = _grow_jit = None
+def allowed(free: np.ndarray, xs: np.ndarray, ys: np.ndarray, far: np.ndarray, shadows: np.ndarray,
+            points: np.ndarray, near2: float | None) -> np.ndarray:
+    """Packed: ``free`` and every mask of ``far`` (k, ny, words), and for each mask of ``shadows``
+    (m, ny, words) with its point ``points[i]``: in it (``near2`` None), or in it or farther
+    than ``near2`` from the point (:func:`farther`, strictly). One compiled pass when numba is
+    installed: the same sums and bit operations as the masks one by one, so the same bits."""
+    if _allowed_jit is not None:
+        return _allowed_jit(free, far, shadows, xs, ys, points, -1.0 if near2 is None else float(near2),
+                            near2 is not None)
+    ok = free.copy()
+    for mask in far:
+        ok &= mask
+    for mask, xy in zip(shadows, points):
+        ok &= mask if near2 is None else mask | farther(xs, ys, (float(xy[0]), float(xy[1])), near2)
+    return ok
+
+
+_dilate_within_jit = _grow_jit = _allowed_jit = None
 if numba is not None:
     @numba.njit(cache=True, nogil=True)
     def _dilate_within_jit(m, free, moves):
@@ -205,6 +222,48 @@ if numba is not None:
                 else:
                     a = m + 1
             _set_bits(out[iy], a, nx)
+        return out
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _allowed_jit(free, far, shadows, xs, ys, points, near2, near):
+        out = free.copy()
+        for j in range(far.shape[0]):
+            out &= far[j]
+        nx = len(xs)
+        full = ~np.uint64(0)
+        for i in range(shadows.shape[0]):
+            if not near:
+                out &= shadows[i]
+                continue
+            x, y = points[i, 0], points[i, 1]
+            ax = (xs - x) ** 2  # as _farther_jit: the cells not farther are a span of each row
+            centre = np.searchsorted(xs, x)
+            for iy in range(len(ys)):
+                ay = (ys[iy] - y) ** 2
+                if ay > near2:  # ax >= 0: every cell of the row is farther
+                    continue
+                a, b = 0, centre
+                while a < b:
+                    m = (a + b) // 2
+                    if ax[m] + ay > near2:
+                        a = m + 1
+                    else:
+                        b = m
+                lo = a
+                a, b = centre, nx
+                while a < b:
+                    m = (a + b) // 2
+                    if ax[m] + ay > near2:
+                        b = m
+                    else:
+                        a = m + 1
+                hi = a  # cells lo .. hi - 1 are within near2: there the shadow must hold
+                if lo >= hi:
+                    continue
+                span = np.zeros(out.shape[1], dtype=np.uint64)
+                _set_bits(span, lo, hi)
+                for w in range(lo >> 6, ((hi - 1) >> 6) + 1):
+                    out[iy, w] &= shadows[i, iy, w] | (full ^ span[w])
         return out
 
     @numba.njit(cache=True, nogil=True, inline="always")

@@ -99,6 +99,8 @@ class SpaceTimeProblem:
         xs, ys = grid.cell_centres()
         self._xs, self._ys = xs, ys
         self._memo = {} if memo is None else memo
+        self._blocked: dict[int, np.ndarray] = {}
+        self._none = np.zeros((0,) + self.free_bits.shape, dtype=np.uint64)
         self._positions = self._positions_upto(self.settled)
 
     def _positions_upto(self, last: int) -> list[list[tuple[float, float]]]:
@@ -137,22 +139,37 @@ class SpaceTimeProblem:
         """Packed cells allowed at step k; ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR
         (squared, so that a tie with the distance it came from stays a tie)."""
         spend(self.budget)
-        ok = self.free_bits.copy()
-        for xy in self.positions(k):
-            ok &= self.far_bits(xy)
+        far = np.stack([self.far_bits(xy) for xy in self.positions(k)]) if self.others else self._none
+        sight = [] if rule is SightRule.FREE else self.sight_positions(k)
+        shadows = np.stack([self.shadow_bits(xy) for xy in sight]) if sight else self._none
+        return bitgrid.allowed(self.free_bits, self._xs, self._ys, far, shadows,
+                               np.array(sight, dtype=float).reshape(-1, 2),
+                               near2_m2 if rule is SightRule.BLOCKED_WHEN_NEAR else None)
+
+    def goal_allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf) -> bool:
+        """Whether the goal cell is in :meth:`allowed` (k, rule, near2_m2): the same sums and
+        shadow bits for that one cell."""
+        gx, gy = self.goal
+        x0, y0 = float(self._xs[gx]), float(self._ys[gy])
+        d2 = [(x0 - x) * (x0 - x) + (y0 - y) * (y0 - y) for x, y in self.positions(k)]
+        if min(d2, default=math.inf) < self.model.min_distance_m ** 2:
+            return False
         if rule is SightRule.FREE:
-            return ok
-        for xy in self.sight_positions(k):
-            if rule is SightRule.BLOCKED:
-                ok &= self.shadow_bits(xy)
-            elif rule is SightRule.BLOCKED_WHEN_NEAR:
-                ok &= self.shadow_bits(xy) | bitgrid.farther(self._xs, self._ys, xy, near2_m2)
-        return ok
+            return True
+        sight = range(len(d2)) if self._sight is None else self._sight
+        return all(bitgrid.test(self.shadow_bits(self.positions(k)[i]), gx, gy)
+                   or (rule is SightRule.BLOCKED_WHEN_NEAR and d2[i] > near2_m2) for i in sight)
 
     def blocked_by_all(self, k: int) -> np.ndarray:
-        out = self.free_bits.copy()
-        for xy in self.sight_positions(k):
-            out &= self.shadow_bits(xy)
+        """Packed free cells blocked from every vehicle of ``sight`` at step k (kept per step: it
+        depends on nothing else)."""
+        k = min(k, self.settled)
+        out = self._blocked.get(k)
+        if out is None:
+            out = self.free_bits.copy()
+            for xy in self.sight_positions(k):
+                out &= self.shadow_bits(xy)
+            self._blocked[k] = out
         return out
 
     def nearest_d2(self, k: int, bits: np.ndarray) -> tuple[float, tuple[int, int]]:
@@ -263,12 +280,13 @@ def allowed_table(problem: SpaceTimeProblem, rule: SightRule, near2_m2: float = 
 
 
 def stay_from(problem: SpaceTimeProblem, table: AllowedTable) -> int | None:
-    """The first step from which the goal cell stays allowed to the horizon (None: never)."""
-    ok = np.array([problem.has(table[k], problem.goal) for k in range(len(table))])
-    if not ok[-1]:
+    """The first step from which the goal cell stays allowed to the horizon (None: never): the
+    goal cell alone tested (:meth:`SpaceTimeProblem.goal_allowed`), from the last step back to
+    the last it is not allowed, no whole mask built."""
+    last = len(table) - 1
+    if not problem.goal_allowed(last, table.rule, table.near2_m2):
         return None
-    bad = np.flatnonzero(~ok)
-    return int(bad[-1]) + 1 if bad.size else 0
+    return next((k + 1 for k in range(last - 1, -1, -1) if not problem.goal_allowed(k, table.rule, table.near2_m2)), 0)
 
 
 def earliest_arrival(problem: SpaceTimeProblem, layers: Layers, not_before: int) -> int | None:
