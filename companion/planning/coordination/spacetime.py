@@ -313,13 +313,14 @@ def backtrack(problem: SpaceTimeProblem, layers: Layers, end: tuple[int, int], k
         x0, x1, y0, y1 = max(cx - r, 0), min(cx + r + 1, nx), max(cy - r, 0), min(cy + r + 1, ny)
         seed = np.zeros((y1 - y0, x1 - x0), dtype=bool)
         seed[cy - y0, cx - x0] = True
-        prev = bitgrid.unpack(layers[k - 1], nx)
-        cand = _grow_bool(seed, problem.free[y0:y1, x0:x1], problem.model.moves) & prev[y0:y1, x0:x1]
+        r0 = max(y0 - 2, 0)  # the rows the candidates and their 5 x 5 neighbourhoods span, unpacked
+        prev = bitgrid.unpack(layers[k - 1][r0:min(y1 + 2, ny)], nx)
+        cand = _grow_bool(seed, problem.free[y0:y1, x0:x1], problem.model.moves) & prev[y0 - r0:y1 - r0, x0:x1]
         ys, xs = np.nonzero(cand)
         if not len(xs):  # cannot happen for a cell of layers[k]: report, don't guess
             raise AssertionError(f"no predecessor of {cells[-1]} at step {k}")
         best = max(zip(xs + x0, ys + y0),
-                   key=lambda c: (int(prev[max(c[1] - 2, 0):c[1] + 3, max(c[0] - 2, 0):c[0] + 3].sum()),
+                   key=lambda c: (int(prev[max(c[1] - 2, 0) - r0:c[1] + 3 - r0, max(c[0] - 2, 0):c[0] + 3].sum()),
                                   -((c[0] - cx) ** 2 + (c[1] - cy) ** 2)))
         cells.append((int(best[0]), int(best[1])))
     cells.reverse()
