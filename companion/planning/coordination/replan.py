@@ -79,6 +79,7 @@ class ReplanJob:
     xy: "dict[str, tuple[float, float]]"
     forecasts: "dict[str, TimedRoute]"
     blocking: "dict[str, Blocking]"  # what each plan kept when the job was made
+    lagging: frozenset[str] = frozenset()  # those below the first that lag their own plans (:meth:`ScheduleClocks.lags`)
 
 
 @dataclass(frozen=True)
@@ -168,11 +169,20 @@ class ScheduleClocks:
             return False
         if self.tries[name] >= self.rule.most or t_s - self._last.get(name, -np.inf) < self.rule.every_s:
             return False
-        tau = self.now(name, t_s)
-        if tau >= self._ca_s[name]:
+        if self.now(name, t_s) >= self._ca_s[name]:
             self._past_ca.add(name)
             return False  # past the planned closest approach: re-plans from there cost more than they save
-        return float(self.routes[name].planned_along_at(tau)) - self._along[name] > self.rule.lag_m
+        return self.lags(name, t_s)
+
+    def lags(self, name: str, t_s: float) -> bool:
+        """Whether ``name`` (observed on its current plan) is more than ``lag_m`` behind it,
+        before the plan's closest approach: what :meth:`strayed` asks, without its gates on
+        when and how often."""
+        if name not in self._along or name not in self._ca_s:
+            return False
+        tau = self.now(name, t_s)
+        return tau < self._ca_s[name] and \
+            float(self.routes[name].planned_along_at(tau)) - self._along[name] > self.rule.lag_m
 
     def fresh(self, t_s: float) -> bool:
         """Whether every flying vehicle's newest position is at most the mission's
@@ -205,7 +215,8 @@ class ScheduleClocks:
             self.tries[name] += 1
         above = self.order[:self.order.index(names[-1])]
         return ReplanJob(t_s, names, {n: (float(self._xy[n][0]), float(self._xy[n][1])) for n in names},
-                         {o: self._forecast(o, t_s) for o in above}, dict(self.blocking))
+                         {o: self._forecast(o, t_s) for o in above}, dict(self.blocking),
+                         frozenset(n for n in names[1:] if self.lags(n, t_s)))
 
     def plan(self, job: ReplanJob) -> "list[Replanned]":
         """Step 2 (seconds of CPU; a worker thread live): plan ``job``'s vehicles in priority order,
@@ -219,6 +230,8 @@ class ScheduleClocks:
         forecasts = dict(job.forecasts)
         out: list[Replanned] = []
         for name in job.names:
+            if name != job.names[0] and not out and name not in job.lagging:
+                continue  # nothing above it has a new plan and it keeps to its own: its plan stands
             above = {o: forecasts[o] for o in self.order[:self.order.index(name)]}
             found = plan_vehicle(self.mission, name, tuple(above.values()), self._grid, self._shadows, self._memo,
                                  from_xy=job.xy[name], t0_s=job.t_s)
