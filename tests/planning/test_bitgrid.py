@@ -59,7 +59,7 @@ def _numpy_paths():
 
     @contextlib.contextmanager
     def off():
-        names = ("_farther_jit", "_nearest_jit", "_grow_jit", "_dilate_within_jit", "_allowed_jit")
+        names = ("_farther_jit", "_nearest_jit", "_grow_jit", "_dilate_within_jit", "_allowed_jit", "_within_any_jit")
         saved = [getattr(bitgrid, n) for n in names]
         for n in names:
             setattr(bitgrid, n, None)
@@ -140,3 +140,19 @@ def test_compiled_allowed_mask_equals_the_masks_one_by_one(cells, q, mode, seed)
         want = bitgrid.allowed(free, xs, ys, far, shadows, pts, near2)
     assert np.array_equal(bitgrid.allowed(free, xs, ys, far, shadows, pts, near2), want)
     assert np.array_equal(bitgrid.allowed(free, xs, ys, far[:0], shadows[:0], pts[:0], near2), free)
+
+
+@pytest.mark.skipif(bitgrid.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+@settings(max_examples=80, deadline=None)
+@given(_cells(), st.floats(0.0, 1.0))
+def test_compiled_cells_within_any_point_equal_the_masks_one_by_one(cells, q):
+    xs, ys, points = cells
+    d2 = float(np.quantile(bitgrid.distance2(xs, ys, points[-1]), q))  # a threshold some cells tie with
+    pts = np.array(points, dtype=float)
+    with _numpy_paths():
+        want = bitgrid.within_any(xs, ys, pts, d2)
+    assert np.array_equal(bitgrid.within_any(xs, ys, pts, d2), want)
+    union = np.zeros_like(want)
+    for xy in points:
+        union |= bitgrid.pack(bitgrid.distance2(xs, ys, xy) <= d2)
+    assert np.array_equal(want, union)

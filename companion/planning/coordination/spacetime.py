@@ -131,10 +131,6 @@ class SpaceTimeProblem:
         return self._memoised(("far", xy, self.model.min_distance_m), lambda: bitgrid.farther(
             self._xs, self._ys, xy, self.model.min_distance_m ** 2, strict=False))
 
-    def within_bits(self, xy: tuple[float, float], d2: float) -> np.ndarray:
-        """Packed cells whose squared distance to ``xy`` is at most ``d2``."""
-        return bitgrid.within(self._xs, self._ys, xy, d2)
-
     def allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf) -> np.ndarray:
         """Packed cells allowed at step k; ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR
         (squared, so that a tie with the distance it came from stays a tie)."""
