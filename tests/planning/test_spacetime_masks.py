@@ -82,3 +82,23 @@ def test_blocked_by_all_kept_per_step_equals_a_fresh_one(problems):
             for xy in p.sight_positions(k):
                 want &= bitgrid.pack(p.shadows.blocked_from(xy))
             assert np.array_equal(p.blocked_by_all(k), want)
+
+
+class _Forgetful(dict):
+    """A table cache that keeps nothing: every allowed_table call builds its table afresh."""
+
+    def __setitem__(self, key, value):
+        pass
+
+
+def test_closest_approach_plans_are_the_same_with_the_tables_kept_or_rebuilt(problems):
+    from companion.planning.coordination.search import Blocking, solve
+    for p in problems:
+        kept = solve(p, Blocking.CLOSEST_APPROACH, 20.0)
+        assert kept is not None and len(p.tables) >= 2
+        p.tables = _Forgetful()
+        try:
+            rebuilt = solve(p, Blocking.CLOSEST_APPROACH, 20.0)
+        finally:
+            p.tables = {}
+        assert rebuilt is not None and rebuilt.cells == kept.cells

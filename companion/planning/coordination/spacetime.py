@@ -100,6 +100,7 @@ class SpaceTimeProblem:
         self._xs, self._ys = xs, ys
         self._memo = {} if memo is None else memo
         self._blocked: dict[int, np.ndarray] = {}
+        self.tables: dict[tuple, "AllowedTable"] = {}  # allowed_table's, by (rule, near2)
         self._none = np.zeros((0,) + self.free_bits.shape, dtype=np.uint64)
         self._positions = self._positions_upto(self.settled)
 
@@ -272,7 +273,13 @@ class AllowedTable:
 
 
 def allowed_table(problem: SpaceTimeProblem, rule: SightRule, near2_m2: float = math.inf) -> AllowedTable:
-    return AllowedTable(problem, rule, near2_m2)
+    """The problem's table for ``rule`` at ``near2_m2``, one per pair (the closest-approach
+    witness's last round and the first distance of its ladder ask for the same one)."""
+    key = (rule, near2_m2)
+    table = problem.tables.get(key)
+    if table is None:
+        table = problem.tables[key] = AllowedTable(problem, rule, near2_m2)
+    return table
 
 
 def stay_from(problem: SpaceTimeProblem, table: AllowedTable) -> int | None:
