@@ -100,6 +100,8 @@ class SpaceTimeProblem:
         self._xs, self._ys = xs, ys
         self._memo = {} if memo is None else memo
         self._blocked: dict[int, np.ndarray] = {}
+        self._stacks: dict[tuple, np.ndarray] = {}
+        self._no_points = np.zeros((0, 2))
         self.tables: dict[tuple, "AllowedTable"] = {}  # allowed_table's, by (rule, near2)
         self._none = np.zeros((0,) + self.free_bits.shape, dtype=np.uint64)
         self._positions = self._positions_upto(self.settled)
@@ -136,12 +138,28 @@ class SpaceTimeProblem:
         """Packed cells allowed at step k; ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR
         (squared, so that a tie with the distance it came from stays a tie)."""
         spend(self.budget)
-        far = np.stack([self.far_bits(xy) for xy in self.positions(k)]) if self.others else self._none
-        sight = [] if rule is SightRule.FREE else self.sight_positions(k)
-        shadows = np.stack([self.shadow_bits(xy) for xy in sight]) if sight else self._none
-        return bitgrid.allowed(self.free_bits, self._xs, self._ys, far, shadows,
-                               np.array(sight, dtype=float).reshape(-1, 2),
+        k = min(k, self.settled)
+        far = self._stacked(("far", k), lambda: [self.far_bits(xy) for xy in self.positions(k)])
+        if rule is SightRule.FREE:
+            shadows, points = self._none, self._no_points
+        else:
+            shadows = self._stacked(("shadow", k), lambda: [self.shadow_bits(xy) for xy in self.sight_positions(k)])
+            points = self._stacked(("points", k), lambda: self.sight_positions(k))
+        return bitgrid.allowed(self.free_bits, self._xs, self._ys, far, shadows, points,
                                near2_m2 if rule is SightRule.BLOCKED_WHEN_NEAR else None)
+
+    def _stacked(self, key: tuple, items) -> np.ndarray:
+        """The masks (or points) ``items()`` lists for a step, stacked once per problem: every
+        table of the problem reads the same ones at that step."""
+        value = self._stacks.get(key)
+        if value is None:
+            got = items()
+            if key[0] == "points":
+                value = np.array(got, dtype=float).reshape(-1, 2)
+            else:
+                value = np.stack(got) if got else self._none
+            self._stacks[key] = value
+        return value
 
     def goal_allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf) -> bool:
         """Whether the goal cell is in :meth:`allowed` (k, rule, near2_m2): the same sums and
