@@ -1,6 +1,8 @@
 """The packed-bit dilation of the space-time wavefront: compiled and numpy paths give the same
 words, and both agree with a plain boolean dilation."""
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -57,12 +59,15 @@ def _numpy_paths():
 
     @contextlib.contextmanager
     def off():
-        saved = bitgrid._farther_jit, bitgrid._nearest_jit, bitgrid._grow_jit, bitgrid._dilate_within_jit
-        bitgrid._farther_jit = bitgrid._nearest_jit = bitgrid._grow_jit = bitgrid._dilate_within_jit = None
+        names = ("_farther_jit", "_nearest_jit", "_grow_jit", "_dilate_within_jit", "_allowed_jit", "_within_any_jit")
+        saved = [getattr(bitgrid, n) for n in names]
+        for n in names:
+            setattr(bitgrid, n, None)
         try:
             yield
         finally:
-            bitgrid._farther_jit, bitgrid._nearest_jit, bitgrid._grow_jit, bitgrid._dilate_within_jit = saved
+            for n, kernel in zip(names, saved):
+                setattr(bitgrid, n, kernel)
     return off()
 
 
@@ -116,3 +121,38 @@ def test_compiled_growth_equals_the_numpy_growth(ny, nx, seed, moves, density):
     with _numpy_paths():
         want = bitgrid.grow(bits, free, tuple(moves))
     assert np.array_equal(bitgrid.grow(bits, free, tuple(moves)), want)
+
+
+@pytest.mark.skipif(bitgrid.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+@settings(max_examples=80, deadline=None)
+@given(_cells(), st.floats(0.0, 1.0), st.sampled_from([None, "near", "inf"]), st.integers(0, 2**32 - 1))
+def test_compiled_allowed_mask_equals_the_masks_one_by_one(cells, q, mode, seed):
+    """bitgrid.allowed in one compiled pass: the words of free & far masks & (shadow [| farther])."""
+    xs, ys, points = cells
+    rng = np.random.default_rng(seed)
+    shape = (len(ys), len(xs))
+    free = bitgrid.pack(rng.random(shape) < 0.9)
+    far = np.stack([bitgrid.pack(rng.random(shape) < 0.8) for _ in range(2)])
+    shadows = np.stack([bitgrid.pack(rng.random(shape) < 0.5) for _ in points])
+    near2 = {None: None, "inf": math.inf, "near": float(np.quantile(bitgrid.distance2(xs, ys, points[0]), q))}[mode]
+    pts = np.array(points, dtype=float)
+    with _numpy_paths():
+        want = bitgrid.allowed(free, xs, ys, far, shadows, pts, near2)
+    assert np.array_equal(bitgrid.allowed(free, xs, ys, far, shadows, pts, near2), want)
+    assert np.array_equal(bitgrid.allowed(free, xs, ys, far[:0], shadows[:0], pts[:0], near2), free)
+
+
+@pytest.mark.skipif(bitgrid.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+@settings(max_examples=80, deadline=None)
+@given(_cells(), st.floats(0.0, 1.0))
+def test_compiled_cells_within_any_point_equal_the_masks_one_by_one(cells, q):
+    xs, ys, points = cells
+    d2 = float(np.quantile(bitgrid.distance2(xs, ys, points[-1]), q))  # a threshold some cells tie with
+    pts = np.array(points, dtype=float)
+    with _numpy_paths():
+        want = bitgrid.within_any(xs, ys, pts, d2)
+    assert np.array_equal(bitgrid.within_any(xs, ys, pts, d2), want)
+    union = np.zeros_like(want)
+    for xy in points:
+        union |= bitgrid.pack(bitgrid.distance2(xs, ys, xy) <= d2)
+    assert np.array_equal(want, union)

@@ -200,3 +200,33 @@ def test_a_plan_just_adopted_is_not_judged_before_the_vehicle_is_seen_on_it(held
     fleet.observe("a", mission.vehicle("a").start_enu_m, t2)
     fleet.observe("b", b0, t2)
     assert fleet.job(t2) is not None and fleet.tries["b"] == 2
+
+
+@pytest.fixture(scope="module")
+def four_lagging():
+    """Four vehicles (v0 first); v1 has not moved while its plan has it 150 m along, the others
+    fly their plans: a re-plan job from v1 down."""
+    from test_coordination import _four_vehicles
+    from uav_model.mission import mission_from_data
+    mission = mission_from_data(_four_vehicles(3))
+    routes = plan_routes(mission)
+    plan = plan_coordinated(mission, routes, first_forecast(mission, routes))
+    fleet = ScheduleClocks(mission, plan.timed, ReplanRule(lag_m=100.0, every_s=30.0))
+    t = next(float(t) for t in np.arange(0.0, 200.0, 0.5) if plan.timed["v1"].planned_along_at(t) > 150.0)
+    for name in ("v0", "v2", "v3"):
+        fleet.observe(name, plan.timed[name].planned_position_at(t), t)
+    fleet.observe("v1", mission.vehicle("v1").start_enu_m, t)
+    return fleet, fleet.job(t)
+
+
+def test_a_job_replans_a_vehicle_below_only_when_one_above_has_a_new_plan_or_it_lags(four_lagging):
+    fleet, job = four_lagging
+    assert job.names == ("v1", "v2", "v3") and job.lagging == frozenset()  # v2, v3 keep to their plans
+    assert fleet.lags("v1", job.t_s) and not fleet.lags("v2", job.t_s)
+    alone = fleet.plan(replace(job, names=("v1",)))
+    assert [p.level for p in alone] == [Blocking.CLOSEST_APPROACH]  # 150 m late: the whole flight is lost
+    any_level = {n: Blocking.NONE for n in job.names}
+    assert [p.name for p in fleet.plan(replace(job, blocking=any_level))] == ["v1", "v2", "v3"]  # v1 new: all below
+    kept = {**any_level, "v1": Blocking.WHOLE_FLIGHT}  # v1's re-plan not adopted: the plans below stand
+    assert fleet.plan(replace(job, blocking=kept)) == []
+    assert [p.name for p in fleet.plan(replace(job, blocking=kept, lagging=frozenset({"v3"})))] == ["v3"]

@@ -125,7 +125,35 @@ def dilate_within(m: np.ndarray, free: np.ndarray, moves: tuple[int, ...]) -> np
     return m
 
 
-_dilate_within_jit = _grow_jit = None
+def allowed(free: np.ndarray, xs: np.ndarray, ys: np.ndarray, far: np.ndarray, shadows: np.ndarray,
+            points: np.ndarray, near2: float | None) -> np.ndarray:
+    """Packed: ``free`` and every mask of ``far`` (k, ny, words), and for each mask of ``shadows``
+    (m, ny, words) with its point ``points[i]``: in it (``near2`` None), or in it or farther
+    than ``near2`` from the point (:func:`farther`, strictly). One compiled pass when numba is
+    installed: the same sums and bit operations as the masks one by one, so the same bits."""
+    if _allowed_jit is not None:
+        return _allowed_jit(free, far, shadows, xs, ys, points, -1.0 if near2 is None else float(near2),
+                            near2 is not None)
+    ok = free.copy()
+    for mask in far:
+        ok &= mask
+    for mask, xy in zip(shadows, points):
+        ok &= mask if near2 is None else mask | farther(xs, ys, (float(xy[0]), float(xy[1])), near2)
+    return ok
+
+
+def within_any(xs: np.ndarray, ys: np.ndarray, points: np.ndarray, d2: float) -> np.ndarray:
+    """Packed: the cells within ``d2`` (:func:`within`) of any of ``points`` (n, 2); one compiled
+    pass when numba is installed, the same bits as the masks one by one."""
+    if _within_any_jit is not None:
+        return _within_any_jit(xs, ys, points, float(d2))
+    out = np.zeros((len(ys), -(-len(xs) // 64)), dtype=np.uint64)
+    for x, y in points:
+        out |= within(xs, ys, (float(x), float(y)), d2)
+    return out
+
+
+_dilate_within_jit = _grow_jit = _allowed_jit = _within_any_jit = None
 if numba is not None:
     @numba.njit(cache=True, nogil=True)
     def _dilate_within_jit(m, free, moves):
@@ -206,6 +234,66 @@ if numba is not None:
                     a = m + 1
             _set_bits(out[iy], a, nx)
         return out
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _allowed_jit(free, far, shadows, xs, ys, points, near2, near):
+        out = free.copy()
+        for j in range(far.shape[0]):
+            out &= far[j]
+        nx = len(xs)
+        full = ~np.uint64(0)
+        for i in range(shadows.shape[0]):
+            if not near:
+                out &= shadows[i]
+                continue
+            x, y = points[i, 0], points[i, 1]
+            ax = (xs - x) ** 2  # as _farther_jit: the cells not farther are a span of each row
+            centre = np.searchsorted(xs, x)
+            span = np.zeros(out.shape[1], dtype=np.uint64)
+            for iy in range(len(ys)):
+                lo, hi = _within_span(ax, (ys[iy] - y) ** 2, centre, nx, near2)
+                if lo >= hi:
+                    continue
+                span[:] = 0
+                _set_bits(span, lo, hi)  # within near2: there the shadow must hold
+                for w in range(lo >> 6, ((hi - 1) >> 6) + 1):
+                    out[iy, w] &= shadows[i, iy, w] | (full ^ span[w])
+        return out
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _within_any_jit(xs, ys, points, d2):
+        nx = len(xs)
+        out = np.zeros((len(ys), -(-nx // 64)), dtype=np.uint64)
+        for i in range(points.shape[0]):
+            ax = (xs - points[i, 0]) ** 2
+            centre = np.searchsorted(xs, points[i, 0])
+            for iy in range(len(ys)):
+                lo, hi = _within_span(ax, (ys[iy] - points[i, 1]) ** 2, centre, nx, d2)
+                _set_bits(out[iy], lo, hi)
+        return out
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _within_span(ax, ay, centre, nx, d2):
+        """The cells lo .. hi - 1 of a row whose sum ax + ay is at most d2 (a span: ax falls, then
+        rises), by bisection as in _farther_jit (strict)."""
+        if ay > d2:  # ax >= 0: every cell of the row is farther
+            return 0, 0
+        a, b = 0, centre
+        while a < b:
+            m = (a + b) // 2
+            if ax[m] + ay > d2:
+                a = m + 1
+            else:
+                b = m
+        lo = a
+        a, b = centre, nx
+        while a < b:
+            m = (a + b) // 2
+            if ax[m] + ay > d2:
+                b = m
+            else:
+                a = m + 1
+        return lo, a
 
     @numba.njit(cache=True, nogil=True, inline="always")
     def _set_bits(row, a, b):

@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from companion.planning.coordination import bitgrid
 from companion.planning.coordination.spacetime import AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, stay_from
 
 
@@ -38,9 +39,8 @@ class _Witness:
         mask = self._masks.get(k)
         if mask is None:
             p = self.problem
-            within = np.zeros_like(p.free_bits)
-            for xy in p.sight_positions(k):
-                within |= p.within_bits(xy, self.near2_m2)
+            within = bitgrid.within_any(p._xs, p._ys, np.array(p.sight_positions(k), dtype=float).reshape(-1, 2),
+                                        self.near2_m2)
             mask = self._masks[k] = p.blocked_by_all(k) & within
         return mask
 

@@ -10,10 +10,12 @@ a detour round a moving obstacle) is not where its plan keeps the sight line blo
 plan's times ask for cruise until the end, so it never gets back.
 Then, before the plan's closest approach, :meth:`ScheduleClocks.update` plans it again in (position,
 time) from where it is, at the time it is, against the vehicles above it re-forecast from where
-they are (:func:`coordination.plan_vehicle` with ``from_xy`` / ``t0_s``), and every vehicle below
-it after it. The new plan is adopted only when it keeps the sight line at least as well as the
-old one did (a re-plan that can only keep separation would give up what the old plan might still
-catch), and its clock restarts at the re-plan's time.
+they are (:func:`coordination.plan_vehicle` with ``from_xy`` / ``t0_s``), then each flying vehicle
+below it that either lags its own plan too or has a vehicle above it with a new plan from this
+re-plan (the others' plans were made against what still stands: they keep them). A new plan is
+adopted only when it keeps the sight line at least as well as the old one did (a re-plan that
+can only keep separation would give up what the old plan might still catch), and its clock
+restarts at the re-plan's time.
 
     fleet = ScheduleClocks(mission, plan.timed)
     fleet.observe("a", (x, y), t); fleet.observe("b", (x, y), t)   # every flying vehicle
@@ -71,7 +73,8 @@ class ReplanRule:
 @dataclass(frozen=True)
 class ReplanJob:
     """One re-plan's inputs, copied when it was found due (:meth:`ScheduleClocks.job`): the vehicles
-    to plan (the one due first, then every flying one below it), where each was, and where every
+    to plan (the one due first, then every flying one below it, each planned only as
+    :meth:`ScheduleClocks.plan` says), where each was, and where every
     vehicle above the last of them will be, all at ``t_s``."""
 
     t_s: float
@@ -79,6 +82,7 @@ class ReplanJob:
     xy: "dict[str, tuple[float, float]]"
     forecasts: "dict[str, TimedRoute]"
     blocking: "dict[str, Blocking]"  # what each plan kept when the job was made
+    lagging: frozenset[str] = frozenset()  # those below the first that lag their own plans (:meth:`ScheduleClocks.lags`)
 
 
 @dataclass(frozen=True)
@@ -169,11 +173,20 @@ class ScheduleClocks:
             return False
         if self.tries[name] >= self.rule.most or t_s - self._last.get(name, -np.inf) < self.rule.every_s:
             return False
-        tau = self.now(name, t_s)
-        if tau >= self._ca_s[name]:
+        if self.now(name, t_s) >= self._ca_s[name]:
             self._past_ca.add(name)
             return False  # past the planned closest approach: re-plans from there cost more than they save
-        return float(self.routes[name].planned_along_at(tau)) - self._along[name] > self.rule.lag_m
+        return self.lags(name, t_s)
+
+    def lags(self, name: str, t_s: float) -> bool:
+        """Whether ``name`` (observed on its current plan) is more than ``lag_m`` behind it,
+        before the plan's closest approach: what :meth:`strayed` asks, without its gates on
+        when and how often."""
+        if name not in self._along or name not in self._ca_s:
+            return False
+        tau = self.now(name, t_s)
+        return tau < self._ca_s[name] and \
+            float(self.routes[name].planned_along_at(tau)) - self._along[name] > self.rule.lag_m
 
     def fresh(self, t_s: float) -> bool:
         """Whether every flying vehicle's newest position is at most the mission's
@@ -185,7 +198,8 @@ class ScheduleClocks:
         return all(t_s - seen <= limit for name, seen in self._seen_s.items() if name not in self._done)
 
     def update(self, t_s: float) -> "dict[str, TimedRoute]":
-        """Re-plan the first lower vehicle due (:meth:`strayed`) and every flying one below it;
+        """Re-plan the first lower vehicle due (:meth:`strayed`) and the flying ones below it
+        that need it (:meth:`plan`);
         the new routes adopted, by name (empty: nothing changed). The three steps at once, as
         the headless runner takes them; a live caller takes them apart (module doc)."""
         job = self.job(t_s)
@@ -206,11 +220,14 @@ class ScheduleClocks:
             self.tries[name] += 1
         above = self.order[:self.order.index(names[-1])]
         return ReplanJob(t_s, names, {n: (float(self._xy[n][0]), float(self._xy[n][1])) for n in names},
-                         {o: self._forecast(o, t_s) for o in above}, dict(self.blocking))
+                         {o: self._forecast(o, t_s) for o in above}, dict(self.blocking),
+                         frozenset(n for n in names[1:] if self.lags(n, t_s)))
 
     def plan(self, job: ReplanJob) -> "list[Replanned]":
         """Step 2 (seconds of CPU; a worker thread live): plan ``job``'s vehicles in priority order,
-        each against the forecasts above it and the new plans above it in this job. Reads only
+        each against the forecasts above it and the new plans above it in this job; one below the
+        first only when a vehicle above it has a new plan by then or it lags its own
+        (``job.lagging``): otherwise its plan was made against what still stands. Reads only
         ``job`` and the immutable mission; writes only the planning caches (grid, shadows, memo),
         which nothing else touches: safe beside :meth:`observe` / :meth:`now`, one job at a time."""
         if self._grid is None:
@@ -220,6 +237,8 @@ class ScheduleClocks:
         forecasts = dict(job.forecasts)
         out: list[Replanned] = []
         for name in job.names:
+            if name != job.names[0] and not out and name not in job.lagging:
+                continue  # nothing above it has a new plan and it keeps to its own: its plan stands
             above = {o: forecasts[o] for o in self.order[:self.order.index(name)]}
             found = plan_vehicle(self.mission, name, tuple(above.values()), self._grid, self._shadows, self._memo,
                                  from_xy=job.xy[name], t0_s=job.t_s)

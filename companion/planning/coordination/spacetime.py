@@ -99,6 +99,11 @@ class SpaceTimeProblem:
         xs, ys = grid.cell_centres()
         self._xs, self._ys = xs, ys
         self._memo = {} if memo is None else memo
+        self._blocked: dict[int, np.ndarray] = {}
+        self._stacks: dict[tuple, np.ndarray] = {}
+        self._no_points = np.zeros((0, 2))
+        self.tables: dict[tuple, "AllowedTable"] = {}  # allowed_table's, by (rule, near2)
+        self._none = np.zeros((0,) + self.free_bits.shape, dtype=np.uint64)
         self._positions = self._positions_upto(self.settled)
 
     def _positions_upto(self, last: int) -> list[list[tuple[float, float]]]:
@@ -129,30 +134,57 @@ class SpaceTimeProblem:
         return self._memoised(("far", xy, self.model.min_distance_m), lambda: bitgrid.farther(
             self._xs, self._ys, xy, self.model.min_distance_m ** 2, strict=False))
 
-    def within_bits(self, xy: tuple[float, float], d2: float) -> np.ndarray:
-        """Packed cells whose squared distance to ``xy`` is at most ``d2``."""
-        return bitgrid.within(self._xs, self._ys, xy, d2)
-
     def allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf) -> np.ndarray:
         """Packed cells allowed at step k; ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR
         (squared, so that a tie with the distance it came from stays a tie)."""
         spend(self.budget)
-        ok = self.free_bits.copy()
-        for xy in self.positions(k):
-            ok &= self.far_bits(xy)
+        k = min(k, self.settled)
+        far = self._stacked(("far", k), lambda: [self.far_bits(xy) for xy in self.positions(k)])
         if rule is SightRule.FREE:
-            return ok
-        for xy in self.sight_positions(k):
-            if rule is SightRule.BLOCKED:
-                ok &= self.shadow_bits(xy)
-            elif rule is SightRule.BLOCKED_WHEN_NEAR:
-                ok &= self.shadow_bits(xy) | bitgrid.farther(self._xs, self._ys, xy, near2_m2)
-        return ok
+            shadows, points = self._none, self._no_points
+        else:
+            shadows = self._stacked(("shadow", k), lambda: [self.shadow_bits(xy) for xy in self.sight_positions(k)])
+            points = self._stacked(("points", k), lambda: self.sight_positions(k))
+        return bitgrid.allowed(self.free_bits, self._xs, self._ys, far, shadows, points,
+                               near2_m2 if rule is SightRule.BLOCKED_WHEN_NEAR else None)
+
+    def _stacked(self, key: tuple, items) -> np.ndarray:
+        """The masks (or points) ``items()`` lists for a step, stacked once per problem: every
+        table of the problem reads the same ones at that step."""
+        value = self._stacks.get(key)
+        if value is None:
+            got = items()
+            if key[0] == "points":
+                value = np.array(got, dtype=float).reshape(-1, 2)
+            else:
+                value = np.stack(got) if got else self._none
+            self._stacks[key] = value
+        return value
+
+    def goal_allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf) -> bool:
+        """Whether the goal cell is in :meth:`allowed` (k, rule, near2_m2): the same sums and
+        shadow bits for that one cell."""
+        gx, gy = self.goal
+        x0, y0 = float(self._xs[gx]), float(self._ys[gy])
+        d2 = [(x0 - x) * (x0 - x) + (y0 - y) * (y0 - y) for x, y in self.positions(k)]
+        if min(d2, default=math.inf) < self.model.min_distance_m ** 2:
+            return False
+        if rule is SightRule.FREE:
+            return True
+        sight = range(len(d2)) if self._sight is None else self._sight
+        return all(bitgrid.test(self.shadow_bits(self.positions(k)[i]), gx, gy)
+                   or (rule is SightRule.BLOCKED_WHEN_NEAR and d2[i] > near2_m2) for i in sight)
 
     def blocked_by_all(self, k: int) -> np.ndarray:
-        out = self.free_bits.copy()
-        for xy in self.sight_positions(k):
-            out &= self.shadow_bits(xy)
+        """Packed free cells blocked from every vehicle of ``sight`` at step k (kept per step: it
+        depends on nothing else)."""
+        k = min(k, self.settled)
+        out = self._blocked.get(k)
+        if out is None:
+            out = self.free_bits.copy()
+            for xy in self.sight_positions(k):
+                out &= self.shadow_bits(xy)
+            self._blocked[k] = out
         return out
 
     def nearest_d2(self, k: int, bits: np.ndarray) -> tuple[float, tuple[int, int]]:
@@ -259,16 +291,23 @@ class AllowedTable:
 
 
 def allowed_table(problem: SpaceTimeProblem, rule: SightRule, near2_m2: float = math.inf) -> AllowedTable:
-    return AllowedTable(problem, rule, near2_m2)
+    """The problem's table for ``rule`` at ``near2_m2``, one per pair (the closest-approach
+    witness's last round and the first distance of its ladder ask for the same one)."""
+    key = (rule, near2_m2)
+    table = problem.tables.get(key)
+    if table is None:
+        table = problem.tables[key] = AllowedTable(problem, rule, near2_m2)
+    return table
 
 
 def stay_from(problem: SpaceTimeProblem, table: AllowedTable) -> int | None:
-    """The first step from which the goal cell stays allowed to the horizon (None: never)."""
-    ok = np.array([problem.has(table[k], problem.goal) for k in range(len(table))])
-    if not ok[-1]:
+    """The first step from which the goal cell stays allowed to the horizon (None: never): the
+    goal cell alone tested (:meth:`SpaceTimeProblem.goal_allowed`), from the last step back to
+    the last it is not allowed, no whole mask built."""
+    last = len(table) - 1
+    if not problem.goal_allowed(last, table.rule, table.near2_m2):
         return None
-    bad = np.flatnonzero(~ok)
-    return int(bad[-1]) + 1 if bad.size else 0
+    return next((k + 1 for k in range(last - 1, -1, -1) if not problem.goal_allowed(k, table.rule, table.near2_m2)), 0)
 
 
 def earliest_arrival(problem: SpaceTimeProblem, layers: Layers, not_before: int) -> int | None:
@@ -295,13 +334,14 @@ def backtrack(problem: SpaceTimeProblem, layers: Layers, end: tuple[int, int], k
         x0, x1, y0, y1 = max(cx - r, 0), min(cx + r + 1, nx), max(cy - r, 0), min(cy + r + 1, ny)
         seed = np.zeros((y1 - y0, x1 - x0), dtype=bool)
         seed[cy - y0, cx - x0] = True
-        prev = bitgrid.unpack(layers[k - 1], nx)
-        cand = _grow_bool(seed, problem.free[y0:y1, x0:x1], problem.model.moves) & prev[y0:y1, x0:x1]
+        r0 = max(y0 - 2, 0)  # the rows the candidates and their 5 x 5 neighbourhoods span, unpacked
+        prev = bitgrid.unpack(layers[k - 1][r0:min(y1 + 2, ny)], nx)
+        cand = _grow_bool(seed, problem.free[y0:y1, x0:x1], problem.model.moves) & prev[y0 - r0:y1 - r0, x0:x1]
         ys, xs = np.nonzero(cand)
         if not len(xs):  # cannot happen for a cell of layers[k]: report, don't guess
             raise AssertionError(f"no predecessor of {cells[-1]} at step {k}")
         best = max(zip(xs + x0, ys + y0),
-                   key=lambda c: (int(prev[max(c[1] - 2, 0):c[1] + 3, max(c[0] - 2, 0):c[0] + 3].sum()),
+                   key=lambda c: (int(prev[max(c[1] - 2, 0) - r0:c[1] + 3 - r0, max(c[0] - 2, 0):c[0] + 3].sum()),
                                   -((c[0] - cx) ** 2 + (c[1] - cy) ** 2)))
         cells.append((int(best[0]), int(best[1])))
     cells.reverse()
