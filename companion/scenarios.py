@@ -35,6 +35,7 @@ from uav_model.world import Obstacle, Shuttle
 
 REFERENCE_SIDE_M = 4500.0 / math.sqrt(2.0)
 MAX_VEHICLES = 32  # the mission schema's maxItems
+SIGHT_PAIR_RULES = ("opposite",)  # ScenarioConfig.sight_pairs (None: no sightline section)
 
 
 class ScenarioError(ValueError):
@@ -60,6 +61,9 @@ class ScenarioConfig:
     time_limit_s: float | None = None  # None: the mission default (SPEC §2: 2500 s)
     plant: str = Plant.MULTICOPTER.value  # unicycle: the paper's ideal vehicle (its Table IV)
     vehicles: int = 2  # around the square's perimeter, each flying across it (see fleet_layout)
+    # Assigned sight-line pairs written as the mission's sightline.pairs; None: no section, the
+    # paper's pair. "opposite": each vehicle with the one starting opposite it (opposite_pairs).
+    sight_pairs: str | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -83,6 +87,11 @@ class ScenarioConfig:
             raise ScenarioError(f"plant: use {' or '.join(p.value for p in Plant)} (got {self.plant!r})")
         if not 2 <= self.vehicles <= MAX_VEHICLES:
             raise ScenarioError(f"vehicles: use 2 to {MAX_VEHICLES} (got {self.vehicles})")
+        if self.sight_pairs is not None and self.sight_pairs not in SIGHT_PAIR_RULES:
+            raise ScenarioError(f"sight_pairs: use {' or '.join(SIGHT_PAIR_RULES)} (got {self.sight_pairs!r})")
+        if self.sight_pairs == "opposite" and self.vehicles % 2:
+            raise ScenarioError(f"sight_pairs: opposite pairs each vehicle with the one starting opposite it, "
+                                f"which needs an even number of vehicles (got {self.vehicles})")
         if self.moving_path_m[1] >= self.side_m:
             raise ScenarioError(f"moving_path_m: a path must fit in the {self.side_m:g} m square")
 
@@ -177,6 +186,8 @@ def _draw(rng: random.Random, cfg: ScenarioConfig, seed: int, index: int) -> dic
     }
     if cfg.time_limit_s is not None:
         doc["safety"] = {"time_limit_s": cfg.time_limit_s}
+    if cfg.sight_pairs is not None:
+        doc["sightline"] = {"pairs": opposite_pairs(cfg.vehicles)}
     return doc
 
 
@@ -218,6 +229,14 @@ def fleet_layout(side: float, count: int) -> dict[str, Any]:
                          "turn_radius_m": 30.0, "initial_heading_deg": _r(heading),
                          "battery_pct": 100.0 if i == 0 else 35.0})
     return {"stations": {name[p]: [p[0], p[1]] for p in points}, "vehicles": vehicles}
+
+
+def opposite_pairs(count: int) -> list[list[str]]:
+    """The head-on pairs of :func:`fleet_layout`'s ``count`` (even) vehicles: vehicle i with
+    vehicle i + count/2, which starts where i's goal is, the higher in priority first
+    (``[[a, c], [b, d]]`` for four; ``[[a, b]]``, the paper's pair, for two)."""
+    half = count // 2
+    return [[_label("a", i), _label("a", i + half)] for i in range(half)]
 
 
 def _label(first: str, k: int) -> str:

@@ -96,6 +96,10 @@ def add_common_arguments(parser: argparse.ArgumentParser, *, scenarios: int, why
                              "unicycle is the paper's ideal vehicle, for its Table IV")
     parser.add_argument("--vehicles", type=positive_int, default=None, metavar="N",
                         help="vehicles per scenario, 2 to 32 (default: the scenario config's, 2)")
+    parser.add_argument("--sight-pairs", default=None, metavar="RULE",
+                        help="assign sight-line pairs in every scenario (its sightline.pairs): opposite, each "
+                             "vehicle with the one starting opposite it (N/2 head-on pairs, N even); "
+                             "default: none assigned, the paper's pair")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--no-certificate", action="store_true",
                         help="skip each run's occlusion certificate (its cert_* columns stay empty; "
@@ -176,10 +180,11 @@ def fly(args: argparse.Namespace, out: Path, variants: Sequence[str], weight_set
     config = scenario_config(args.scenario_config)
     if args.plant is not None:
         config = dataclasses.replace(config, plant=args.plant)
-    if args.vehicles is not None:
+    chosen = {k: v for k, v in (("vehicles", args.vehicles), ("sight_pairs", args.sight_pairs)) if v is not None}
+    if chosen:
         from companion.scenarios import ScenarioError
         try:
-            config = dataclasses.replace(config, vehicles=args.vehicles)
+            config = dataclasses.replace(config, **chosen)
         except ScenarioError as exc:
             raise BadInput(str(exc)) from None
     out = make_out_dir(out)
@@ -219,7 +224,9 @@ def _bench(args: argparse.Namespace) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     (out / "table.md").write_text(markdown_table(summary) + "\n", encoding="utf-8")
     command = (f"companion bench --scenarios {args.scenarios} --seed {args.seed} "
-               f"--variants {','.join(args.variants)} --plant {flown.config.plant} {spec.describe()} --out {out}")
+               f"--variants {','.join(args.variants)} --plant {flown.config.plant} --vehicles {flown.config.vehicles} "
+               + (f"--sight-pairs {flown.config.sight_pairs} " if flown.config.sight_pairs else "")
+               + f"{spec.describe()} --out {out}")
     meta = {"command": command,
             "seed": args.seed, "scenarios": args.scenarios, "variants": list(args.variants),
             "executor": flown.where, "workers": spec.workers or (None if spec.scheduler else os.cpu_count()),

@@ -18,7 +18,7 @@ from shapely.geometry import LineString, Point
 from uav_model.mission import load_mission, parse_mission
 from companion.planning.routes import plan_routes
 from companion.scenarios import (ScenarioConfig, ScenarioError, fleet_layout, generate, generate_mission, generate_scenario,
-                                 station_clearances_m, with_variant, write_mission_yaml)
+                                 opposite_pairs, station_clearances_m, with_variant, write_mission_yaml)
 
 CFG = ScenarioConfig()
 ROUND = 0.011  # every number is rounded to 0.01 m
@@ -167,3 +167,34 @@ def test_vehicle_count_is_checked():
     for bad in (1, 33):
         with pytest.raises(ScenarioError, match="vehicles"):
             ScenarioConfig(vehicles=bad)
+
+
+@pytest.mark.parametrize("count, pairs", [
+    (2, [["a", "b"]]),
+    (4, [["a", "c"], ["b", "d"]]),
+    (8, [["a", "e"], ["b", "f"], ["c", "g"], ["d", "h"]]),
+])
+def test_opposite_sight_pairs_are_the_head_on_partners(tmp_path, count, pairs):
+    plain = generate(2026, 1, ScenarioConfig(vehicles=count))
+    doc = generate(2026, 1, ScenarioConfig(vehicles=count, sight_pairs="opposite"))
+    assert "sightline" not in plain  # default: no assignment, the paper's pair
+    assert doc["sightline"] == {"pairs": pairs} and opposite_pairs(count) == pairs
+    assert {k: v for k, v in doc.items() if k != "sightline"} == plain  # the same draw, only the pairs added
+    start = {v["name"]: v["start"] for v in doc["vehicles"]}
+    goal = {v["name"]: v["goal"] for v in doc["vehicles"]}
+    for a, b in pairs:  # each pair meets head on: each starts where the other is going
+        assert (start[a], goal[a]) == (goal[b], start[b])
+    # Re-flown from the written YAML, the mission scores the same pairs, higher priority first.
+    mission = load_mission(write_mission_yaml(doc, tmp_path / "pairs.yaml"))
+    assert mission.assigned_pairs == tuple(tuple(p) for p in pairs)
+    order = [v.name for v in mission.by_priority]
+    assert all(order.index(a) < order.index(b) for a, b in mission.assigned_pairs)
+
+
+def test_sight_pair_rule_is_checked():
+    with pytest.raises(ScenarioError, match=r"sight_pairs: use opposite \(got 'diagonal'\)"):
+        ScenarioConfig(vehicles=4, sight_pairs="diagonal")
+    with pytest.raises(ScenarioError, match="even number of vehicles \\(got 5\\)"):
+        ScenarioConfig(vehicles=5, sight_pairs="opposite")
+    with pytest.raises(ScenarioError, match="sight_pairs"):
+        ScenarioConfig.from_mapping({"vehicles": 3, "sight_pairs": "opposite"})

@@ -209,6 +209,46 @@ def test_bad_executor_options_are_one_line_errors(capsys, tmp_path, argv, messag
     assert len(err.strip().splitlines()) == 1
 
 
+def test_opposite_sight_pairs_are_scored_per_run(tmp_path):
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(yaml.safe_dump(SMALL))
+    out = tmp_path / "out"
+    code = run(["--scenarios", "1", "--seed", "7", "--variants", "astar-bdwa", "--workers", "1", "--vehicles", "4",
+                "--sight-pairs", "opposite", "--no-certificate", "--out", str(out), "--scenario-config", str(cfg),
+                "--quiet"])
+    rows = read_runs_csv(out / "runs.csv")
+    assert code in (0, 1) and len(rows) == 1 and rows[0]["reason"] != "error"
+    r = rows[0]
+    assert r["sight_pairs"] == 2  # a-c and b-d, both scored
+    assert r["sight_pairs_occluded"] == sum(bool(r[f"{p}_crossing_occluded"]) for p in ("a-c", "b-d"))
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["astar-bdwa"]["sight_pairs"] == {"scored": 2, "occluded": r["sight_pairs_occluded"]}
+    assert f"blocked at closest approach in {r['sight_pairs_occluded']} of 2 scored pairs" in format_table(summary)
+    meta = json.loads((out / "meta.json").read_text())
+    assert "--vehicles 4 --sight-pairs opposite" in meta["command"] and meta["scenario_config"]["sight_pairs"] == "opposite"
+
+
+def test_a_failed_run_with_sight_pairs_replays_them(tmp_path):
+    cfg = tmp_path / "short.yaml"
+    cfg.write_text(yaml.safe_dump({**SMALL, "time_limit_s": 20.0, "vehicles": 4, "sight_pairs": "opposite"}))
+    out = tmp_path / "out"
+    assert run(["--scenarios", "1", "--seed", "3", "--variants", "dwa", "--workers", "1", "--no-certificate",
+                "--out", str(out), "--scenario-config", str(cfg), "--quiet"]) == 0
+    mission = load_mission(out / "failures" / failure_dir_name("dwa", 3, 0) / "scenario.yaml")
+    assert mission.assigned_pairs == (("a", "c"), ("b", "d"))
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--sight-pairs", "diagonal", "--vehicles", "4"], "sight_pairs: use opposite (got 'diagonal')"),
+    (["--sight-pairs", "opposite", "--vehicles", "5"], "needs an even number of vehicles (got 5)"),
+])
+def test_bad_sight_pairs_are_one_line_errors(capsys, tmp_path, argv, message):
+    assert run(["--scenarios", "1", "--out", str(tmp_path / "o"), "--quiet", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("companion bench: ") and message in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
 def test_bad_worker_counts_are_refused(capsys):
     for bad in ("0", "-3", "two"):
         with pytest.raises(SystemExit) as exc:
