@@ -8,6 +8,7 @@ while the datagrams are sent and must be received; the guard's thread alone can 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import signal
 import socket
@@ -15,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
@@ -161,6 +163,21 @@ def _command(n: int) -> bytes:
     return enc.command_long_encode(1, 1, mavlink.MAV_CMD_DO_SET_MODE, n, 1, 0, 0, 0, 0, 0, 0).pack(enc)
 
 
+def _wait_stopped(pid: int, timeout_s: float = 10.0) -> None:
+    """Until every thread of ``pid`` is stopped (state T in /proc): on a loaded machine a thread
+    running on another core relays a while after SIGSTOP is sent."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        states = []
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            with contextlib.suppress(FileNotFoundError):  # a thread that just ended
+                states.append((task / "stat").read_text().rpartition(")")[2].split()[0])
+        if states and all(state in "tT" for state in states):
+            return
+        time.sleep(0.001)
+    raise AssertionError(f"process {pid} not stopped after {timeout_s} s")
+
+
 def test_a_stalled_relay_forwards_only_the_newest_queued_setpoint_per_target_and_the_rest_in_order():
     """The relay's process is stopped (SIGSTOP: as a machine under load would) while MAVSDK queues
     setpoints and commands; once it runs again, the autopilot gets every command in order and,
@@ -175,6 +192,7 @@ def test_a_stalled_relay_forwards_only_the_newest_queued_setpoint_per_target_and
             relay = _received(mavsdk)[1]
             os.kill(child.pid, signal.SIGSTOP)
             try:
+                _wait_stopped(child.pid)  # the signal lands when the kernel next runs each thread
                 queued = ([_command(1)] + [_setpoint(float(i)) for i in range(20)] + [_command(2)]
                           + [_setpoint(100.0 + i, target=2) for i in range(5)] + [_setpoint(20.0), _command(3)])
                 for data in queued:
