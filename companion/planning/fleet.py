@@ -98,8 +98,8 @@ class FleetView:
     leaves out the UAVs that cannot bind: those farther than ``reach[i]``'s metres plus their
     speed times its seconds (:func:`.dwa.legality.separation_reach`)."""
 
-    def __init__(self, xy_m: Sequence[tuple[float, float]] | np.ndarray, uavs: Sequence[OtherUav], names: Sequence[str],
-                 partners: Sequence[Collection[str] | None], reach: Sequence[tuple[float, float]]):
+    def __init__(self, xy_m: Sequence[tuple[float, float]] | np.ndarray, uavs: Sequence[OtherUav],
+                 names: Sequence[str], partners: Sequence[Collection[str] | None], reach: Sequence[tuple[float, float]]):
         self.uavs, self.names, self.partners, self.reach = list(uavs), names, partners, reach
         if len(self.uavs) == 2:  # a pair (the paper's case, most flights): no matrix
             return

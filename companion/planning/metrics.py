@@ -336,6 +336,7 @@ def _pair_metrics(geometry: TruthGeometry, names: Sequence[str], xy: Mapping[str
     pairs: dict[str, PairMetrics] = {}
     sep_steps = []
     weights = _sample_weights(t_all)
+    total = None if weights is None else math.fsum(weights)
     for i, a in enumerate(names):
         for b in names[i + 1:]:
             (ax, ay), (bx, by) = xy[a], xy[b]
@@ -347,7 +348,7 @@ def _pair_metrics(geometry: TruthGeometry, names: Sequence[str], xy: Mapping[str
             blocked = geometry.sight_blocked(ax, ay, bx, by, t_all)
             pairs[pair_name(a, b)] = PairMetrics(
                 min_separation_m=float(d.min()),
-                los_blocked_fraction=float(blocked.mean()) if weights is None else math.fsum(weights[blocked]) / math.fsum(weights),
+                los_blocked_fraction=float(blocked.mean()) if weights is None else math.fsum(weights[blocked]) / total,
                 crossing_occluded=bool(blocked[int(np.argmin(np.hypot(ax - bx, ay - by)))]))
     return pairs, np.min(np.stack(sep_steps), axis=0)
 

@@ -195,11 +195,7 @@ class TimedRoute:
         if len(self.t_s) == 1:
             return np.zeros(xy.shape[:-2]), np.hypot(*np.moveaxis(xy[..., 0, :] - self.xy_enu_m[0], -1, 0))
         lo_i, hi_i = self._window_segments(near_along_m)
-        if xy.shape == (1, 2) and progress_in is not None:  # one position (every tick): one compiled call
-            along, off = progress_in(self._start, self._d, self._len2_div, self._along_m, self._len,
-                                     float(xy[0, 0]), float(xy[0, 1]), lo_i, hi_i)
-            return np.float64(along), np.float64(off)
-        if xy.shape == (1, 2):  # one position (every tick): its feet on the segments near, found once
+        if xy.shape == (1, 2):  # one position without the compiled kernel: its feet on the segments near
             u, dist, first = self._feet(xy, lo_i, hi_i)
             i = lo_i + int(np.argmin(dist[lo_i - first:hi_i - first]))
             return self._along_m[i] + u[i - first] * self._len[i], dist[i - first]
