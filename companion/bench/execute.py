@@ -35,7 +35,8 @@ from companion.planning.errors import NoPath
 from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import variant_needs_route
 from companion.planning.metrics import FailureReason, vehicle_lower_bound_s
-from companion.planning.flight.forecast import first_forecast, forecast_key, mission_certificates
+from companion.planning.flight.forecast import first_forecast, mission_certificates
+from companion.planning.flight.replay import forecast_key
 from companion.planning.flight.headless import simulate
 from companion.scenarios import (ScenarioConfig, ScenarioError, generate_scenario, mission_yaml_text,
                                  with_variant)

@@ -118,6 +118,16 @@ class FleetView:
             self.speed[i] = 0.0
             self.with_way[i], self.flying[i] = self.uavs[i], False
 
+    def alone(self, i: int) -> bool:
+        """Whether no other vehicle can bind vehicle i's separation rule now (all out of its
+        reach): i then decides as it would flying alone."""
+        if len(self.uavs) == 2:
+            me, you = self.uavs[i], self.uavs[1 - i]
+            speed = math.hypot(you.vx_m_s, you.vy_m_s)
+            return math.hypot(you.x_m - me.x_m, you.y_m - me.y_m) > self.reach[i][0] + speed * self.reach[i][1]
+        gap = np.delete(self.gap[i], i)
+        return bool(np.all(gap > self.reach[i][0] + np.delete(self.speed, i) * self.reach[i][1]))
+
     def reaction(self, i: int) -> Reaction:
         if len(self.uavs) == 2:  # a pair, as react_to answers it: the other is the partner and the separation set
             j = 1 - i

@@ -11,6 +11,7 @@ from uav_model.mission import load_mission
 from companion.planning.coordination.plan import route_forecast
 from companion.planning.flight import forecast as forecast_module
 from companion.planning.flight.fleet_setup import build_fleet
+from companion.planning.flight.replay import forecast_key
 from companion.planning.flight.headless import simulate_certified
 from companion.planning.routes import plan_routes
 
@@ -71,7 +72,7 @@ def test_variants_that_fly_the_first_vehicle_alike_share_its_forecast():
     """The first in priority flies without the sightline term: bdwa's and dwa's forecasts are one
     flight (the bench flies it once for both), and every other variant's is its own."""
     mission = load_mission(SMALL)
-    keys = {v: forecast_module.forecast_key(mission.with_variant(v))
+    keys = {v: forecast_key(mission.with_variant(v))
             for v in ("astar-bdwa", "astar-bdwa-nosparse", "bdwa", "dwa", "astar-bdwa-timed")}
     assert keys["bdwa"] == keys["dwa"]
     assert len(set(keys.values())) == 4

@@ -30,9 +30,10 @@ from companion.planning.coordination.plan import route_forecast
 from companion.planning.errors import NoPath
 from companion.planning.flight.fleet_setup import build_fleet
 from companion.planning.flight.loop import fly
+from companion.planning.flight.replay import FlownForecast
 from companion.planning.routes import plan_routes
 from companion.planning.timed_route import TimedRoute
-from companion.planning.vehicle_planner import VARIANTS, VariantSpec
+
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -58,7 +59,8 @@ def flown_forecast(mission: "Mission", route: "Route", name: str, budget: "Budge
     fleet = build_fleet(alone, routes, first=route_forecast(alone, routes))
     # Only the track is wanted: no lower bound to score it against (on a large mission that
     # bound's visibility graph costs more than the flight, and no budget meters it).
-    track = fly(alone, fleet, routes, lower_bounds_s={name: None}, budget=budget).tracks[name]
+    flown = fly(alone, fleet, routes, lower_bounds_s={name: None}, budget=budget, record=name)
+    track = flown.tracks[name]
     t, xy = np.asarray(track.t_s, dtype=float), np.column_stack([track.x_m, track.y_m])
     keep = np.zeros(len(t), dtype=bool)
     keep[::_EVERY] = True
@@ -66,7 +68,7 @@ def flown_forecast(mission: "Mission", route: "Route", name: str, budget: "Budge
     t, xy = t[keep], xy[keep]
     goal = np.asarray(vehicle.goal_enu_m, dtype=float)
     t = np.append(t, t[-1] + float(np.hypot(*(goal - xy[-1]))) / vehicle.speed_m_s)
-    return TimedRoute(name, t, np.vstack([xy, goal]))
+    return FlownForecast(name, t, np.vstack([xy, goal]), flight=flown.solo)
 
 
 def first_forecast(mission: "Mission", routes: "Mapping[str, Route]", budget: "Budget | None" = None) -> TimedRoute:
@@ -85,14 +87,6 @@ def vehicle_forecast(mission: "Mission", routes: "Mapping[str, Route]", name: st
     if len(mission.vehicles) > 1 and mission.coordination.forecast is Forecast.FLOWN:
         return flown_forecast(mission, routes[name], name, budget)
     return route_forecast(mission, routes, name)
-
-
-def forecast_key(mission: "Mission") -> VariantSpec:
-    """What of the mission's variant its first vehicle's forecast depends on: the variant
-    without its sightline term, which the first in priority never flies with
-    (:meth:`VehiclePlanner.build`). Two variants with one key (``bdwa`` and ``dwa``) forecast the
-    same flight of the same mission, so a caller flying several may fly it once."""
-    return dataclasses.replace(VARIANTS[mission.planner.variant], sightline=False, sightline_gain=1.0)
 
 
 def mission_certificate(mission: "Mission", routes: "Mapping[str, Route] | None" = None,

@@ -31,6 +31,7 @@ from uav_model.mission import Mission
 from companion.planning.budget import Budget, spend
 from companion.planning.dwa import OtherUav, Pose
 from companion.planning.fleet import FleetView
+from companion.planning.flight.replay import SoloFlight, decide, solo_key
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.vehicle_planner import TickResult
 from companion.planning.metrics import (PlannerCounts, RunSummary, ScheduleRecord, Track, TruthGeometry,
@@ -54,6 +55,7 @@ class RunResult:
     ticks: dict[str, list[TickResult]]
     summary: RunSummary
     wall_s: float
+    solo: SoloFlight | None = None  # the flight of the vehicle recorded (fly's ``record``)
 
     @property
     def success(self) -> bool:
@@ -105,12 +107,14 @@ def start_states(mission: Mission) -> tuple[dict[str, PlantLimits], dict[str, Ki
 
 def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         lower_bounds_s: dict[str, float | None] | None = None, budget: Budget | None = None,
-        started: float | None = None) -> RunResult:
+        started: float | None = None, record: str | None = None) -> RunResult:
     """Fly ``mission`` (its variant set) headless with ``fleet`` (:func:`fleet_setup.build_fleet`)
     and score it; ``routes`` are reported with the result, ``lower_bounds_s`` as for
     :func:`metrics.summarize`; ``started``: the ``time.perf_counter()`` the run's wall time counts
-    from (default: now). Raises :class:`companion.planning.budget.BudgetSpent` when ``budget``
-    (a unit per tick) runs out."""
+    from (default: now). ``record``: a vehicle whose flight, tick by tick, the result keeps
+    (:attr:`RunResult.solo`). The first vehicle replays ``fleet.solo`` (its flight alone, when it
+    flies alike: :mod:`replay`) while nobody is within its separation reach. Raises
+    :class:`companion.planning.budget.BudgetSpent` when ``budget`` (a unit per tick) runs out."""
     started = time.perf_counter() if started is None else started
     variant = mission.planner.variant
     vehicles = mission.by_priority
@@ -132,6 +136,17 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
     active = list(names)
     watch = SafetyWatch(mission, truth, dt)
     bad = None
+    top = names[0]
+    solo = fleet.solo if len(names) > 1 and fleet.solo is not None and \
+        fleet.solo.replays(mission, top, planners[top]) else None
+    replayed = 0  # ticks of the first vehicle read from solo (while solo is not None)
+    recorded = None if record is None else ([], [], solo_key(mission, record, planners[record]))
+
+    def stop_replay(k: int) -> None:  # the first vehicle decides again from tick k on
+        nonlocal solo
+        if solo is not None:
+            solo.catch_up(planners[top], k, field, dt, clocks is not None)
+            solo = None
 
     snapshots = field.at_times(dt * np.arange(n_ticks))
     for k in range(n_ticks):
@@ -144,6 +159,8 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
             for name in active:
                 clocks.observe(name, here[name], t)
             for name, route in clocks.update(t).items():  # a lower vehicle far behind its plan: re-planned
+                if name == top:
+                    stop_replay(k)
                 planners[name].adopt_timed(route, clocks.sight_near_m(name))
         # Each vehicle as the others see it this tick (an arrived one parked at its station: kept
         # clear of, no longer flying anywhere), and whom each reacts to, from one distance matrix.
@@ -161,11 +178,19 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
                 other, separate_from = reaction.other, reaction.separate_from
             planner = planners[name]
             vx, vy, _ = ned_to_enu(own.vn_m_s, own.ve_m_s)
-            result = planner.tick(Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad), vx, vy), other, snapshot, t,
-                                  separate_from=separate_from,
-                                  schedule_t_s=None if clocks is None else clocks.now(name, t))
-            if planner.detour_due:  # no progress for a while: a new route from here, at once
-                planner.adopt_detour(planner.plan_detour(x, y), x, y, t)
+            pose = Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad), vx, vy)
+            schedule_t_s = None if clocks is None else clocks.now(name, t)
+            if name == top and solo is not None:
+                if k < len(solo.results) and solo.poses[k] == pose and view.alone(0):
+                    result = solo.results[k]  # what it decided here alone: nobody can bind it
+                    replayed = k + 1
+                else:
+                    stop_replay(k)
+            if name != top or solo is None:
+                result = decide(planner, pose, other, snapshot, t, schedule_t_s, separate_from)
+            if recorded is not None and name == record:
+                recorded[0].append(pose)
+                recorded[1].append(planner.detours)
             ticks[name].append(result)
             if result.arrived:
                 active.remove(name)
@@ -200,11 +225,13 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         no_rollout_ticks=sum(r.command is None and not r.arrived for r in ticks[n]),
         escape_ticks=sum(r.escape_reason is not None for r in ticks[n]),
         recovery_ticks=sum(r.recovery_reason is not None for r in ticks[n]),
-        stall_detours=planners[n].detours,
+        stall_detours=solo.detours[replayed - 1] if n == top and solo is not None and replayed else planners[n].detours,
         timed_replans=0 if clocks is None else clocks.replans.get(n, 0)) for n in names},
         schedule=ScheduleRecord(fleet.coordination.hold_s_max, fleet.coordination.forecast.value,
                                 fleet.departure_hold_s))
-    return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started)
+    kept = None if recorded is None else SoloFlight(record, recorded[2], tuple(recorded[0][:len(ticks[record])]),
+                                                    tuple(ticks[record]), tuple(recorded[1][:len(ticks[record])]))
+    return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started, kept)
 
 
 def tracks_from_rows(names: list[str], rows: list, last_row: dict[str, int | None], dt: float) -> dict[str, Track]:

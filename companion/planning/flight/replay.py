@@ -1,0 +1,96 @@
+"""A vehicle's flight alone, recorded tick by tick, and replayed where the fleet's flight repeats it.
+
+Every flight of a pair or a fleet begins with the first vehicle in priority flown alone (its
+forecast: :mod:`forecast`), and the first vehicle then flies the mission again with the others.
+It reacts to them through its separation rule only (it hides from nobody), and that rule cannot
+bind while every other vehicle is out of its reach (:func:`.dwa.legality.separation_reach`). Until
+then it decides, tick by tick, what it decided alone: the runner (:func:`loop.fly`) reads those
+decisions back instead of deciding them again (on the bench's pairs, about nine tenths of the
+first vehicle's ticks). When another vehicle comes within reach, the planner first re-decides the
+ticks replayed, from the poses recorded (:meth:`SoloFlight.catch_up`), so that it holds what it
+would have held, and decides from there on.
+
+    fly(alone, fleet, routes, record="a").solo          # the forecast's flight (forecast.py)
+    solo.replays(mission, "a", planners["a"])           # the same vehicle, planner and world?
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from companion.planning.timed_route import TimedRoute
+from companion.planning.vehicle_planner import VARIANTS, VariantSpec
+
+if TYPE_CHECKING:
+    from uav_model.mission import Mission
+    from companion.planning.dwa import ObstacleSnapshot, OtherUav, Pose
+    from companion.planning.obstacle_field import ObstacleField
+    from companion.planning.vehicle_planner import TickResult, VehiclePlanner
+
+
+def decide(planner: "VehiclePlanner", pose: "Pose", other: "OtherUav | None", snapshot: "ObstacleSnapshot",
+           t_s: float, schedule_t_s: float | None, separate_from) -> "TickResult":
+    """One vehicle's tick in the headless runner: its planner's decision, then a new route from
+    here at once when it made no progress for a while."""
+    result = planner.tick(pose, other, snapshot, t_s, separate_from=separate_from, schedule_t_s=schedule_t_s)
+    if planner.detour_due:
+        planner.adopt_detour(planner.plan_detour(pose.x_m, pose.y_m), pose.x_m, pose.y_m, t_s)
+    return result
+
+
+def forecast_key(mission: "Mission") -> VariantSpec:
+    """What of the mission's variant its first vehicle's forecast depends on: the variant
+    without its sightline term, which the first in priority never flies with
+    (:meth:`VehiclePlanner.build`). Two variants with one key (``bdwa`` and ``dwa``) forecast the
+    same flight of the same mission, so a caller flying several may fly it once."""
+    return dataclasses.replace(VARIANTS[mission.planner.variant], sightline=False, sightline_gain=1.0)
+
+
+def solo_key(mission: "Mission", name: str, planner: "VehiclePlanner") -> tuple:
+    """What vehicle ``name``'s decisions depend on, flown alone: the mission with it alone (its
+    variant's name left out), the variant as it flies it (:func:`forecast_key`: ``bdwa`` and
+    ``dwa`` fly the first vehicle alike), whether its planner carries the sightline term, its
+    goals, and the timed route it tracks."""
+    alone = dataclasses.replace(mission, vehicles=(mission.vehicle(name),), assigned_pairs=None,
+                                planner=dataclasses.replace(mission.planner, variant=""))
+    timed = planner.timed_route
+    return (alone, forecast_key(mission), planner.config.w_s, planner.sight_near_m, planner.tracker.nodes.tobytes(),
+            None if timed is None else (timed.t_s.tobytes(), timed.xy_enu_m.tobytes()))
+
+
+@dataclass(frozen=True, eq=False)
+class SoloFlight:
+    """Vehicle ``vehicle`` flown alone (:func:`loop.fly` with ``record``): per tick, the pose its
+    planner was given, what it decided, and how many detours it had planned by then."""
+
+    vehicle: str
+    key: tuple  # solo_key of the flight
+    poses: tuple["Pose", ...]
+    results: tuple["TickResult", ...]
+    detours: tuple[int, ...]
+
+    def replays(self, mission: "Mission", name: str, planner: "VehiclePlanner") -> bool:
+        """Whether ``name``, flown by ``planner`` in ``mission``, decides alone what this flight did."""
+        return name == self.vehicle and solo_key(mission, name, planner) == self.key
+
+    def catch_up(self, planner: "VehiclePlanner", ticks: int, field: "ObstacleField", dt_s: float,
+                 timed: bool) -> None:
+        """Have ``planner`` (fresh, as this flight's was) decide the first ``ticks`` ticks again
+        from the poses recorded, so that it holds what this flight's planner held then.
+        ``timed``: the runner reads a timed route (its clock is sim time for a vehicle alone)."""
+        times = dt_s * np.arange(ticks)
+        for k, snapshot in zip(range(ticks), field.at_times(times)):
+            t = k * dt_s
+            decide(planner, self.poses[k], None, snapshot, t, t if timed else None, ())
+
+
+@dataclass(frozen=True, eq=False)
+class FlownForecast(TimedRoute):
+    """A forecast read from a vehicle's headless flight alone (:func:`forecast.flown_forecast`),
+    with that flight, for the fleet's flight to replay (:attr:`FleetSetup.solo`)."""
+
+    flight: SoloFlight | None = None
