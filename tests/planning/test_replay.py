@@ -1,0 +1,72 @@
+"""The first vehicle's forecast flight, replayed by the headless runner: the same flight, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from companion.planning.flight.forecast import first_forecast
+from companion.planning.flight.headless import simulate
+from companion.planning.timed_route import TimedRoute
+from companion.scenarios import ScenarioConfig, generate_scenario
+
+
+def _decisions(run, name):
+    return [(r.command, r.arrived, r.goal_index, r.hold_reason, r.escape_reason, r.recovery_reason)
+            for r in run.ticks[name]]
+
+
+def _fly_both(seed, index, variant):
+    s = generate_scenario(seed, index, ScenarioConfig())
+    mission = s.mission.with_variant(variant)
+    first = first_forecast(mission, s.routes)
+    plain = TimedRoute(first.vehicle, first.t_s, first.xy_enu_m)  # the same forecast, without its flight
+    return mission, first, simulate(mission, routes=s.routes, first=first), simulate(mission, routes=s.routes, first=plain)
+
+
+@pytest.mark.parametrize("seed, index, variant, contact", [
+    (7, 0, "astar-bdwa", False),        # the two never come within reach: the first is read back throughout
+    (7, 7, "astar-bdwa", True),         # they do, at tick 451: the planner catches up and decides on
+    (2026, 6, "astar-bdwa-timed", True),  # the same with a timed route and the schedule clocks
+    (7, 1, "astar-bdwa-timed", False),
+])
+def test_a_replayed_flight_is_the_flight(seed, index, variant, contact):
+    mission, first, replayed, flown = _fly_both(seed, index, variant)
+    top = mission.by_priority[0].name
+    for name in replayed.tracks:
+        assert np.array_equal(replayed.tracks[name].x_m, flown.tracks[name].x_m)
+        assert np.array_equal(replayed.tracks[name].y_m, flown.tracks[name].y_m)
+        assert _decisions(replayed, name) == _decisions(flown, name)
+    assert replayed.summary.success == flown.summary.success
+    assert replayed.summary.planner == flown.summary.planner
+    read_back = [r is s for r, s in zip(replayed.ticks[top], first.flight.results)]
+    assert read_back[0]  # the first tick is read back, not decided again
+    assert all(read_back) != contact  # after a contact the planner decides by itself
+    assert not any(r is s for r, s in zip(flown.ticks[top], first.flight.results))
+
+
+def test_a_forecast_flown_by_another_variant_is_not_replayed():
+    s = generate_scenario(7, 0, ScenarioConfig())
+    other = first_forecast(s.mission.with_variant("astar-bdwa-nosparse"), s.routes)
+    mission = s.mission.with_variant("astar-bdwa")
+    run = simulate(mission, routes=s.routes, first=other)
+    top = mission.by_priority[0].name
+    assert not any(r is o for r, o in zip(run.ticks[top], other.flight.results))
+
+
+def test_bdwa_and_dwa_replay_one_forecast():
+    s = generate_scenario(7, 0, ScenarioConfig())
+    first = first_forecast(s.mission.with_variant("bdwa"), s.routes)
+    mission = s.mission.with_variant("dwa")
+    run = simulate(mission, routes=s.routes, first=first)
+    assert run.ticks[mission.by_priority[0].name][0] is first.flight.results[0]
+
+
+def test_the_first_vehicle_flies_its_forecast_in_a_timed_flight():
+    """It tracks what its forecast tracked (its route at cruise): without a hold and out of
+    reach of the others, the forecast is its flight."""
+    mission, first, replayed, _ = _fly_both(7, 1, "astar-bdwa-timed")
+    track = replayed.tracks[mission.by_priority[0].name]
+    kept = first.flight.poses
+    assert len(track.x_m) == len(kept)
+    assert np.array_equal(track.x_m, [p.x_m for p in kept]) and np.array_equal(track.y_m, [p.y_m for p in kept])
