@@ -140,7 +140,7 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
     solo = fleet.solo if len(names) > 1 and fleet.solo is not None and \
         fleet.solo.replays(mission, top, planners[top]) else None
     replayed = 0  # ticks of the first vehicle read from solo (while solo is not None)
-    recorded = None if record is None else ([], [], solo_key(mission, record, planners[record]))
+    recorded = None if record is None else ([], [], solo_key(mission, record, planners[record]), [])
 
     def stop_replay(k: int) -> None:  # the first vehicle decides again from tick k on
         nonlocal solo
@@ -171,26 +171,28 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         for name in list(active):
             own = states[name]
             x, y = here[name]
-            if view is None:
-                other, separate_from = None, ()
-            else:
-                reaction = view.reaction(rank[name])
-                other, separate_from = reaction.other, reaction.separate_from
             planner = planners[name]
             vx, vy, _ = ned_to_enu(own.vn_m_s, own.ve_m_s)
             pose = Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad), vx, vy)
-            schedule_t_s = None if clocks is None else clocks.now(name, t)
+            result = None
             if name == top and solo is not None:
                 if k < len(solo.results) and solo.poses[k] == pose and view.alone(0):
                     result = solo.results[k]  # what it decided here alone: nobody can bind it
                     replayed = k + 1
                 else:
                     stop_replay(k)
-            if name != top or solo is None:
-                result = decide(planner, pose, other, snapshot, t, schedule_t_s, separate_from)
+            if result is None:
+                if view is None:
+                    other, separate_from = None, ()
+                else:
+                    reaction = view.reaction(rank[name])
+                    other, separate_from = reaction.other, reaction.separate_from
+                result = decide(planner, pose, other, snapshot, t, None if clocks is None else clocks.now(name, t),
+                                separate_from)
             if recorded is not None and name == record:
                 recorded[0].append(pose)
                 recorded[1].append(planner.detours)
+                recorded[3].append(own)
             ticks[name].append(result)
             if result.arrived:
                 active.remove(name)
@@ -205,7 +207,10 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         if not active:
             break
         for name, command in commands.items():
-            states[name] = step(states[name], command, limits[name], dt)
+            if name == top and solo is not None and k + 1 < len(solo.states):
+                states[name] = solo.states[k + 1]  # where the same command took it alone
+            else:
+                states[name] = step(states[name], command, limits[name], dt)
         rows.append([_xy(states[n]) for n in names])
         bad = watch.poll(rows)
         if bad is not None:
@@ -229,8 +234,8 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         timed_replans=0 if clocks is None else clocks.replans.get(n, 0)) for n in names},
         schedule=ScheduleRecord(fleet.coordination.hold_s_max, fleet.coordination.forecast.value,
                                 fleet.departure_hold_s))
-    kept = None if recorded is None else SoloFlight(record, recorded[2], tuple(recorded[0][:len(ticks[record])]),
-                                                    tuple(ticks[record]), tuple(recorded[1][:len(ticks[record])]))
+    kept = None if recorded is None else SoloFlight(record, recorded[2], *(tuple(r[:len(ticks[record])]) for r in (
+        recorded[0], ticks[record], recorded[1], recorded[3])))
     return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started, kept)
 
 

@@ -27,6 +27,7 @@ from companion.planning.vehicle_planner import VARIANTS, VariantSpec
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
+    from uav_model.plant import KinematicState
     from companion.planning.dwa import ObstacleSnapshot, OtherUav, Pose
     from companion.planning.obstacle_field import ObstacleField
     from companion.planning.vehicle_planner import TickResult, VehiclePlanner
@@ -65,13 +66,15 @@ def solo_key(mission: "Mission", name: str, planner: "VehiclePlanner") -> tuple:
 @dataclass(frozen=True, eq=False)
 class SoloFlight:
     """Vehicle ``vehicle`` flown alone (:func:`loop.fly` with ``record``): per tick, the pose its
-    planner was given, what it decided, and how many detours it had planned by then."""
+    planner was given, what it decided, how many detours it had planned by then, and its plant's
+    state."""
 
     vehicle: str
     key: tuple  # solo_key of the flight
     poses: tuple["Pose", ...]
     results: tuple["TickResult", ...]
     detours: tuple[int, ...]
+    states: tuple["KinematicState", ...]
 
     def replays(self, mission: "Mission", name: str, planner: "VehiclePlanner") -> bool:
         """Whether ``name``, flown by ``planner`` in ``mission``, decides alone what this flight did."""
