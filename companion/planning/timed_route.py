@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.planning.errors import PlanningError
-from companion.planning.timed_route_jit import latest_near, progress_in
+from companion.planning.timed_route_jit import latest_near, progress_in, schedule_in
 
 _WAIT_SPEED_M_S = 1e-6  # slower than this, a planned segment is a wait
 
@@ -248,6 +248,23 @@ class TimedRoute:
         """:meth:`target_speed_at` of one position at one time: what every tick asks."""
         along, off = self.progress_of(x_m, y_m, near_along_m)
         return self._target_speed(along, off, float(t_s), max_speed_m_s, lookahead_s)
+
+    def schedule_of(self, x_m: float, y_m: float, t_s: float, max_speed_m_s: float, near_along_m: float | None,
+                    lookahead_s: float = 5.0) -> tuple[float, float, float, bool]:
+        """A tick's whole schedule for a vehicle at (x, y) at plan time ``t_s``, last
+        ``near_along_m`` along (None: unknown): (along, target speed, lead, waiting), where
+        ``along`` is :meth:`progress_of`'s, the target speed :meth:`target_speed_of`'s from
+        there, the lead ``along`` less :meth:`planned_along_at` ``t_s``, and waiting
+        :meth:`is_waiting_at`'s. One compiled call when numba is installed (the same bits)."""
+        if schedule_in is not None and len(self.t_s) > 1:
+            along, speed, lead, waiting = schedule_in(
+                self.t_s, self._along_m, self._speed, self._start, self._d, self._len2_div, self._len,
+                self._arrival_s, x_m, y_m, float(t_s), max_speed_m_s, lookahead_s,
+                np.nan if near_along_m is None else near_along_m, PROGRESS_BACK_M, PROGRESS_AHEAD_M, _WAIT_SPEED_M_S)
+            return along, speed, lead, waiting
+        along = float(self.progress_of(x_m, y_m, near_along_m)[0])
+        speed = float(self.target_speed_of(x_m, y_m, t_s, max_speed_m_s, lookahead_s, along))
+        return along, speed, along - float(self.planned_along_at(t_s)), bool(self.is_waiting_at(t_s))
 
     def _target_speed(self, along: np.float64, off: np.float64, t_s: float, max_speed_m_s: float,
                       lookahead_s: float) -> np.float64:
