@@ -1,11 +1,12 @@
 """The per-tick queries of a :class:`.TimedRoute` compiled (numba), when numba is installed (the
-``fast`` extra): :meth:`.TimedRoute.latest_near_s` (``latest_near``), the progress of one
-position (``progress_in``) and a tick's whole schedule (``schedule_in``: :meth:`.TimedRoute.schedule_of`);
-None otherwise, and the numpy and plain-float queries run.
+``fast`` extra): :meth:`.TimedRoute.latest_near_s` (``latest_near``), the progress of one position
+(``progress_near``: its window's segments, then ``progress_in`` over them) and a tick's whole
+schedule (``schedule_in``: :meth:`.TimedRoute.schedule_of`); None otherwise, and the numpy and
+plain-float queries run.
 
 Each schedule clock asks the first for every vehicle above it, every tick
-(:mod:`.coordination.clocks`), and each timed vehicle the third once a tick: as numpy or plain
-floats, some ten to twenty calls each; compiled, one. Each does per element
+(:mod:`.coordination.clocks`), the re-plan's watch the second, and each timed vehicle the third
+once a tick: as numpy or plain floats, some ten to twenty calls each; compiled, one. Each does per element
 exactly the floating-point operations of its numpy twin, in the same order (the times in order,
 so the segment index is a cursor instead of a bisection; the first least distance, as argmin
 takes it), and calls the C library's ``hypot`` as numpy does, so both return the same bits:
@@ -21,8 +22,25 @@ try:
 except ImportError:  # the numpy query runs instead
     numba = None
 
+
+
+def interp_in(x, xp, fp, j):
+    """``np.interp(x, xp, fp)`` of an ``x`` inside ``xp[j]`` to ``xp[j + 1]`` (``xp[j] <= x <
+    xp[j + 1]``), numpy's own steps: the exact node, the slope, and the other end when that gives
+    NaN. Plain Python, and compiled for :func:`schedule_in`: one source for both."""
+    if xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    y = slope * (x - xp[j]) + fp[j]
+    if y != y:
+        y = slope * (x - xp[j + 1]) + fp[j + 1]
+        if y != y and fp[j] == fp[j + 1]:
+            y = fp[j]
+    return y
+
+
 if numba is None:
-    latest_near = progress_in = schedule_in = None
+    latest_near = progress_in = progress_near = schedule_in = None
 else:
     @numba.njit(cache=True, nogil=True, error_model="numpy")
     def latest_near(t_s, start, d, moving, span_div, t0_s, offsets_s, x_m, y_m, tolerance_m):  # pragma: no cover
@@ -87,6 +105,8 @@ else:
                 lo = mid + 1
         return lo
 
+    _interp_in = numba.njit(cache=True, nogil=True, error_model="numpy")(interp_in)
+
     @numba.njit(cache=True, nogil=True, error_model="numpy")
     def _interp(x, xp, fp):  # pragma: no cover
         """:func:`.timed_route.interp_one` (``np.interp`` of one finite x, two points or more)."""
@@ -95,19 +115,10 @@ else:
             return fp[0]
         if x >= xp[last]:
             return fp[last]
-        j = _bisect_right(xp, x, 0, last + 1) - 1
-        if xp[j] == x:
-            return fp[j]
-        slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-        y = slope * (x - xp[j]) + fp[j]
-        if y != y:
-            y = slope * (x - xp[j + 1]) + fp[j + 1]
-            if y != y and fp[j] == fp[j + 1]:
-                y = fp[j]
-        return y
+        return _interp_in(x, xp, fp, _bisect_right(xp, x, 0, last + 1) - 1)
 
     @numba.njit(cache=True, nogil=True, error_model="numpy")
-    def _progress_near(start, d, len2_div, along_m, seg_len, x_m, y_m, near, back_m, ahead_m):  # pragma: no cover
+    def progress_near(start, d, len2_div, along_m, seg_len, x_m, y_m, near, back_m, ahead_m):  # pragma: no cover
         """:meth:`.TimedRoute.progress_of` (NaN ``near``: no window): the window's segments
         (:meth:`.TimedRoute._window_segments`), then ``progress_in`` over them."""
         lo_i, hi_i = 0, len(len2_div)
@@ -123,8 +134,8 @@ else:
                     lookahead_s, near, back_m, ahead_m, wait_speed_m_s):  # pragma: no cover
         """(along, target speed, lead, waiting) of a vehicle at (x, y) at plan time t, last
         ``near`` along (NaN: unknown): :meth:`.TimedRoute.schedule_of`, step for step."""
-        along, _ = _progress_near(start, d, len2_div, along_m, seg_len, x_m, y_m, near, back_m, ahead_m)
-        along_2, off = _progress_near(start, d, len2_div, along_m, seg_len, x_m, y_m, along, back_m, ahead_m)
+        along, _ = progress_near(start, d, len2_div, along_m, seg_len, x_m, y_m, near, back_m, ahead_m)
+        along_2, off = progress_near(start, d, len2_div, along_m, seg_len, x_m, y_m, along, back_m, ahead_m)
         gap = _interp(t + lookahead_s, t_s, along_m) - along_2
         target = 0.0
         if gap > 0:

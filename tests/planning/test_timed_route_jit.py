@@ -71,11 +71,10 @@ def test_a_vehicle_on_its_plan_is_found_at_its_planned_time(compiled, monkeypatc
 def test_compiled_progress_gives_the_numpy_bits(route, x, y, near):
     mp = pytest.MonkeyPatch()
     try:
-        mp.setattr(timed_route, "progress_in", None)
+        mp.setattr(timed_route, "progress_near", None)
         expected = route.progress_at(np.array([x, y]), near)
     finally:
         mp.undo()
-    route._last_progress.clear()  # asked afresh, compiled
     found = route.progress_at(np.array([x, y]), near)
     assert (float(found[0]), float(found[1])) == (float(expected[0]), float(expected[1]))
 
