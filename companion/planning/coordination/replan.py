@@ -227,8 +227,10 @@ class ScheduleClocks:
         None, uncounted, while a flying vehicle's newest position is stale (:meth:`fresh`)."""
         if not self.fresh(t_s):
             return None
-        due = next((n for n in self.order[1:] if self.strayed(n, t_s)), None)
-        if due is None:
+        for due in self.order[1:]:
+            if due in self._along and self.strayed(due, t_s):  # no progress known: not due (strayed)
+                break
+        else:
             return None
         names = tuple(n for n in self.order[self.order.index(due):] if n not in self._done and n in self._xy)
         for name in names:
