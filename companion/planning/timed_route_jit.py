@@ -8,7 +8,7 @@ Each schedule clock asks the first for every vehicle above it, every tick
 (:mod:`.coordination.clocks`), the re-plan's watch the second, and each timed vehicle the third
 once a tick: as numpy or plain floats, some ten to twenty calls each; compiled, one. Each does per element
 exactly the floating-point operations of its numpy twin, in the same order (the times in order,
-so the segment index is a cursor instead of a bisection; the first least distance, as argmin
+so past the first time's segment the index is a cursor; the first least distance, as argmin
 takes it), and calls the C library's ``hypot`` as numpy does, so both return the same bits:
 ``tests/planning/test_timed_route_jit.py`` holds them to it.
 """
@@ -51,7 +51,9 @@ else:
         m = len(offsets_s)
         times = np.empty(m)
         dist = np.empty(m)
-        j = 0
+        j = 0  # the segment of the first time found by bisection, then a cursor
+        if m > 0:
+            j = min(max(_bisect_right(t_s, t0_s + offsets_s[0], 0, last + 2) - 1, 0), last)
         least = np.inf
         for k in range(m):
             t = t0_s + offsets_s[k]
