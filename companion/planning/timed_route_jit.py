@@ -6,11 +6,11 @@ plain-float queries run.
 
 Each schedule clock asks the first for every vehicle above it, every tick
 (:mod:`.coordination.clocks`), the re-plan's watch the second, and each timed vehicle the third
-once a tick: as numpy or plain floats, some ten to twenty calls each; compiled, one. Each does per element
-exactly the floating-point operations of its numpy twin, in the same order (the times in order,
-so past the first time's segment the index is a cursor; the first least distance, as argmin
-takes it), and calls the C library's ``hypot`` as numpy does, so both return the same bits:
-``tests/planning/test_timed_route_jit.py`` holds them to it.
+once a tick: as numpy or plain floats, some ten to twenty calls each; compiled, one. Each does
+per element exactly the floating-point operations of its numpy twin, in the same order (the
+times in order, so past the first time's segment the index is a cursor; the first least
+distance, as argmin takes it), and calls the C library's ``hypot`` as numpy does, so both
+return the same bits: ``tests/planning/test_timed_route_jit.py`` holds them to it.
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ try:
     import numba
 except ImportError:  # the numpy query runs instead
     numba = None
-
 
 
 def interp_in(x, xp, fp, j):
@@ -42,6 +41,28 @@ def interp_in(x, xp, fp, j):
 if numba is None:
     latest_near = progress_in = progress_near = schedule_in = None
 else:
+    @numba.njit(cache=True, nogil=True)
+    def _bisect_left(a, x, lo, hi):  # pragma: no cover
+        """Python's ``bisect_left(a, x, lo, hi)``."""
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if a[mid] < x:
+                lo = mid + 1
+            else:
+                hi = mid
+        return lo
+
+    @numba.njit(cache=True, nogil=True)
+    def _bisect_right(a, x, lo, hi):  # pragma: no cover
+        """Python's ``bisect_right(a, x, lo, hi)``."""
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if x < a[mid]:
+                hi = mid
+            else:
+                lo = mid + 1
+        return lo
+
     @numba.njit(cache=True, nogil=True, error_model="numpy")
     def latest_near(t_s, start, d, moving, span_div, t0_s, offsets_s, x_m, y_m, tolerance_m):  # pragma: no cover
         """The latest of the times t0_s + offsets_s (non-decreasing) at which the route (two
@@ -84,28 +105,6 @@ else:
             if dist < best:
                 best, at, at_u = dist, i, u
         return along_m[at] + at_u * seg_len[at], best
-
-    @numba.njit(cache=True, nogil=True)
-    def _bisect_left(a, x, lo, hi):  # pragma: no cover
-        """Python's ``bisect_left(a, x, lo, hi)``."""
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if a[mid] < x:
-                lo = mid + 1
-            else:
-                hi = mid
-        return lo
-
-    @numba.njit(cache=True, nogil=True)
-    def _bisect_right(a, x, lo, hi):  # pragma: no cover
-        """Python's ``bisect_right(a, x, lo, hi)``."""
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if x < a[mid]:
-                hi = mid
-            else:
-                lo = mid + 1
-        return lo
 
     _interp_in = numba.njit(cache=True, nogil=True, error_model="numpy")(interp_in)
 
