@@ -82,6 +82,9 @@ def warm_up_planners(plan: FlightPlan) -> float:
         planner.tick(Pose(x, y, spec.initial_heading_rad), reaction.other, snapshot, 0.0, 0.0,
                      separate_from=reaction.separate_from)
         clearance_here_m(x, y, snapshot)  # the flight log's clearance: the kernels with other argument types
-    # the schedule clocks' query (timed variants), which the flight's context asks every tick
-    TimedRoute("warm", np.array([0.0, 1.0]), np.zeros((2, 2))).latest_near_s((0.0, 0.0), 0.0, np.zeros(1), 1.0)
+    # the schedule clocks' queries (timed variants), which the flight's context asks every tick:
+    # the reach, and a lower vehicle's progress along its plan (the re-plan's watch)
+    warm = TimedRoute("warm", np.array([0.0, 1.0]), np.zeros((2, 2)))
+    warm.latest_near_s((0.0, 0.0), 0.0, np.zeros(1), 1.0)
+    warm.progress_of(0.0, 0.0, 0.0)
     return time.monotonic() - started

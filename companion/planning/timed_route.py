@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.planning.errors import PlanningError
-from companion.planning.timed_route_jit import latest_near, progress_in
+from companion.planning.timed_route_jit import interp_in, latest_near, progress_near, schedule_in
 
 _WAIT_SPEED_M_S = 1e-6  # slower than this, a planned segment is a wait
 
@@ -158,22 +158,21 @@ class TimedRoute:
         return self._progress(point[..., None, :], near_along_m)
 
     def progress_of(self, x_m: float, y_m: float, near_along_m: float | None = None) -> tuple[np.float64, np.float64]:
-        """:meth:`progress_at` of one position (x, y): what every tick asks, two or three times
-        (the last few answers are kept)."""
+        """:meth:`progress_at` of one position (x, y): what every tick asks (the re-plan's
+        watch; the planner's own asks :meth:`schedule_of`). One compiled call, its window
+        included, when numba is installed; else the last few answers are kept."""
+        if progress_near is not None and len(self.t_s) > 1:
+            along, off = progress_near(self._start, self._d, self._len2_div, self._along_m, self._len, x_m, y_m,
+                                       np.nan if near_along_m is None else near_along_m, PROGRESS_BACK_M,
+                                       PROGRESS_AHEAD_M)
+            return np.float64(along), np.float64(off)
         key = (x_m, y_m, near_along_m)
-        known = self._last_progress.get(key)
-        if known is not None:
-            return known
-        if progress_in is not None and len(self.t_s) > 1:  # one compiled call, no arrays made
-            lo_i, hi_i = self._window_segments(near_along_m)
-            along, off = progress_in(self._start, self._d, self._len2_div, self._along_m, self._len, x_m, y_m,
-                                     lo_i, hi_i)
-            found = (np.float64(along), np.float64(off))
-        else:
+        found = self._last_progress.get(key)
+        if found is None:
             found = self._progress(np.array([[x_m, y_m]]), near_along_m)
-        if len(self._last_progress) >= 4:
-            self._last_progress.clear()
-        self._last_progress[key] = found
+            if len(self._last_progress) >= 4:
+                self._last_progress.clear()
+            self._last_progress[key] = found
         return found
 
     def _window_segments(self, near_along_m: float | None) -> tuple[int, int]:
@@ -249,6 +248,23 @@ class TimedRoute:
         along, off = self.progress_of(x_m, y_m, near_along_m)
         return self._target_speed(along, off, float(t_s), max_speed_m_s, lookahead_s)
 
+    def schedule_of(self, x_m: float, y_m: float, t_s: float, max_speed_m_s: float, near_along_m: float | None,
+                    lookahead_s: float = 5.0) -> tuple[float, float, float, bool]:
+        """A tick's whole schedule for a vehicle at (x, y) at plan time ``t_s``, last
+        ``near_along_m`` along (None: unknown): (along, target speed, lead, waiting), where
+        ``along`` is :meth:`progress_of`'s, the target speed :meth:`target_speed_of`'s from
+        there, the lead ``along`` less :meth:`planned_along_at` ``t_s``, and waiting
+        :meth:`is_waiting_at`'s. One compiled call when numba is installed (the same bits)."""
+        if schedule_in is not None and len(self.t_s) > 1:
+            along, speed, lead, waiting = schedule_in(
+                self.t_s, self._along_m, self._speed, self._start, self._d, self._len2_div, self._len,
+                self._arrival_s, x_m, y_m, float(t_s), max_speed_m_s, lookahead_s,
+                np.nan if near_along_m is None else near_along_m, PROGRESS_BACK_M, PROGRESS_AHEAD_M, _WAIT_SPEED_M_S)
+            return along, speed, lead, waiting
+        along = float(self.progress_of(x_m, y_m, near_along_m)[0])
+        speed = float(self.target_speed_of(x_m, y_m, t_s, max_speed_m_s, lookahead_s, along))
+        return along, speed, along - float(self.planned_along_at(t_s)), bool(self.is_waiting_at(t_s))
+
     def _target_speed(self, along: np.float64, off: np.float64, t_s: float, max_speed_m_s: float,
                       lookahead_s: float) -> np.float64:
         gap = self.planned_along_at(t_s + lookahead_s) - along
@@ -264,23 +280,14 @@ PROGRESS_BACK_M, PROGRESS_AHEAD_M = 30.0, 60.0  # a vehicle flies ~5 m a tick; s
 
 def interp_one(x: float, xp: list[float], fp: list[float]) -> float:
     """``np.interp(x, xp, fp)`` of one finite ``x`` on lists (two points or more), bit for bit:
-    numpy's own steps (the held ends, the exact node, the slope, and the other end when that
-    gives NaN) in plain floats, without numpy's per-call cost."""
+    numpy's own steps (the held ends, then :func:`.timed_route_jit.interp_in`) in plain floats,
+    without numpy's per-call cost."""
     if x < xp[0]:
         return fp[0]
     last = len(xp) - 1
     if x >= xp[last]:
         return fp[last]
-    j = bisect_right(xp, x) - 1
-    if xp[j] == x:
-        return fp[j]
-    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-    y = slope * (x - xp[j]) + fp[j]
-    if y != y:
-        y = slope * (x - xp[j + 1]) + fp[j + 1]
-        if y != y and fp[j] == fp[j + 1]:
-            y = fp[j]
-    return y
+    return interp_in(x, xp, fp, bisect_right(xp, x) - 1)
 
 
 def progress_window(near_along_m: float) -> tuple[float, float]:

@@ -1,14 +1,16 @@
 """The per-tick queries of a :class:`.TimedRoute` compiled (numba), when numba is installed (the
-``fast`` extra): :meth:`.TimedRoute.latest_near_s` (``latest_near``) and the progress of one
-position (``progress_in``); None otherwise, and the numpy queries run.
+``fast`` extra): :meth:`.TimedRoute.latest_near_s` (``latest_near``), the progress of one position
+(``progress_near``: its window's segments, then ``progress_in`` over them) and a tick's whole
+schedule (``schedule_in``: :meth:`.TimedRoute.schedule_of`); None otherwise, and the numpy and
+plain-float queries run.
 
 Each schedule clock asks the first for every vehicle above it, every tick
-(:mod:`.coordination.clocks`), and each timed vehicle the second two or three times a tick: as
-numpy, some ten to twenty calls on small arrays each; compiled, one. Each does per element
-exactly the floating-point operations of its numpy twin, in the same order (the times in order,
-so the segment index is a cursor instead of a bisection; the first least distance, as argmin
-takes it), and calls the C library's ``hypot`` as numpy does, so both return the same bits:
-``tests/planning/test_timed_route_jit.py`` holds them to it.
+(:mod:`.coordination.clocks`), the re-plan's watch the second, and each timed vehicle the third
+once a tick: as numpy or plain floats, some ten to twenty calls each; compiled, one. Each does
+per element exactly the floating-point operations of its numpy twin, in the same order (the
+times in order, so past the first time's segment the index is a cursor; the first least
+distance, as argmin takes it), and calls the C library's ``hypot`` as numpy does, so both
+return the same bits: ``tests/planning/test_timed_route_jit.py`` holds them to it.
 """
 
 from __future__ import annotations
@@ -20,9 +22,47 @@ try:
 except ImportError:  # the numpy query runs instead
     numba = None
 
+
+def interp_in(x, xp, fp, j):
+    """``np.interp(x, xp, fp)`` of an ``x`` inside ``xp[j]`` to ``xp[j + 1]`` (``xp[j] <= x <
+    xp[j + 1]``), numpy's own steps: the exact node, the slope, and the other end when that gives
+    NaN. Plain Python, and compiled for :func:`schedule_in`: one source for both."""
+    if xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    y = slope * (x - xp[j]) + fp[j]
+    if y != y:
+        y = slope * (x - xp[j + 1]) + fp[j + 1]
+        if y != y and fp[j] == fp[j + 1]:
+            y = fp[j]
+    return y
+
+
 if numba is None:
-    latest_near = progress_in = None
+    latest_near = progress_in = progress_near = schedule_in = None
 else:
+    @numba.njit(cache=True, nogil=True)
+    def _bisect_left(a, x, lo, hi):  # pragma: no cover
+        """Python's ``bisect_left(a, x, lo, hi)``."""
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if a[mid] < x:
+                lo = mid + 1
+            else:
+                hi = mid
+        return lo
+
+    @numba.njit(cache=True, nogil=True)
+    def _bisect_right(a, x, lo, hi):  # pragma: no cover
+        """Python's ``bisect_right(a, x, lo, hi)``."""
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if x < a[mid]:
+                hi = mid
+            else:
+                lo = mid + 1
+        return lo
+
     @numba.njit(cache=True, nogil=True, error_model="numpy")
     def latest_near(t_s, start, d, moving, span_div, t0_s, offsets_s, x_m, y_m, tolerance_m):  # pragma: no cover
         """The latest of the times t0_s + offsets_s (non-decreasing) at which the route (two
@@ -32,7 +72,9 @@ else:
         m = len(offsets_s)
         times = np.empty(m)
         dist = np.empty(m)
-        j = 0
+        j = 0  # the segment of the first time found by bisection, then a cursor
+        if m > 0:
+            j = min(max(_bisect_right(t_s, t0_s + offsets_s[0], 0, last + 2) - 1, 0), last)
         least = np.inf
         for k in range(m):
             t = t0_s + offsets_s[k]
@@ -63,3 +105,46 @@ else:
             if dist < best:
                 best, at, at_u = dist, i, u
         return along_m[at] + at_u * seg_len[at], best
+
+    _interp_in = numba.njit(cache=True, nogil=True, error_model="numpy")(interp_in)
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def _interp(x, xp, fp):  # pragma: no cover
+        """:func:`.timed_route.interp_one` (``np.interp`` of one finite x, two points or more)."""
+        last = len(xp) - 1
+        if x < xp[0]:
+            return fp[0]
+        if x >= xp[last]:
+            return fp[last]
+        return _interp_in(x, xp, fp, _bisect_right(xp, x, 0, last + 1) - 1)
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def progress_near(start, d, len2_div, along_m, seg_len, x_m, y_m, near, back_m, ahead_m):  # pragma: no cover
+        """:meth:`.TimedRoute.progress_of` (NaN ``near``: no window): the window's segments
+        (:meth:`.TimedRoute._window_segments`), then ``progress_in`` over them."""
+        lo_i, hi_i = 0, len(len2_div)
+        if near == near:
+            first = _bisect_left(along_m, near - back_m, 1, len(along_m)) - 1
+            end = _bisect_right(along_m, near + ahead_m, 0, len(along_m) - 1)
+            if first < end:
+                lo_i, hi_i = first, end
+        return progress_in(start, d, len2_div, along_m, seg_len, x_m, y_m, lo_i, hi_i)
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def schedule_in(t_s, along_m, speed, start, d, len2_div, seg_len, arrival_s, x_m, y_m, t, max_speed_m_s,
+                    lookahead_s, near, back_m, ahead_m, wait_speed_m_s):  # pragma: no cover
+        """(along, target speed, lead, waiting) of a vehicle at (x, y) at plan time t, last
+        ``near`` along (NaN: unknown): :meth:`.TimedRoute.schedule_of`, step for step."""
+        along, _ = progress_near(start, d, len2_div, along_m, seg_len, x_m, y_m, near, back_m, ahead_m)
+        along_2, off = progress_near(start, d, len2_div, along_m, seg_len, x_m, y_m, along, back_m, ahead_m)
+        gap = _interp(t + lookahead_s, t_s, along_m) - along_2
+        target = 0.0
+        if gap > 0:
+            target = np.hypot(gap, off) / lookahead_s
+            target = target if target < max_speed_m_s else max_speed_m_s
+        lead = along - _interp(t, t_s, along_m)
+        last = len(t_s) - 1
+        planned = 0.0
+        if t_s[0] <= t < t_s[last]:
+            planned = speed[min(max(_bisect_right(t_s, t, 0, last + 1) - 1, 0), last - 1)]
+        return along, target, lead, t < arrival_s and planned < wait_speed_m_s

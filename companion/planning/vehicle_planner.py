@@ -297,18 +297,16 @@ class VehiclePlanner:
         route = self.timed_route
         if route is None:
             return None, False
-        x, y = own.x_m, own.y_m
-        self._along_m = float(route.progress_of(x, y, self._along_m)[0])  # where it is along its path
-        speed = float(route.target_speed_of(x, y, t_s, self.config.speed_m_s, near_along_m=self._along_m))
-        self.lead_m = self._along_m - float(route.planned_along_at(t_s))
+        # Where it is along its path (near where it was), the speed that keeps it on time, its lead.
+        self._along_m, speed, self.lead_m, waiting = route.schedule_of(own.x_m, own.y_m, t_s, self.config.speed_m_s,
+                                                                       self._along_m)
         if self._goals_on_path:
             # A space-time path can step out and back (a cell or a few beside a wait, round a
             # shadow's edge); the multicopter cuts such a corner and never reaches the node, so
             # the tracker held it as the goal and b turned back to it, hovering 10 s or more near the
             # closest approach. The goal is past wherever b is along the path.
             self.tracker.advance_to(self._along_m)
-        held = self.lead_m > 0.0 or bool(route.is_waiting_at(t_s))
-        return speed, held
+        return speed, self.lead_m > 0.0 or waiting
 
     @property
     def separation_reach(self) -> tuple[float, float]:

@@ -1,5 +1,6 @@
 """The compiled queries of a timed route (:mod:`companion.planning.timed_route_jit`: the schedule
-clocks' reach, one position's progress) give bit for bit the numpy queries' answers, over random
+clocks' reach, one position's progress, a tick's whole schedule) give bit for bit the numpy and
+plain-float queries' answers, over random
 timed routes (waits, holds, times before and after the route, windows anywhere along it), and
 both find the time a vehicle seen on the plan is at."""
 
@@ -12,7 +13,7 @@ from hypothesis import strategies as st
 
 from companion.planning import timed_route
 from companion.planning.timed_route import TimedRoute
-from companion.planning.timed_route_jit import latest_near, progress_in
+from companion.planning.timed_route_jit import latest_near, progress_in, schedule_in
 
 needs_numba = pytest.mark.skipif(latest_near is None or progress_in is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 OFFSETS = np.arange(0.0, 60.0 + 0.25, 0.5)  # a ScheduleClock's default window
@@ -70,11 +71,10 @@ def test_a_vehicle_on_its_plan_is_found_at_its_planned_time(compiled, monkeypatc
 def test_compiled_progress_gives_the_numpy_bits(route, x, y, near):
     mp = pytest.MonkeyPatch()
     try:
-        mp.setattr(timed_route, "progress_in", None)
+        mp.setattr(timed_route, "progress_near", None)
         expected = route.progress_at(np.array([x, y]), near)
     finally:
         mp.undo()
-    route._last_progress.clear()  # asked afresh, compiled
     found = route.progress_at(np.array([x, y]), near)
     assert (float(found[0]), float(found[1])) == (float(expected[0]), float(expected[1]))
 
@@ -104,3 +104,28 @@ def test_one_position_target_speed_is_the_vectorised_formula(route: TimedRoute, 
     reference = np.where(gap > 0, np.minimum(np.hypot(gap, off) / 5.0, max_speed), 0.0)[0]
     assert type(got) is np.float64 and got.tobytes() == reference.tobytes()
     assert route.progress_at(np.array([x, y]), near) == (along, off)
+
+
+@needs_numba
+@settings(max_examples=300, deadline=None)
+@given(routes(), st.floats(-450.0, 450.0), st.floats(-450.0, 450.0), st.floats(-10.0, 400.0),
+       st.one_of(st.none(), st.floats(-100.0, 3000.0)), st.sampled_from([0.5, 5.0, 10.0, 30.0]), st.data())
+def test_compiled_schedule_gives_the_plain_float_bits(route: TimedRoute, x: float, y: float, t: float, near,
+                                                      max_speed: float, data) -> None:
+    """A tick's schedule in one compiled call (progress near where the vehicle was, the target
+    speed from there, the lead, the wait) is the four queries' answers, to the bit: at any time,
+    the route's own times (a wait's both ends) included."""
+    if data.draw(st.booleans()):
+        t = float(data.draw(st.sampled_from(route.t_s.tolist())))
+    mp = pytest.MonkeyPatch()
+    try:
+        mp.setattr(timed_route, "schedule_in", None)
+        expected = route.schedule_of(x, y, t, max_speed, near)
+    finally:
+        mp.undo()
+    along = float(route.progress_of(x, y, near)[0])
+    assert expected == (along, float(route.target_speed_of(x, y, t, max_speed, near_along_m=along)),
+                        along - float(route.planned_along_at(t)), bool(route.is_waiting_at(t)))
+    got = route.schedule_of(x, y, t, max_speed, near)
+    assert [type(v) for v in got] == [float, float, float, bool]
+    assert np.array(got[:3]).tobytes() == np.array(expected[:3]).tobytes() and got[3] == expected[3]

@@ -40,6 +40,7 @@ class ScheduleClock:
         self._offsets = np.arange(0.0, window_s + step_s / 2, step_s)
         self._window = (window_s, step_s, tolerance_m)  # what a reach found depends on, besides the route
         self._reach = {name: start_s for name in self.routes}  # start_s: a clock started mid-flight
+        self._flying = dict(self._reach)  # the reaches of the vehicles not done: what holds the clock back
         self._done: set[str] = set()
         self._tau = start_s
         self.worst_lag_s = 0.0  # how far behind sim time the schedule fell, at most
@@ -58,19 +59,21 @@ class ScheduleClock:
             latest = route.latest_near_s(xy_enu_m, self._reach[name], self._offsets, self.tolerance_m)
             if found is not None:
                 found[key] = latest
-        self._reach[name] = max(self._reach[name], latest)
+        self._reach[name] = reach = max(self._reach[name], latest)
+        if name in self._flying:
+            self._flying[name] = reach
 
     def done(self, name: str) -> None:
         """The vehicle has arrived: it no longer holds the clock back."""
         self._done.add(name)
+        self._flying.pop(name, None)
 
     def lag_s(self, t_s: float) -> float:
         """How far the schedule is behind sim time now."""
         return t_s - self.now(t_s)
 
     def now(self, t_s: float) -> float:
-        flying = [r for n, r in self._reach.items() if n not in self._done]
-        limit = min(flying, default=np.inf) + self.slack_s
+        limit = min(self._flying.values(), default=np.inf) + self.slack_s
         self._tau = max(self._tau, min(t_s, max(limit, t_s - self.max_lag_s)))
         self.worst_lag_s = max(self.worst_lag_s, t_s - self._tau)
         return self._tau
@@ -96,6 +99,7 @@ class PriorityClocks:
         self._clocks = {name: ScheduleClock({m: routes[m] for m in order[:i] if m in routes}, **clock_options)
                         for i, name in enumerate(order) if i > 0 and name in routes}
         self._done: set[str] = set()
+        self._watching: dict[str, list[ScheduleClock]] | None = None  # per vehicle, the clocks it holds back
 
     def retime(self, name: str, above: "dict[str, TimedRoute]", start_s: float) -> None:
         """``name`` was re-planned at ``start_s`` against ``above`` (the vehicles above it,
@@ -104,11 +108,21 @@ class PriorityClocks:
         for gone in self._done:
             clock.done(gone)
         self._clocks[name] = clock
+        self._watching = None
 
     def observe(self, name: str, xy_enu_m, t_s: float) -> None:
-        found: dict = {}
-        for clock in self._clocks.values():
-            clock.observe(name, xy_enu_m, t_s, found)
+        if self._watching is None:  # only the clocks that follow a vehicle are told where it is
+            self._watching = {}
+            for clock in self._clocks.values():
+                for watched in clock.routes:
+                    self._watching.setdefault(watched, []).append(clock)
+        clocks = self._watching.get(name, ())
+        if len(clocks) == 1:
+            clocks[0].observe(name, xy_enu_m, t_s)
+        elif clocks:
+            found: dict = {}
+            for clock in clocks:
+                clock.observe(name, xy_enu_m, t_s, found)
 
     def done(self, name: str) -> None:
         self._done.add(name)

@@ -117,7 +117,7 @@ class ScheduleClocks:
         self._grid, self._shadows, self._memo = grid, shadows, {}
         # What each plan keeps; unknown (a caller's own routes): any re-plan is adopted.
         self.blocking = dict(blocking or {})
-        self._xy: dict[str, np.ndarray] = {}
+        self._xy: dict[str, object] = {}  # each vehicle's newest (x, y), as given
         self._along: dict[str, float] = {}  # first seen: anywhere on its path; then near where it was
         self._seen_s: dict[str, float] = {}  # the time of each vehicle's newest position
         self._done: set[str] = set()
@@ -127,19 +127,20 @@ class ScheduleClocks:
         self.replans = {name: 0 for name in self.order}  # adopted re-plans per vehicle
         self.tries = {name: 0 for name in self.order}  # re-plans made (adopted or not)
         self._ca_s = {name: self._closest_s(name) for name in self.order[1:]}
+        self._straying = {name for name in self.order if self._may_stray(name)}  # see _may_stray
 
     # -- the PriorityClocks calls ------------------------------------------------------------
     def observe(self, name: str, xy_enu_m, t_s: float) -> None:
-        self._xy[name] = np.asarray(xy_enu_m, dtype=float)
+        self._xy[name] = xy_enu_m  # read as floats only by a re-plan
         self._seen_s[name] = t_s
-        route = self.routes.get(name)
-        if route is not None and self._may_stray(name):  # where it is along its path, windowed as the planner's own
-            xy = self._xy[name]
-            self._along[name] = float(route.progress_of(float(xy[0]), float(xy[1]), self._along.get(name))[0])
+        if name in self._straying:  # where it is along its path, windowed as the planner's own
+            self._along[name] = float(self.routes[name].progress_of(float(xy_enu_m[0]), float(xy_enu_m[1]),
+                                                                    self._along.get(name))[0])
         self.clocks.observe(name, xy_enu_m, t_s)
 
     def done(self, name: str) -> None:
         self._done.add(name)
+        self._straying.discard(name)
         self.clocks.done(name)
 
     def now(self, name: str, t_s: float) -> float:
@@ -158,9 +159,16 @@ class ScheduleClocks:
         """Whether :meth:`strayed` can still hold for ``name`` on its current plan: never for the
         first in priority, a vehicle done, re-plans off or used up, or a plan read past its closest
         approach (the schedule clock never runs back; a new plan starts its progress afresh). Only
-        then is its progress along the plan followed, every tick."""
+        then is its progress along the plan followed, every tick (``_straying``: re-read by
+        :meth:`_follow` whenever one of these changes)."""
         return (name in self._ca_s and name not in self._done and name not in self._past_ca
                 and self.coordination.replan and self.tries[name] < self.rule.most)
+
+    def _follow(self, name: str) -> None:
+        if self._may_stray(name):
+            self._straying.add(name)
+        else:
+            self._straying.discard(name)
 
     def strayed(self, name: str, t_s: float) -> bool:
         """Whether lower vehicle ``name`` (observed this tick) is due for a re-plan at ``t_s``.
@@ -173,10 +181,12 @@ class ScheduleClocks:
             return False
         if self.tries[name] >= self.rule.most or t_s - self._last.get(name, -np.inf) < self.rule.every_s:
             return False
-        if self.now(name, t_s) >= self._ca_s[name]:
+        tau = self.now(name, t_s)
+        if tau >= self._ca_s[name]:
             self._past_ca.add(name)
+            self._straying.discard(name)
             return False  # past the planned closest approach: re-plans from there cost more than they save
-        return self.lags(name, t_s)
+        return self._behind(name, tau)
 
     def lags(self, name: str, t_s: float) -> bool:
         """Whether ``name`` (observed on its current plan) is more than ``lag_m`` behind it,
@@ -185,8 +195,11 @@ class ScheduleClocks:
         if name not in self._along or name not in self._ca_s:
             return False
         tau = self.now(name, t_s)
-        return tau < self._ca_s[name] and \
-            float(self.routes[name].planned_along_at(tau)) - self._along[name] > self.rule.lag_m
+        return tau < self._ca_s[name] and self._behind(name, tau)
+
+    def _behind(self, name: str, tau: float) -> bool:
+        """Whether ``name`` is more than ``lag_m`` behind where its plan is at schedule time ``tau``."""
+        return float(self.routes[name].planned_along_at(tau)) - self._along[name] > self.rule.lag_m
 
     def fresh(self, t_s: float) -> bool:
         """Whether every flying vehicle's newest position is at most the mission's
@@ -195,6 +208,9 @@ class ScheduleClocks:
         it is no longer there (or forecast a vehicle above it from there). Headless every vehicle
         is observed every tick: always fresh."""
         limit = self.mission.safety.telemetry_timeout_s
+        seen = self._seen_s
+        if not seen or t_s - min(seen.values()) <= limit:  # every vehicle fresh (headless: every tick)
+            return True
         return all(t_s - seen <= limit for name, seen in self._seen_s.items() if name not in self._done)
 
     def update(self, t_s: float) -> "dict[str, TimedRoute]":
@@ -211,13 +227,16 @@ class ScheduleClocks:
         None, uncounted, while a flying vehicle's newest position is stale (:meth:`fresh`)."""
         if not self.fresh(t_s):
             return None
-        due = next((n for n in self.order[1:] if self.strayed(n, t_s)), None)
-        if due is None:
+        for due in self.order[1:]:
+            if due in self._along and self.strayed(due, t_s):  # no progress known: not due (strayed)
+                break
+        else:
             return None
         names = tuple(n for n in self.order[self.order.index(due):] if n not in self._done and n in self._xy)
         for name in names:
             self._last[name] = t_s
             self.tries[name] += 1
+            self._follow(name)
         above = self.order[:self.order.index(names[-1])]
         return ReplanJob(t_s, names, {n: (float(self._xy[n][0]), float(self._xy[n][1])) for n in names},
                          {o: self._forecast(o, t_s) for o in above}, dict(self.blocking),
@@ -267,6 +286,7 @@ class ScheduleClocks:
             self._above[name] = new.above
             self.clocks.retime(name, new.above, job.t_s)
             self._ca_s[name] = self._closest_s(name)
+            self._follow(name)
             self.replans[name] += 1
             adopted[name] = new.route
         return adopted
@@ -283,9 +303,10 @@ class ScheduleClocks:
             return route  # still holding: it departs on its schedule (sim time)
         if other == self.order[0]:
             v = self.mission.vehicle(other)
+            xy = tuple(np.asarray(self._xy[other], dtype=float))
             if self.coordination.forecast is Forecast.FLOWN:
-                return forecast_along(route, tuple(self._xy[other]), t_s, v.speed_m_s)
-            return forecast_from(other, route.path_xy, tuple(self._xy[other]), t_s, v.speed_m_s)
+                return forecast_along(route, xy, t_s, v.speed_m_s)
+            return forecast_from(other, route.path_xy, xy, t_s, v.speed_m_s)
         return TimedRoute(other, route.t_s + (t_s - self.now(other, t_s)), route.xy_enu_m)
 
     def _closest_s(self, name: str) -> float:
