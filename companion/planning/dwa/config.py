@@ -89,6 +89,7 @@ class DwaConfig:
     # spot, so obstacle clearance is computed once for them. row_of (S,) maps each rollout to its
     # row among the G distinct ones (geo_hom_m (3, G * (K + 1)), geo_point_times_s); None: all differ.
     row_of: np.ndarray | None = field(init=False, repr=False)
+    distinct_row: np.ndarray = field(init=False, repr=False)  # (S,) int64: row_of, or each rollout's own row
     geo_hom_m: np.ndarray = field(init=False, repr=False)
     geo_point_times_s: np.ndarray = field(init=False, repr=False)
     # Plain numbers and constant rows the tick reads, derived once (a property would recompute).
@@ -139,6 +140,9 @@ class DwaConfig:
             distinct = distinct[len(rates) - 1:]
         row_of = None if len(distinct) == len(w) else np.maximum(np.arange(len(w)) - (len(rates) - 1), 0)
         object.__setattr__(self, "row_of", row_of)
+        distinct_row = np.arange(len(w), dtype=np.int64) if row_of is None else row_of.astype(np.int64)
+        distinct_row.setflags(write=False)
+        object.__setattr__(self, "distinct_row", distinct_row)
         object.__setattr__(self, "geo_hom_m", homogeneous(body[distinct].reshape(-1, 2)))
         geo_times = np.tile(t, len(distinct))
         geo_times.setflags(write=False)  # read-only as point_times_s: one compiled signature for either

@@ -7,7 +7,7 @@ import numpy as np
 
 from companion.planning.dwa.geometry import one_layout
 from companion.planning.dwa.heading import resolve_single
-from companion.planning.dwa.jit import jit
+from companion.planning.dwa.jit import inline, jit
 from companion.planning.dwa.types import LocalGoals
 
 
@@ -44,18 +44,26 @@ def _heading_goals(ex, ey, final_heading, px, py, goals):
     ``nodes`` (G, 2) it does not reach (a point within radius2 of it, or its prediction point
     past it, from ``prev``); an arriving rollout (``ends_at_station``) scores 180 less
     soonest_deg times the fraction of the horizon it takes to get inside the station's radius."""
+    return heading_goals_rows(ex, ey, final_heading, px, py, np.arange(len(ex)), goals)
+
+
+@inline
+def heading_goals_rows(ex, ey, final_heading, px, py, rows, goals):
+    """:func:`_heading_goals` with rollout i's points in row ``rows[i]`` of (px, py) (the
+    distinct rollouts of a speed window: its hovers share one)."""
     nodes, prev, radius2, ends_at_station, soonest_deg = goals
-    n_s, n_k = px.shape
+    n_s, n_k = len(ex), px.shape[1]
     count = len(nodes)
     out = np.empty(n_s)
     for i in range(n_s):
+        r = rows[i]
         n = count
         for j in range(count):
             gx, gy = nodes[j, 0], nodes[j, 1]
             near2 = np.inf
             for k in range(n_k):
-                dx = px[i, k] - gx
-                dy = py[i, k] - gy
+                dx = px[r, k] - gx
+                dy = py[r, k] - gy
                 d2 = dx * dx + dy * dy
                 if d2 < near2:
                     near2 = d2
@@ -71,8 +79,8 @@ def _heading_goals(ex, ey, final_heading, px, py, goals):
                 sx, sy = nodes[count - 1, 0], nodes[count - 1, 1]
                 first = 0
                 for k in range(n_k):
-                    dx = px[i, k] - sx
-                    dy = py[i, k] - sy
+                    dx = px[r, k] - sx
+                    dy = py[r, k] - sy
                     if dx * dx + dy * dy <= radius2[count - 1]:
                         first = k
                         break
