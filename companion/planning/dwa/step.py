@@ -69,7 +69,8 @@ def _step(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: Obsta
                       separate_from if separate_from is not None else () if other is None else (other,))
     window = _Window.of(pose, scene, config)
     rules = _rules(pose, scene, window, config)
-    if not np.count_nonzero(rules.legal) or _only_hover(rules.legal, config, scheduled_speed_m_s):
+    if rules.legal is not config.all_legal and (not np.count_nonzero(rules.legal)
+                                                or _only_hover(rules.legal, config, scheduled_speed_m_s)):
         if cautious:
             return None
         return _recover(pose, goals, other, scene, window, rules, config)
@@ -301,7 +302,8 @@ def _toward_only_hovers(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_
     pocket with its goal far to one side turns that way in place until nothing is legal, the
     spin recovery turns it back, and again until the time limit, while moving rollouts to the
     other side were legal throughout. Unless its timed route holds it still."""
-    if math.isnan(turn_error_rad) or config.speed_samples == 1 or config.min_speed_m_s > 0.0:
+    if (math.isnan(turn_error_rad) or config.speed_samples == 1 or config.min_speed_m_s > 0.0
+            or legal is config.all_legal):  # every rollout legal: the straight moving ones too
         return False
     moving = config.moving_rollouts
     if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * config.slowest_move_m_s:
