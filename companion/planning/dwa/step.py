@@ -143,7 +143,7 @@ class _Window:
             row_of = config.row_of
             if row_of is None:
                 return cls(gx[:, -1], gy[:, -1], gx, gy, None)
-            return cls(gx[:, -1][row_of], gy[:, -1][row_of], gx, gy, row_of)
+            return cls(gx[row_of, -1], gy[row_of, -1], gx, gy, row_of)
         ex, ey = place @ config.end_hom_m
         return cls(ex, ey, None, None, None)
 
