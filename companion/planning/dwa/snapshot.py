@@ -235,16 +235,13 @@ def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float,
     disc and speed, so the same culling keeps it exactly when it keeps the original, and a copy
     culled away changes nothing."""
     n_c = len(snapshot.circle_ids)
-    moves = snapshot._subsets.get(_MOVING)
-    if moves is None:  # both vehicles of a tick read them
-        moves = snapshot._subsets[_MOVING] = _moving_rows(snapshot)
+    moves = snapshot.speed_m_s > 0.0
     away = []  # rows of the moving obstacles that move away; a few of many, so one by one (every tick)
-    for i, vx, vy, bx, by, speed in moves:
-        if among is not None and not among[i]:
-            continue
-        dx, dy = bx - x_m, by - y_m
+    for i in np.flatnonzero(moves if among is None else moves & among).tolist():
+        vx, vy = (snapshot.circle_vel_m_s[i] if i < n_c else snapshot.poly_vel_m_s[i - n_c]).tolist()
+        dx, dy = float(snapshot.bound_xy_m[i, 0]) - x_m, float(snapshot.bound_xy_m[i, 1]) - y_m
         along = vx * dx + vy * dy
-        if along > 0.0 and along > _AWAY_COS * speed * float(np.hypot(dx, dy)):
+        if along > 0.0 and along > _AWAY_COS * float(snapshot.speed_m_s[i]) * float(np.hypot(dx, dy)):
             away.append(i)
     if not away:
         return snapshot
@@ -264,15 +261,6 @@ def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float,
         out = _circles_turned_back(snapshot, moving)
     snapshot._subsets[key] = out
     return out
-
-
-def _moving_rows(snapshot: ObstacleSnapshot) -> list[tuple[int, float, float, float, float, float]]:
-    """Each moving obstacle's row (circles, then polygons), velocity, bounding disc's centre and
-    speed, as floats."""
-    vel = np.concatenate([snapshot.circle_vel_m_s, snapshot.poly_vel_m_s])
-    rows = np.flatnonzero(snapshot.speed_m_s > 0.0)
-    return list(zip(rows.tolist(), *vel[rows].T.tolist(), *snapshot.bound_xy_m[rows].T.tolist(),
-                    snapshot.speed_m_s[rows].tolist()))
 
 
 def _circles_turned_back(snapshot: ObstacleSnapshot, moving: np.ndarray) -> ObstacleSnapshot:
@@ -333,7 +321,6 @@ class Culled(NamedTuple):
 
 
 _AWAY_COS = 0.5  # with_turned_back: an obstacle within 60 deg of moving straight away
-_MOVING = "moving"  # with_turned_back's moving obstacles in a snapshot's cache
 _TURNED_BACK = b"turned back"  # with_turned_back's keys in a snapshot's cache (near's are bare masks' bytes)
 
 # The array fields of a snapshot and the rows they have: one per circle, polygon, or obstacle
