@@ -81,6 +81,32 @@ def test_fused_choice_matches_numpy(case, seed: int, tx: float, ty: float, headi
     assert type(got.legal_count) is int
 
 
+@needs_numba
+@settings(max_examples=200, deadline=None)
+@given(choices(), st.integers(0, 2**31), st.integers(1, 4), st.booleans(), st.floats(-4.0, 4.0))
+def test_fused_goal_window_choice_matches_numpy(case, seed: int, n_goals: int, station: bool,
+                                                heading_rad: float) -> None:
+    """Over a goal window (some rollouts reaching goals, passing them, or arriving at the
+    station), the compiled pick reads the distinct rollouts through the window's row map and
+    gives the command, every field to the last bit, that the numpy heading critic over the
+    spread rollouts, the choice and command_for give."""
+    config, critics, _ = case
+    rng = np.random.default_rng(seed)
+    n_k = config.steps + 1
+    rows = config.count if config.row_of is None else int(config.row_of.max()) + 1
+    gx, gy = rng.uniform(-60.0, 60.0, (2, rows, n_k)).cumsum(axis=2)
+    nodes = np.concatenate([gx[rng.integers(0, rows, n_goals), rng.integers(0, n_k, n_goals)][:, None],
+                            gy[rng.integers(0, rows, n_goals), rng.integers(0, n_k, n_goals)][:, None]], axis=1)
+    goals = LocalGoals(nodes, (0.0, 0.0), 30.0, 40.0, ends_at_station=station)
+    row_of = np.arange(config.count) if config.row_of is None else config.row_of
+    ex, ey = gx[row_of, -1], gy[row_of, -1]
+    args = (config, critics, ex, ey, heading_rad, gx, gy, goals, 5.0)
+    got, reference = COMPILED.pick_goals(*args), NUMPY.pick_goals(*args)
+    assert got.legal_count == reference.legal_count
+    for name in ("yaw_rate_rad_s", "speed_m_s", "heading_score", "distance_score", "sightline_score", "eval_score"):
+        assert same_bits(np.float64(getattr(got, name)), np.float64(getattr(reference, name))), name
+
+
 @settings(max_examples=100, deadline=None)
 @given(st.integers(0, 2**31), st.integers(2, 40), st.data())
 def test_route_window_is_the_constructors(seed: int, n: int, data) -> None:

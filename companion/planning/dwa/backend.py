@@ -33,7 +33,7 @@ except ImportError:  # numba is the ``fast`` extra: the numpy kernels run
 class Backend:
     """The kernels of one tick; see each numpy function for what it computes.
 
-    ``obstacle_rule`` and ``pick`` are where the compiled backend fuses several kernels into
+    ``obstacle_rule``, ``pick`` and ``pick_goals`` are where the compiled backend fuses several kernels into
     one call (a compiled call costs microseconds before it does anything); their numpy rows
     call the numpy kernels in turn."""
 
@@ -48,6 +48,7 @@ class Backend:
     open_clearance: Callable = sightline_slope.open_clearance
     choose: Callable = evaluate.choose
     pick: Callable = evaluate.pick
+    pick_goals: Callable = evaluate.pick_goals
     spin_checks: Callable = recovery.spin_checks
 
     def cull(self, snapshot: ObstacleSnapshot, x_m: float, y_m: float, reach_m: float, horizon_s: float,
@@ -82,6 +83,7 @@ COMPILED = None if geometry_jit is None else Backend(
     open_clearance=sightline_jit.open_clearance,
     choose=evaluate_jit.choose,
     pick=evaluate_jit.pick,
+    pick_goals=evaluate_jit.pick_goals,
     spin_checks=recovery_jit.spin_checks,
 )
 

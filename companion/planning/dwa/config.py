@@ -11,6 +11,7 @@ import numpy as np
 
 from companion.planning.dwa.backend import DEFAULT, Backend
 from companion.planning.dwa.shapes import homogeneous, lagged_rollouts, recovery_shapes
+from companion.planning.dwa.speed import scores_at
 from uav_model.plant.unicycle import body_rollouts
 
 if TYPE_CHECKING:  # only for the builder's signature; the core takes plain values
@@ -89,6 +90,7 @@ class DwaConfig:
     # spot, so obstacle clearance is computed once for them. row_of (S,) maps each rollout to its
     # row among the G distinct ones (geo_hom_m (3, G * (K + 1)), geo_point_times_s); None: all differ.
     row_of: np.ndarray | None = field(init=False, repr=False)
+    distinct_row: np.ndarray = field(init=False, repr=False)  # (S,) int64: row_of, or each rollout's own row
     geo_hom_m: np.ndarray = field(init=False, repr=False)
     geo_point_times_s: np.ndarray = field(init=False, repr=False)
     # Plain numbers and constant rows the tick reads, derived once (a property would recompute).
@@ -102,6 +104,9 @@ class DwaConfig:
     weights: np.ndarray = field(init=False, repr=False)  # (w_h, w_d, w_s, w_v)
     moving_rollouts: np.ndarray = field(init=False, repr=False)  # (S,) the rollouts that do not hover
     slowest_move_m_s: float = field(init=False, repr=False)  # the least speed of those (inf: none)
+    # (S,) the speed critic toward cruise speed (:func:`.speed.speed_scores`); writable, as the
+    # compiled choice's other critic rows (one signature), and never written.
+    cruise_speed_scores: np.ndarray = field(init=False, repr=False)
     # What the compiled choice reads of the config, as one tuple (see evaluate_jit): rates, speeds,
     # final_dheading_rad, weights, saturation, saturated_sums_m, sightline_slope, fixed_scale, cap.
     choice_consts: tuple = field(init=False, repr=False)
@@ -139,6 +144,9 @@ class DwaConfig:
             distinct = distinct[len(rates) - 1:]
         row_of = None if len(distinct) == len(w) else np.maximum(np.arange(len(w)) - (len(rates) - 1), 0)
         object.__setattr__(self, "row_of", row_of)
+        distinct_row = np.arange(len(w), dtype=np.int64) if row_of is None else row_of.astype(np.int64)
+        distinct_row.setflags(write=False)
+        object.__setattr__(self, "distinct_row", distinct_row)
         object.__setattr__(self, "geo_hom_m", homogeneous(body[distinct].reshape(-1, 2)))
         geo_times = np.tile(t, len(distinct))
         geo_times.setflags(write=False)  # read-only as point_times_s: one compiled signature for either
@@ -155,6 +163,7 @@ class DwaConfig:
             object.__setattr__(self, name, value)
         object.__setattr__(self, "saturated_sums", tuple(float(self.saturated_m[:n].sum()) for n in range(len(w) + 1)))
         moving = self.speeds_m_s > 0.0
+        object.__setattr__(self, "cruise_speed_scores", scores_at(self.speeds_m_s, self.speed_m_s, self.speed_m_s))
         object.__setattr__(self, "slowest_move_m_s", float(self.speeds_m_s[moving].min()) if moving.any() else np.inf)
         for name, value in (("saturated_sums_m", np.array(self.saturated_sums)), ("moving_rollouts", moving),
                             ("weights", np.array([self.w_h, self.w_d, self.w_s, self.w_v], dtype=float))):

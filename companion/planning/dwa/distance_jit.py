@@ -92,10 +92,11 @@ def _obstacle_pass(px, py, t_s, obstacles, keep, n_k, saturation):
     obstacle rule per point (N,), the distance critic (R,), whether each rollout obeys the
     rule at every point after the pose (R,), and whether every clearance is exact.
 
-    A point farther from an obstacle's bounding disc (a polygon's ``p_centre``, ``p_bound``)
-    than the saturation plus 1 m has a clearance above the saturation: it can neither break
-    the rule nor set the distance critic, so its clearance is not worked out (+inf stands for
-    it, and the rule and critic come out the same). The caller works the clearances out in
+    A point farther from an obstacle's bounding disc (a polygon's ``p_centre``, ``p_bound``), or
+    from an inflated polygon's bounding box, than the saturation plus 1 m has a clearance above
+    the saturation: it can neither break the rule nor set the distance critic, so its clearance
+    is not worked out (+inf stands for it, and the rule and critic come out the same). The
+    caller works the clearances out in
     full when it reads them (the escape, with no legal rollout)."""
     c_xy, c_vel, c_r, c_m, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy, p_vel, p_m, p_centre, p_bound = obstacles
     n_call, n_pall = len(c_r), p_a.shape[0]
@@ -135,6 +136,14 @@ def _obstacle_pass(px, py, t_s, obstacles, keep, n_k, saturation):
         vx, vy, m = p_vel[p, 0], p_vel[p, 1], p_m[p]
         lim = p_bound[p] + m + beyond
         lim2 = lim * lim
+        # the polygon's bounding box: no nearer to it than to the box (tighter than the disc)
+        x0 = x1 = p_a[p, 0, 0]
+        y0 = y1 = p_a[p, 0, 1]
+        for e in range(1, p_a.shape[1]):
+            x0, x1 = min(x0, p_a[p, e, 0]), max(x1, p_a[p, e, 0])
+            y0, y1 = min(y0, p_a[p, e, 1]), max(y1, p_a[p, e, 1])
+        box = m + beyond
+        box2 = box * box if box > 0.0 else np.inf
         row = clear[k]
         k += 1
         for n in range(len(px)):  # geometry_jit._polygon_clearance's operations, where needed
@@ -142,7 +151,9 @@ def _obstacle_pass(px, py, t_s, obstacles, keep, n_k, saturation):
             qy = py[n] - vy * t_s[n]
             dx = qx - p_centre[p, 0]
             dy = qy - p_centre[p, 1]
-            if dx * dx + dy * dy > lim2:
+            bx = x0 - qx if qx < x0 else qx - x1 if qx > x1 else 0.0
+            by = y0 - qy if qy < y0 else qy - y1 if qy > y1 else 0.0
+            if dx * dx + dy * dy > lim2 or bx * bx + by * by > box2:
                 row[n] = np.inf
                 exact = False
             else:

@@ -6,9 +6,9 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from companion.planning.dwa.heading import heading_toward
+from companion.planning.dwa.heading import heading_from_ends, heading_toward
 from companion.planning.dwa.legality import commit_turn
-from companion.planning.dwa.types import Command
+from companion.planning.dwa.types import Command, LocalGoals
 
 if TYPE_CHECKING:
     from companion.planning.dwa.config import DwaConfig
@@ -41,6 +41,18 @@ def pick(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarray, he
     """The command toward one target: the heading critic toward ``target_xy`` at the prediction
     points (ex, ey) of a pose heading ``heading_rad``, :func:`choose` and :func:`command_for`."""
     heading = heading_toward(ex, ey, heading_rad + config.final_dheading_rad, *target_xy)
+    best, total, n_legal = choose(config, critics, heading)
+    return command_for(config, best, heading, critics.distance, critics.sightline, total, n_legal)
+
+
+def pick_goals(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarray, heading_rad: float,
+               gx: np.ndarray, gy: np.ndarray, goals: LocalGoals, soonest_deg: float) -> Command:
+    """:func:`pick` over the goal window ``goals`` (:func:`.heading.heading_from_ends`, not
+    single): the rollouts are the rows of (gx, gy), spread to all by ``config.row_of`` when
+    some coincide (None: they are every rollout)."""
+    px, py = (gx, gy) if config.row_of is None else (gx[config.row_of], gy[config.row_of])
+    heading = heading_from_ends(ex, ey, heading_rad + config.final_dheading_rad, goals, (0.0, 0.0), px, py, False,
+                                soonest_deg)
     best, total, n_legal = choose(config, critics, heading)
     return command_for(config, best, heading, critics.distance, critics.sightline, total, n_legal)
 

@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from companion.planning.dwa.geometry import one_layout
-from companion.planning.dwa.heading_jit import _heading_toward
+from companion.planning.dwa.heading_jit import _heading_toward, heading_goals_rows
 from companion.planning.dwa.jit import inline, jit
-from companion.planning.dwa.types import Command
+from companion.planning.dwa.types import Command, LocalGoals
 
 if TYPE_CHECKING:
     from companion.planning.dwa.config import DwaConfig
@@ -30,6 +30,15 @@ def pick(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarray, he
     return Command(*_pick(one_layout(ex), one_layout(ey), float(heading_rad),
                           (float(target_xy[0]), float(target_xy[1])), _critic_rows(config, critics),
                           config.choice_consts))
+
+
+def pick_goals(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarray, heading_rad: float,
+               gx: np.ndarray, gy: np.ndarray, goals: LocalGoals, soonest_deg: float) -> Command:
+    """:func:`.evaluate.pick_goals`, compiled: one call."""
+    window = (one_layout(goals.nodes_xy), one_layout(goals.prev_nodes_xy), one_layout(goals.radius2_m2),
+              bool(goals.ends_at_station), float(soonest_deg))
+    return Command(*_pick_goals(one_layout(ex), one_layout(ey), float(heading_rad), one_layout(gx), one_layout(gy),
+                                config.distinct_row, window, _critic_rows(config, critics), config.choice_consts))
 
 
 _NONE = np.zeros(0)  # a critic that is off
@@ -197,4 +206,16 @@ def _pick(ex, ey, heading_rad, target, critics, window):
     return yaw_rates[best], speeds[best], heading[best], distance[best], s, total, n_legal
 
 
-
+@jit
+def _pick_goals(ex, ey, heading_rad, gx, gy, rows, goals, critics, window):
+    """:func:`_pick` with the heading critic over a goal window (heading_jit._heading_goals),
+    rollout i's points in row rows[i] of (gx, gy)."""
+    _, _, distance, _, sightline, has_s, _, _ = critics
+    yaw_rates, speeds, final_dheading, _, _, _, _, _, _ = window
+    final = np.empty(len(ex))
+    for i in range(len(ex)):
+        final[i] = heading_rad + final_dheading[i]
+    heading = heading_goals_rows(ex, ey, final, gx, gy, rows, goals)
+    best, total, n_legal = _choose(critics, heading, window)
+    s = sightline[best] if has_s else 0.0
+    return yaw_rates[best], speeds[best], heading[best], distance[best], s, total, n_legal

@@ -7,7 +7,7 @@ import numpy as np
 
 from companion.planning.dwa.geometry import one_layout
 from companion.planning.dwa.heading import resolve_single
-from companion.planning.dwa.jit import jit
+from companion.planning.dwa.jit import inline, jit
 from companion.planning.dwa.types import LocalGoals
 
 
@@ -44,46 +44,62 @@ def _heading_goals(ex, ey, final_heading, px, py, goals):
     ``nodes`` (G, 2) it does not reach (a point within radius2 of it, or its prediction point
     past it, from ``prev``); an arriving rollout (``ends_at_station``) scores 180 less
     soonest_deg times the fraction of the horizon it takes to get inside the station's radius."""
+    return heading_goals_rows(ex, ey, final_heading, px, py, np.arange(len(ex)), goals)
+
+
+@inline
+def heading_goals_rows(ex, ey, final_heading, px, py, rows, goals):
+    """:func:`_heading_goals` with rollout i's points in row ``rows[i]`` of (px, py) (the
+    distinct rollouts of a speed window: its hovers share one), (ex[i], ey[i]) that row's last
+    point: the goal reached, the bearing to the next and the arrival are worked out once per
+    row, and a goal counts as reached at its first point within the radius."""
     nodes, prev, radius2, ends_at_station, soonest_deg = goals
-    n_s, n_k = px.shape
+    n_s, n_k = len(ex), px.shape[1]
     count = len(nodes)
+    done = np.zeros(px.shape[0], dtype=np.bool_)
+    arrives = np.zeros(px.shape[0], dtype=np.bool_)
+    value = np.empty(px.shape[0])  # per row: the arrival score, or the bearing to the goal held
     out = np.empty(n_s)
     for i in range(n_s):
-        n = count
-        for j in range(count):
-            gx, gy = nodes[j, 0], nodes[j, 1]
-            near2 = np.inf
-            for k in range(n_k):
-                dx = px[i, k] - gx
-                dy = py[i, k] - gy
-                d2 = dx * dx + dy * dy
-                if d2 < near2:
-                    near2 = d2
-            reached = near2 <= radius2[j]
-            if not reached and not (ends_at_station and j == count - 1):
-                reached = (ex[i] - gx) * (gx - prev[j, 0]) + (ey[i] - gy) * (gy - prev[j, 1]) > 0.0
-            if not reached:
-                n = j
-                break
-        if ends_at_station and n == count:
-            arrive = 180.0
-            if soonest_deg > 0.0:
-                sx, sy = nodes[count - 1, 0], nodes[count - 1, 1]
-                first = 0
-                for k in range(n_k):
-                    dx = px[i, k] - sx
-                    dy = py[i, k] - sy
-                    if dx * dx + dy * dy <= radius2[count - 1]:
-                        first = k
-                        break
-                arrive -= soonest_deg * first / (n_k - 1)
-            out[i] = arrive
+        r = rows[i]
+        if not done[r]:
+            done[r] = True
+            n = count
+            for j in range(count):
+                gx, gy = nodes[j, 0], nodes[j, 1]
+                reached = False
+                if not (ends_at_station and j == count - 1):  # passed: the points need not be read
+                    reached = (ex[i] - gx) * (gx - prev[j, 0]) + (ey[i] - gy) * (gy - prev[j, 1]) > 0.0
+                if not reached:
+                    for k in range(n_k):
+                        dx = px[r, k] - gx
+                        dy = py[r, k] - gy
+                        if dx * dx + dy * dy <= radius2[j]:
+                            reached = True
+                            break
+                if not reached:
+                    n = j
+                    break
+            if ends_at_station and n == count:
+                arrive = 180.0
+                if soonest_deg > 0.0:
+                    sx, sy = nodes[count - 1, 0], nodes[count - 1, 1]
+                    first = 0
+                    for k in range(n_k):
+                        dx = px[r, k] - sx
+                        dy = py[r, k] - sy
+                        if dx * dx + dy * dy <= radius2[count - 1]:
+                            first = k
+                            break
+                    arrive -= soonest_deg * first / (n_k - 1)
+                arrives[r] = True
+                value[r] = arrive
+            else:
+                t = min(n, count - 1)
+                value[r] = np.arctan2(nodes[t, 1] - ey[i], nodes[t, 0] - ex[i])
+        if arrives[r]:
+            out[i] = value[r]
             continue
-        t = min(n, count - 1)
-        bearing = np.arctan2(nodes[t, 1] - ey[i], nodes[t, 0] - ex[i])
-        deviation = abs((final_heading[i] - bearing + np.pi) % (2.0 * np.pi) - np.pi)
+        deviation = abs((final_heading[i] - value[r] + np.pi) % (2.0 * np.pi) - np.pi)
         out[i] = 180.0 - np.degrees(deviation)
     return out
-
-
-

@@ -14,11 +14,14 @@ v_ref is cruise speed, unless
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.types import LocalGoals, Pose
+
+if TYPE_CHECKING:  # the config builds its cruise row with scores_at
+    from companion.planning.dwa.config import DwaConfig
 
 
 def station_speed_m_s(pose: Pose, goals: LocalGoals, config: DwaConfig) -> float:
@@ -45,5 +48,12 @@ def reference_speed_m_s(pose: Pose, goals: LocalGoals, config: DwaConfig, schedu
 
 
 def speed_scores(config: DwaConfig, v_ref_m_s: float) -> np.ndarray:
-    """V (S,) for every rollout."""
-    return 1.0 - np.abs(config.speeds_m_s - v_ref_m_s) / config.speed_m_s
+    """V (S,) for every rollout; toward cruise speed (most ticks) the config's row, made once."""
+    if v_ref_m_s == config.speed_m_s:
+        return config.cruise_speed_scores
+    return scores_at(config.speeds_m_s, v_ref_m_s, config.speed_m_s)
+
+
+def scores_at(speeds_m_s: np.ndarray, v_ref_m_s: float, cruise_m_s: float) -> np.ndarray:
+    """V for rollouts of ``speeds_m_s`` toward ``v_ref_m_s``."""
+    return 1.0 - np.abs(speeds_m_s - v_ref_m_s) / cruise_m_s

@@ -12,7 +12,7 @@ import numpy as np
 from companion.planning.dwa.backend import DEFAULT
 from companion.planning.dwa.config import DwaConfig
 from companion.planning.dwa.distance import no_obstacle_in_reach
-from companion.planning.dwa.evaluate import Critics, command_for
+from companion.planning.dwa.evaluate import Critics
 from companion.planning.dwa.heading import single_target
 from companion.planning.dwa.legality import (Rule, binding_uavs, fence_distance, fence_ok, legal_rollouts,
                                              separation_ok, turn_error)
@@ -69,17 +69,16 @@ def _step(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: Obsta
                       separate_from if separate_from is not None else () if other is None else (other,))
     window = _Window.of(pose, scene, config)
     rules = _rules(pose, scene, window, config)
-    if not np.count_nonzero(rules.legal) or _only_hover(rules.legal, config, scheduled_speed_m_s):
+    if rules.legal is not config.all_legal and (not np.count_nonzero(rules.legal)
+                                                or _only_hover(rules.legal, config, scheduled_speed_m_s)):
         if cautious:
             return None
         return _recover(pose, goals, other, scene, window, rules, config)
     critics = _critics(pose, goals, other, sighted, window, rules, config, scheduled_speed_m_s)
     if scene.single:  # the heading critic, the choice and the command in one call
         return backend.pick(config, critics, window.ex, window.ey, pose.heading_rad, goals.first_xy)
-    heading = backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad, goals,
-                                        (pose.x_m, pose.y_m), window.px, window.py, False, _soonest(config))
-    best, total, n_legal = backend.choose(config, critics, heading)
-    return command_for(config, best, heading, critics.distance, critics.sightline, total, n_legal)
+    return backend.pick_goals(config, critics, window.ex, window.ey, pose.heading_rad, window.gx, window.gy, goals,
+                              _soonest(config))
 
 
 class _Scene(NamedTuple):
@@ -109,35 +108,44 @@ def _cull(pose: Pose, snapshot: ObstacleSnapshot, config: DwaConfig) -> Culled:
                                config.horizon_s)
 
 
-class _Window(NamedTuple):
+class _Window:
     """The window's rollouts placed at the pose: the prediction points (ex, ey) (S,), and the
-    whole rollouts (px, py) (S, K + 1) with the distinct ones (gx, gy) (G, K + 1) only when a
-    rule or the goal window reads them (None otherwise: in open air only the S prediction
-    points are placed). Column 0 is the pose itself."""
+    distinct rollouts (gx, gy) (G, K + 1) only when a rule or the goal window reads them (None
+    otherwise: in open air only the S prediction points are placed). The whole rollouts (px, py)
+    (S, K + 1) are the distinct ones spread by ``config.row_of``, on first read (the fused pick
+    and the obstacle rule read the distinct ones). Column 0 is the pose itself."""
 
-    ex: np.ndarray
-    ey: np.ndarray
-    px: np.ndarray | None
-    py: np.ndarray | None
-    gx: np.ndarray | None
-    gy: np.ndarray | None
+    __slots__ = ("ex", "ey", "gx", "gy", "_px", "_py", "_row_of")
+
+    def __init__(self, ex: np.ndarray, ey: np.ndarray, gx: np.ndarray | None, gy: np.ndarray | None,
+                 row_of: np.ndarray | None) -> None:
+        self.ex, self.ey, self.gx, self.gy, self._row_of = ex, ey, gx, gy, row_of
+        self._px, self._py = (gx, gy) if row_of is None else (None, None)
+
+    @property
+    def px(self) -> np.ndarray | None:
+        return self._spread()[0]
+
+    @property
+    def py(self) -> np.ndarray | None:
+        return self._spread()[1]
+
+    def _spread(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        if self._px is None and self.gx is not None:
+            self._px, self._py = np.take(self.gx, self._row_of, axis=0), np.take(self.gy, self._row_of, axis=0)
+        return self._px, self._py
 
     @classmethod
     def of(cls, pose: Pose, scene: _Scene, config: DwaConfig) -> "_Window":
         place = placement(pose)
-        spread = scene.binding or scene.fence_here is not None or not scene.single  # reads every rollout
-        if scene.culled.count or spread:
+        if scene.culled.count or scene.binding or scene.fence_here is not None or not scene.single:
             gx, gy = _placed(place, config)
             row_of = config.row_of
             if row_of is None:
-                return cls(gx[:, -1], gy[:, -1], gx, gy, gx, gy)
-            if spread:
-                px, py = np.take(gx, row_of, axis=0), np.take(gy, row_of, axis=0)
-                return cls(px[:, -1], py[:, -1], px, py, gx, gy)
-            # the obstacle rule alone reads the distinct rollouts: only the prediction points spread
-            return cls(gx[:, -1][row_of], gy[:, -1][row_of], None, None, gx, gy)
+                return cls(gx[:, -1], gy[:, -1], gx, gy, None)
+            return cls(gx[row_of, -1], gy[row_of, -1], gx, gy, row_of)
         ex, ey = place @ config.end_hom_m
-        return cls(ex, ey, None, None, None, None)
+        return cls(ex, ey, None, None, None)
 
 
 class _Rules(NamedTuple):
@@ -247,7 +255,8 @@ def warm_up_kernels() -> None:
     """Load (or compile) the compiled kernels of branches a throwaway tick at the station may not
     take: the heading critic over a goal window, the obstacle terms and the sight lines' frame,
     and the fused obstacle pass and choice near an obstacle, with the argument types a flight
-    passes them (see companion.app.warmup), on the default backend (what a config gets)."""
+    passes them (see companion.app.warmup), on the default backend (what a config gets); the
+    fused pick over a goal window too."""
     px = np.zeros((2, 3))
     goals = LocalGoals(np.array([[5.0, 0.0], [9.0, 0.0]]), (0.0, 0.0), 1.0, 1.0, ends_at_station=True)
     DEFAULT.heading_from_ends(px[:, -1], px[:, -1], np.zeros(2), goals, (0.0, 0.0), px, px, False, _SOONEST_DEG)
@@ -260,6 +269,7 @@ def warm_up_kernels() -> None:
     plan_step(Pose(0.0, 0.0, 0.0), (100.0, 0.0), OtherUav(0.0, 50.0, 0.0, 0.0), ObstacleSnapshot.build(
         [("c", 10.0, 20.0, 5.0, 1.0, 0.0, 0.0)], [("p", np.array([[0.0, 30.0], [9.0, 30.0], [9.0, 40.0]]), 1.0, 0.0,
                                                   0.0)]), config)
+    plan_step(Pose(0.0, 0.0, 0.0), goals, None, ObstacleSnapshot.build([], []), config)  # the goal window's pick
     # boxed in by a ring of circles and a polygon: the recovery's spin checks
     ring = [(f"r{i}", 6.0 * math.cos(a), 6.0 * math.sin(a), 2.0, 0.5, 0.0, 0.0)
             for i, a in enumerate(np.arange(12) / 2.0)]
@@ -292,7 +302,8 @@ def _toward_only_hovers(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_
     pocket with its goal far to one side turns that way in place until nothing is legal, the
     spin recovery turns it back, and again until the time limit, while moving rollouts to the
     other side were legal throughout. Unless its timed route holds it still."""
-    if math.isnan(turn_error_rad) or config.speed_samples == 1 or config.min_speed_m_s > 0.0:
+    if (math.isnan(turn_error_rad) or config.speed_samples == 1 or config.min_speed_m_s > 0.0
+            or legal is config.all_legal):  # every rollout legal: the straight moving ones too
         return False
     moving = config.moving_rollouts
     if scheduled_speed_m_s is not None and scheduled_speed_m_s < 0.5 * config.slowest_move_m_s:
