@@ -49,6 +49,7 @@ class Backend:
     choose: Callable = evaluate.choose
     pick: Callable = evaluate.pick
     spin_checks: Callable = recovery.spin_checks
+    braking_clearance: Callable = recovery.braking_clearance
 
     def cull(self, snapshot: ObstacleSnapshot, x_m: float, y_m: float, reach_m: float, horizon_s: float,
              to_xy: tuple[float, float] | None = None) -> Culled:
@@ -83,6 +84,7 @@ COMPILED = None if geometry_jit is None else Backend(
     choose=evaluate_jit.choose,
     pick=evaluate_jit.pick,
     spin_checks=recovery_jit.spin_checks,
+    braking_clearance=recovery_jit.braking_clearance,
 )
 
 DEFAULT = NUMPY if COMPILED is None else COMPILED

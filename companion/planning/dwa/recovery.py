@@ -27,6 +27,7 @@ what the recovery cannot promise on such a plant).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -37,7 +38,8 @@ import numpy as np
 
 from companion.planning.dwa.evaluate import command_for, evaluate
 from companion.planning.dwa.geometry import inflated_clearance
-from companion.planning.dwa.legality import Rule, inside_fence_by, separation_limits2, uav_distance2
+from companion.planning.dwa.legality import (Rule, fence_distance, inside_fence_by, separation_limits2,
+                                             uav_distance2, within_separation_reach)
 from companion.planning.dwa.shapes import rotation
 from companion.planning.dwa.sightline import sightline_term
 from companion.planning.dwa.snapshot import ObstacleSnapshot
@@ -58,7 +60,7 @@ class HoverCheck:
     margins: np.ndarray | None  # (O, 1) inflation margins of ``field``
     floor_inflated: np.ndarray | None  # (O, 1) how deep the pose is in each inflated obstacle now (<= 0)
     floor_true: np.ndarray | None
-    sep_from: tuple[OtherUav, ...]  # the UAVs kept separated from
+    sep_from: tuple[OtherUav, ...]  # the UAVs kept separated from, those within reach (separation_reach)
     sep_limit2: np.ndarray | None  # (N, 1, 1) the squared separation kept from each, when any
     sep_bare2: np.ndarray | None  # the same without the right of way's margin (on the true footprints)
 
@@ -149,18 +151,16 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
         # others stay clear of it, so their floors are 0 and they never bind.
         close = config.backend.cull(field_h, pose.x_m, pose.y_m, config.stop_drift_m + 1.0, float(t_hover[-1]))
         floor_inf, floor_true = np.zeros((field_h.count, 1)), np.zeros((field_h.count, 1))
-    bx, by = braking_segment(pose, config)
+    sep_from = within_separation_reach(pose, separate_from, config) if config.min_separation_m > 0 else ()
+    if (floor_inf is not None and close.count) or sep_from:  # else hovering is clear of everything
+        bx, by = braking_segment(pose, config)
     if floor_inf is not None and close.count:
-        sx, sy = np.repeat(bx, hover_steps + 1), np.repeat(by, hover_steps + 1)
-        hc = config.backend.inflated_clearance(sx, sy, np.tile(t_hover, len(bx)), close.subset())
-        if len(bx) > 1:  # the worst point of the braking segment at each time; the floor is the pose's
-            hc = np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(bx), -1).min(axis=1)[:, 1:]], axis=1)
+        hc = config.backend.braking_clearance(bx, by, t_hover, close.subset())
         near_margins = margins[close.keep]
         floor_inf[close.keep] = np.minimum(hc[:, 0:1], 0.0)
         floor_true[close.keep] = np.minimum(hc[:, 0:1] + near_margins, 0.0)
         hover_inf &= (hc >= floor_inf[close.keep] - 1e-9).all(axis=0)
         hover_true &= (hc + near_margins >= floor_true[close.keep] - 1e-9).all(axis=0)
-    sep_from = tuple(separate_from) if config.min_separation_m > 0 else ()
     sep_limit2 = sep_bare2 = None
     if sep_from:
         sep_limit2 = separation_limits2(pose, sep_from, config).reshape(-1, 1, 1)
@@ -185,6 +185,15 @@ def braking_segment(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarr
     return pose.x_m + ahead * (config.tracking_lag_s * vx), pose.y_m + ahead * (config.tracking_lag_s * vy)
 
 
+def braking_clearance(bx: np.ndarray, by: np.ndarray, t_s: np.ndarray, snap: ObstacleSnapshot) -> np.ndarray:
+    """(O, T): each obstacle's clearance to the first point (bx[0], by[0]) at t_s[0], then to
+    the worst of the points (bx, by) (the braking segment) at each later time of t_s (T,)."""
+    hc = inflated_clearance(np.repeat(bx, len(t_s)), np.repeat(by, len(t_s)), np.tile(t_s, len(bx)), snap)
+    if len(bx) == 1:
+        return hc
+    return np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(bx), -1).min(axis=1)[:, 1:]], axis=1)
+
+
 # Spacing of the points a braking segment is judged on (m): far below any obstacle's size.
 _DRIFT_STEP_M = 2.0
 
@@ -192,51 +201,48 @@ _DRIFT_STEP_M = 2.0
 def spin_candidates(pose: Pose, config: DwaConfig, hover: HoverCheck) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The recovery rollouts placed at the pose (R, K + 1, 2), which of them are legal on the
     inflated and on the true footprints (R,) each, and their distance critic (R,)."""
-    dt = config.dt_s
     body = config.rec_body_xy_m
     pts = (body.reshape(-1, 2) @ rotation(pose.heading_rad)).reshape(body.shape)
-    pts += (pose.x_m, pose.y_m)
+    pts.view(np.complex128)[...] += complex(pose.x_m, pose.y_m)  # x + x_m, y + y_m: a (2,) broadcast is slower
     px, py = pts[..., 0], pts[..., 1]
     n_r = len(pts)
-    rules = np.ones(px.shape, dtype=bool)
-    fence = config.fence_m
-    if fence is not None:
-        here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
-        rules &= inside_fence_by(px, py, fence) >= min(here, 0.0) - 1e-9
-    rules_true = rules
-    if hover.sep_limit2 is not None:  # (N, R, K + 1) at once; on the true footprints, the bare separation
+    delay_k = np.rint((config.rec_delay_s + config.tracking_lag_s) / config.dt_s).astype(int)  # hovers until going
+    ok_inf, ok_true = hover.inflated[delay_k], hover.true[delay_k]
+    here = fence_distance(pose, config)  # each rule only where it can bind, as on the tick's rollouts
+    if here is not None:
+        inside = (inside_fence_by(px, py, config.fence_m) >= min(here, 0.0) - 1e-9)[:, 1:].all(axis=1)
+        ok_inf, ok_true = ok_inf & inside, ok_true & inside
+    if hover.sep_limit2 is not None:  # (N, R, K) at once; on the true footprints, the bare separation
         t = config.rec_point_times_s.reshape(n_r, -1)
         ox, oy, ovx, ovy = np.array([(o.x_m, o.y_m, o.vx_m_s, o.vy_m_s) for o in hover.sep_from]).T[:, :, None, None]
-        d2 = (px - ox - ovx * t) ** 2 + (py - oy - ovy * t) ** 2
-        rules = rules & (d2 >= hover.sep_limit2).all(axis=0)
-        rules_true = rules_true & (d2 >= hover.sep_bare2).all(axis=0)
-    delay_k = np.rint((config.rec_delay_s + config.tracking_lag_s) / dt).astype(int)  # hovers until it gets going
-    ok_inf = hover.inflated[delay_k] & rules[:, 1:].all(axis=1)
-    ok_true = hover.true[delay_k] & rules_true[:, 1:].all(axis=1)
+        d2 = ((px - ox - ovx * t) ** 2 + (py - oy - ovy * t) ** 2)[..., 1:]
+        ok_inf = ok_inf & (d2 >= hover.sep_limit2).all(axis=(0, 2))
+        ok_true = ok_true & (d2 >= hover.sep_bare2).all(axis=(0, 2))
     if not hover.field.count:
         return pts, ok_inf, ok_true, np.full(n_r, config.distance_saturation_m)
-    return (pts, *config.backend.spin_checks(px, py, config, hover, ok_inf, ok_true))
+    return (pts, *config.backend.spin_checks(pts, config, hover, ok_inf, ok_true))
 
 
-def spin_checks(px: np.ndarray, py: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: np.ndarray,
+def spin_checks(pts: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: np.ndarray,
                 ok_true: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The obstacle rule on the recovery rollouts (px, py) (R, K + 1) against ``hover.field``:
+    """The obstacle rule on the recovery rollouts ``pts`` (R, K + 1, 2) against ``hover.field``:
     ``ok_inf`` and ``ok_true`` (R,), which may still be legal on the inflated and on the true
     footprints, narrowed to those that are, and the distance critic (R,), meaningful where
     either is legal.
 
-    Point by point along the rollouts, over the ones still legal on either footprint only, and
+    Point by point along the rollouts (in :func:`check_order`), over the ones still legal on either footprint only, and
     against the obstacles that can come near those points (a point farther from an obstacle's
     bounding disc than the saturation plus 1 m can neither break the rule nor set the critic):
     when the vehicle is boxed in (every rollout breaks the rule a few points out) this stops
     after a few points instead of measuring every point of every heading to every obstacle."""
+    px, py = pts[..., 0], pts[..., 1]
     field, times = hover.field, config.rec_point_times_s.reshape(px.shape)
     limits = np.stack([hover.floor_inflated[:, 0], hover.floor_true[:, 0], hover.margins[:, 0]])  # (3, O)
     beyond = max(config.distance_saturation_m, 0.0) + 1.0
     ok_inf, ok_true = ok_inf.copy(), ok_true.copy()
     lowest = np.full(len(px), np.inf)
     alive = np.flatnonzero(ok_inf | ok_true)
-    for k in range(1, px.shape[1]):
+    for k in check_order(px.shape[1]):
         if not len(alive):
             break
         x, y, t = px[alive, k], py[alive, k], times[alive, k]
@@ -255,6 +261,18 @@ def spin_checks(px: np.ndarray, py: np.ndarray, config: DwaConfig, hover: HoverC
         lowest[alive] = np.minimum(lowest[alive], rc.min(axis=0))
         alive = alive[ok_inf[alive] | ok_true[alive]]
     return ok_inf, ok_true, np.clip(lowest, 0.0, config.distance_saturation_m)
+
+
+@functools.cache
+def check_order(points: int) -> np.ndarray:
+    """The order in which the spin checks visit a rollout's points after the first (1 to
+    ``points`` - 1): every third from the far end, then those between. An obstacle across a
+    rollout covers several points in a row, and a blocked rollout is blocked by the farther
+    ones more often (the near ones were clear a tick ago), so a blocked rollout is found after
+    a few points. Any order gives the same verdicts."""
+    order = np.array([k for start in range(points - 1, points - 4, -1) for k in range(start, 0, -3)], dtype=np.int64)
+    order.setflags(write=False)
+    return order
 
 
 def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
