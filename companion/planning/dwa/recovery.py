@@ -27,7 +27,6 @@ what the recovery cannot promise on such a plant).
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -68,18 +67,26 @@ class HoverCheck:
 @dataclass(frozen=True, eq=False)
 class Stuck:
     """What the tick that found no legal rollout hands the recovery: each rule's mask per
-    rollout point (S, K + 1), the heading critic (S,), the obstacles within reach, and how to
-    work out the rollouts' clearances to them (O, S * (K + 1)): only the escape reads those, so
+    rollout point (S, K + 1), and how to work out the heading critic (S,), the obstacles within
+    reach and the rollouts' clearances to them (O, S * (K + 1)): only the escape reads those, so
     a vehicle that holds or recovers never pays for them."""
 
     ok_by_rule: dict[Rule, np.ndarray]
-    heading: np.ndarray
-    near: ObstacleSnapshot
+    heading_critic: Callable[[], np.ndarray]
+    near_obstacles: Callable[[], ObstacleSnapshot]
     clearances: Callable[[], np.ndarray | None]
     lagged_clearances: Callable[[], np.ndarray | None] = lambda: None  # the same, as a lagging plant flies them
     # The separation rule (S, K + 1) without the right of way's margin, on the rollouts and as a
     # lagging plant flies them (None: no UAV can bind).
     bare_separation: Callable[[], np.ndarray | None] = lambda: None
+
+    @cached_property
+    def heading(self) -> np.ndarray:
+        return self.heading_critic()
+
+    @cached_property
+    def near(self) -> ObstacleSnapshot:
+        return self.near_obstacles()
 
     @cached_property
     def clear(self) -> np.ndarray | None:
@@ -155,12 +162,10 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
     if (floor_inf is not None and close.count) or sep_from:  # else hovering is clear of everything
         bx, by = braking_segment(pose, config)
     if floor_inf is not None and close.count:
-        hc = config.backend.braking_clearance(bx, by, t_hover, close.subset())
-        near_margins = margins[close.keep]
-        floor_inf[close.keep] = np.minimum(hc[:, 0:1], 0.0)
-        floor_true[close.keep] = np.minimum(hc[:, 0:1] + near_margins, 0.0)
-        hover_inf &= (hc >= floor_inf[close.keep] - 1e-9).all(axis=0)
-        hover_true &= (hc + near_margins >= floor_true[close.keep] - 1e-9).all(axis=0)
+        floor_inf[close.keep], floor_true[close.keep], clear_inf, clear_true = config.backend.braking_checks(
+            bx, by, t_hover, close.subset())
+        hover_inf &= clear_inf
+        hover_true &= clear_true
     sep_limit2 = sep_bare2 = None
     if sep_from:
         sep_limit2 = separation_limits2(pose, sep_from, config).reshape(-1, 1, 1)
@@ -185,13 +190,18 @@ def braking_segment(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarr
     return pose.x_m + ahead * (config.tracking_lag_s * vx), pose.y_m + ahead * (config.tracking_lag_s * vy)
 
 
-def braking_clearance(bx: np.ndarray, by: np.ndarray, t_s: np.ndarray, snap: ObstacleSnapshot) -> np.ndarray:
-    """(O, T): each obstacle's clearance to the first point (bx[0], by[0]) at t_s[0], then to
-    the worst of the points (bx, by) (the braking segment) at each later time of t_s (T,)."""
+def braking_checks(bx: np.ndarray, by: np.ndarray, t_s: np.ndarray,
+                   snap: ObstacleSnapshot) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The obstacles of ``snap`` against the braking segment (bx, by) over the times t_s (T,):
+    how deep its first point is in each inflated and each true obstacle at t_s[0] (<= 0; (O, 1)
+    each), and at each time whether the segment's worst point is no deeper in any ((T,) each)."""
     hc = inflated_clearance(np.repeat(bx, len(t_s)), np.repeat(by, len(t_s)), np.tile(t_s, len(bx)), snap)
-    if len(bx) == 1:
-        return hc
-    return np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(bx), -1).min(axis=1)[:, 1:]], axis=1)
+    if len(bx) > 1:  # the worst point of the braking segment at each time; the floor is the pose's
+        hc = np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(bx), -1).min(axis=1)[:, 1:]], axis=1)
+    margins = np.concatenate([snap.circle_margin_m, snap.poly_margin_m])[:, None]
+    floor_inf, floor_true = np.minimum(hc[:, 0:1], 0.0), np.minimum(hc[:, 0:1] + margins, 0.0)
+    return (floor_inf, floor_true, (hc >= floor_inf - 1e-9).all(axis=0),
+            (hc + margins >= floor_true - 1e-9).all(axis=0))
 
 
 # Spacing of the points a braking segment is judged on (m): far below any obstacle's size.
@@ -230,7 +240,7 @@ def spin_checks(pts: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: n
     footprints, narrowed to those that are, and the distance critic (R,), meaningful where
     either is legal.
 
-    Point by point along the rollouts (in :func:`check_order`), over the ones still legal on either footprint only, and
+    Point by point along the rollouts, over the ones still legal on either footprint only, and
     against the obstacles that can come near those points (a point farther from an obstacle's
     bounding disc than the saturation plus 1 m can neither break the rule nor set the critic):
     when the vehicle is boxed in (every rollout breaks the rule a few points out) this stops
@@ -242,7 +252,7 @@ def spin_checks(pts: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: n
     ok_inf, ok_true = ok_inf.copy(), ok_true.copy()
     lowest = np.full(len(px), np.inf)
     alive = np.flatnonzero(ok_inf | ok_true)
-    for k in check_order(px.shape[1]):
+    for k in range(1, px.shape[1]):
         if not len(alive):
             break
         x, y, t = px[alive, k], py[alive, k], times[alive, k]
@@ -263,23 +273,13 @@ def spin_checks(pts: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: n
     return ok_inf, ok_true, np.clip(lowest, 0.0, config.distance_saturation_m)
 
 
-@functools.cache
-def check_order(points: int) -> np.ndarray:
-    """The order in which the spin checks visit a rollout's points after the first (1 to
-    ``points`` - 1): every third from the far end, then those between. An obstacle across a
-    rollout covers several points in a row, and a blocked rollout is blocked by the farther
-    ones more often (the near ones were clear a tick ago), so a blocked rollout is found after
-    a few points. Any order gives the same verdicts."""
-    order = np.array([k for start in range(points - 1, points - 4, -1) for k in range(start, 0, -3)], dtype=np.int64)
-    order.setflags(write=False)
-    return order
-
-
 def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapshot: ObstacleSnapshot,
                   config: DwaConfig, pts: np.ndarray, legal: np.ndarray, distance: np.ndarray,
                   reason: str) -> NoLegalRollout:
     """Yaw in place (speed 0) toward the best legal recovery rollout's heading."""
-    scores = config.backend.heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals)
+    # the heading critic of the legal ones only: the others' never counts
+    scores = config.backend.heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals,
+                                           np.flatnonzero(legal))
     sight = sightline_term(pose, other, snapshot, config, pts[:, -1, 0], pts[:, -1, 1])
     total = evaluate(config, legal, scores, distance, sight)
     i = int(total.argmax())

@@ -4,6 +4,7 @@ distance bit for bit (see :mod:`.jit`)."""
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -11,7 +12,6 @@ import numpy as np
 from companion.planning.dwa.geometry import one_layout
 from companion.planning.dwa.geometry_jit import polygon_point
 from companion.planning.dwa.jit import jit
-from companion.planning.dwa.recovery import check_order
 
 if TYPE_CHECKING:
     from companion.planning.dwa.config import DwaConfig
@@ -37,6 +37,17 @@ def spin_checks(pts: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: n
                             field.arrays(), (floors, bounds), (out_inf, out_true), float(config.distance_saturation_m),
                             box)
     return out_inf, out_true, distance
+
+
+@functools.cache
+def check_order(points: int) -> np.ndarray:
+    """The order in which the compiled spin checks visit a rollout's points after the first (1
+    to ``points`` - 1): every third from the far end, then those between. An obstacle across a
+    rollout covers several points in a row, and the far points sweep the most ground, so a
+    blocked rollout is found after a few points. Any order gives the same verdicts."""
+    order = np.array([k for start in range(points - 1, points - 4, -1) for k in range(start, 0, -3)], dtype=np.int64)
+    order.setflags(write=False)
+    return order
 
 
 @jit
@@ -160,27 +171,34 @@ def _sweep(xy, t_s, n_k, order, obstacles, limits, ok, grid, beyond, rule, dista
     return legal
 
 
-def braking_clearance(bx: np.ndarray, by: np.ndarray, t_s: np.ndarray, snap: ObstacleSnapshot) -> np.ndarray:
-    """:func:`.recovery.braking_clearance`, compiled: an obstacle that stays put is measured at
-    each point once, not at every time."""
-    out = np.empty((snap.count, len(t_s)))
-    _braking_clearance(one_layout(bx), one_layout(by), one_layout(t_s), snap.arrays(), out)
-    return out
+def braking_checks(bx: np.ndarray, by: np.ndarray, t_s: np.ndarray,
+                   snap: ObstacleSnapshot) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`.recovery.braking_checks`, compiled: an obstacle that stays put is measured at each
+    point once, not at every time."""
+    floor_inf, floor_true = np.empty((snap.count, 1)), np.empty((snap.count, 1))
+    clear_inf, clear_true = np.ones(len(t_s), dtype=bool), np.ones(len(t_s), dtype=bool)
+    _braking_checks(one_layout(bx), one_layout(by), one_layout(t_s), snap.arrays(),
+                    (floor_inf[:, 0], floor_true[:, 0], clear_inf, clear_true))
+    return floor_inf, floor_true, clear_inf, clear_true
 
 
 @jit
-def _braking_clearance(bx, by, t_s, obstacles, out):
-    """Fills ``out`` (O, T) as :func:`.recovery.braking_clearance` returns it."""
+def _braking_checks(bx, by, t_s, obstacles, out):
+    """Fills ``out`` = (floor_inf, floor_true (O,), clear_inf, clear_true (T,), all True) as
+    :func:`.recovery.braking_checks` returns them."""
     c_xy, c_vel, c_r, c_m, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy, p_vel, p_m, _, _ = obstacles
+    floor_inf, floor_true, clear_inf, clear_true = out
     n_c = len(c_r)
-    for o in range(len(out)):
+    lowest = np.empty(len(t_s))
+    for o in range(len(floor_inf)):
         vel = c_vel[o] if o < n_c else p_vel[o - n_c]
         moves = vel[0] != 0.0 or vel[1] != 0.0
-        for k in range(len(t_s)):
+        margin = c_m[o] if o < n_c else p_m[o - n_c]
+        for k in range(len(t_s)):  # the first point at the first time, then the worst point at each
             if k > 1 and not moves:  # the same points, the same clearances
-                out[o, k] = out[o, 1]
+                lowest[k] = lowest[1]
                 continue
-            lowest = np.inf
+            v_min = np.inf
             for j in range(len(bx) if k else 1):
                 if o < n_c:  # geometry_jit._circle_clearance's operations
                     dx = bx[j] - c_xy[o, 0]
@@ -193,8 +211,16 @@ def _braking_clearance(bx, by, t_s, obstacles, out):
                     p = o - n_c
                     v = polygon_point(bx[j] - p_vel[p, 0] * t_s[k], by[j] - p_vel[p, 1] * t_s[k], p, p_a, p_b, p_d,
                                       p_inv_len2, p_dx_per_dy) - p_m[p]
-                lowest = v if v < lowest else lowest
-            out[o, k] = lowest
+                v_min = v if v < v_min else v_min
+            lowest[k] = v_min
+        here_true = lowest[0] + margin
+        floor_inf[o] = lowest[0] if lowest[0] < 0.0 else 0.0
+        floor_true[o] = here_true if here_true < 0.0 else 0.0
+        for k in range(len(t_s)):
+            if not lowest[k] >= floor_inf[o] - 1e-9:
+                clear_inf[k] = False
+            if not lowest[k] + margin >= floor_true[o] - 1e-9:
+                clear_true[k] = False
 
 
 # The grids' cells: the rule's 10 m, the critic's 20 m, coarser when the points span more than 64

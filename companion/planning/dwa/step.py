@@ -177,30 +177,32 @@ def _rules(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig) -> _Ru
 
 def _recover(pose: Pose, goals: LocalGoals, other: OtherUav | None, scene: _Scene, window: _Window, rules: _Rules,
              config: DwaConfig) -> NoLegalRollout:
-    """No legal rollout: the recovery reads every rollout's heading, and the escape every
-    rollout's clearances (worked out only then)."""
-    near = scene.culled.subset()
+    """No legal rollout: the escape reads every rollout's heading critic and clearances (worked
+    out only then)."""
+    near = scene.culled.subset  # built on first use
 
     def clearances() -> np.ndarray | None:
         clear = rules.clear
         if scene.culled.count and clear is None:  # the compiled pass left some out
             if config.row_of is None:
                 return config.backend.inflated_clearance(window.px.ravel(), window.py.ravel(), config.point_times_s,
-                                                         near)
+                                                         near())
             clear = config.backend.inflated_clearance(window.gx.ravel(), window.gy.ravel(), config.geo_point_times_s,
-                                                      near)
+                                                      near())
         if clear is not None and config.row_of is not None:  # the escape reads every rollout's
             return clear.reshape(len(clear), *window.gx.shape)[:, config.row_of].reshape(len(clear), -1)
         return clear
 
-    heading = config.backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad,
-                                               goals, (pose.x_m, pose.y_m), window.px, window.py, scene.single,
-                                               _soonest(config))
+    def heading() -> np.ndarray:
+        return config.backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad,
+                                                goals, (pose.x_m, pose.y_m), window.px, window.py, scene.single,
+                                                _soonest(config))
+
     def lagged_clearances() -> np.ndarray | None:
         xy = lagged_points(pose, config) if scene.culled.count else None
         if xy is None:
             return None
-        return config.backend.inflated_clearance(xy[0], xy[1], config.point_times_s, near)
+        return config.backend.inflated_clearance(xy[0], xy[1], config.point_times_s, near())
 
     def bare_separation() -> np.ndarray | None:
         return _separation(pose, scene, window, config, courtesy=False) if scene.binding else None
