@@ -110,7 +110,8 @@ def _sweep(xy, t_s, n_k, order, obstacles, limits, ok, grid, beyond, rule, dista
     obstacles of its ``grid`` cell (:func:`_grid`) and a pair of point and obstacle farther than
     ``beyond`` from its bounding disc left out. ``rule``: the obstacle rule, rollout by rollout
     until illegal on both footprints, narrowing ``ok``; returns how many are still legal. Else
-    the critic of each, over every point, into ``distance`` (np.clip'd to [0, its value])."""
+    the critic of each, over every point, into ``distance`` (np.clip'd to [0, its value]); a
+    pair that cannot come nearer than the nearest so far is left out too."""
     c_xy, c_vel, c_r, c_m, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy, p_vel, p_m, p_centre, p_bound = obstacles
     floor_inf, floor_true, margins = limits[0]
     ok_inf, ok_true = ok
@@ -138,7 +139,7 @@ def _sweep(xy, t_s, n_k, order, obstacles, limits, ok, grid, beyond, rule, dista
                     if c_vel[o, 0] != 0.0 or c_vel[o, 1] != 0.0:
                         dx -= c_vel[o, 0] * t
                         dy -= c_vel[o, 1] * t
-                    lim = c_r[o] + c_m[o] + beyond
+                    lim = c_r[o] + c_m[o] + (beyond if rule or lowest > beyond else _above(lowest))
                     if dx * dx + dy * dy > lim * lim:
                         continue
                     v = np.hypot(dx, dy) - c_r[o] - c_m[o]
@@ -148,7 +149,7 @@ def _sweep(xy, t_s, n_k, order, obstacles, limits, ok, grid, beyond, rule, dista
                     qy = y - p_vel[p, 1] * t
                     dx = qx - p_centre[p, 0]
                     dy = qy - p_centre[p, 1]
-                    lim = p_bound[p] + p_m[p] + beyond
+                    lim = p_bound[p] + p_m[p] + (beyond if rule or lowest > beyond else _above(lowest))
                     if dx * dx + dy * dy > lim * lim:
                         continue
                     v = polygon_point(qx, qy, p, p_a, p_b, p_d, p_inv_len2, p_dx_per_dy) - p_m[p]
@@ -169,6 +170,14 @@ def _sweep(xy, t_s, n_k, order, obstacles, limits, ok, grid, beyond, rule, dista
             lowest = lowest if lowest > 0.0 else 0.0
             distance[r] = lowest if lowest < distance[r] else distance[r]
     return legal
+
+
+@jit
+def _above(lowest):
+    """How far from its bounding disc a point can be and still come nearer an obstacle than
+    ``lowest``, the nearest so far, or than 0 (the critic is clipped at 0): a little more than
+    either, for rounding."""
+    return (lowest if lowest > 0.0 else 0.0) + 1e-6
 
 
 def braking_checks(bx: np.ndarray, by: np.ndarray, t_s: np.ndarray,
