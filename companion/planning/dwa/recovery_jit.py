@@ -1,6 +1,7 @@
-"""The compiled twin (numba) of :func:`.recovery.spin_checks`: the obstacle rule and the distance
-critic on the spin recovery's rollouts, the same verdicts and, where a rollout is legal, the same
-distance bit for bit (see :mod:`.jit`)."""
+"""The compiled twins (numba) of :func:`.recovery.spin_checks`, the obstacle rule and the distance
+critic on the spin recovery's rollouts (the same verdicts and, where a rollout is legal, the same
+distance bit for bit), and of :func:`.recovery.braking_checks`, the hover check's obstacles (the
+same bits; see :mod:`.jit`)."""
 
 from __future__ import annotations
 
