@@ -248,8 +248,9 @@ def _soonest(config: DwaConfig) -> float:
 def warm_up_kernels() -> None:
     """Load (or compile) the compiled kernels of branches a throwaway tick at the station may not
     take: the heading critic over a goal window, the obstacle terms and the sight lines' frame,
-    and the fused obstacle pass and choice near an obstacle, with the argument types a flight
-    passes them (see companion.app.warmup), on the default backend (what a config gets)."""
+    the hover check's braking segment next to an obstacle, and the fused obstacle pass and
+    choice near an obstacle, with the argument types a flight passes them (see
+    companion.app.warmup), on the default backend (what a config gets)."""
     px = np.zeros((2, 3))
     goals = LocalGoals(np.array([[5.0, 0.0], [9.0, 0.0]]), (0.0, 0.0), 1.0, 1.0, ends_at_station=True)
     DEFAULT.heading_from_ends(px[:, -1], px[:, -1], np.zeros(2), goals, (0.0, 0.0), px, px, False, _SOONEST_DEG)
@@ -257,6 +258,7 @@ def warm_up_kernels() -> None:
     circle = ObstacleSnapshot.build([("c", 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)], [])
     ends = np.zeros((2, 2))
     DEFAULT.sightline_depths(ends[:, 0], ends[:, 1], (5.0, 5.0), 1.0, circle)
+    DEFAULT.braking_checks(np.zeros(2), np.zeros(2), np.zeros(3), circle)
     config = DwaConfig(speed_m_s=10.0, max_yaw_rate_rad_s=0.3, samples=3, dt_s=0.5, prediction_time_s=1.0, w_h=1.0,
                        w_d=1.0, w_s=1.0, sightline_cap_m=50.0)
     plan_step(Pose(0.0, 0.0, 0.0), (100.0, 0.0), OtherUav(0.0, 50.0, 0.0, 0.0), ObstacleSnapshot.build(
