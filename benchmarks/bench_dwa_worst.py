@@ -8,7 +8,8 @@ The paper's window (31 yaw rates x 22 steps, p = 11 s, the multicopter's lag) at
 - "ring N": N circles (radius 8 m) 60-110 m from the vehicle, as compare_peers.py places them:
   within one rollout's reach, so culling keeps them all. From about 100 of them no rollout is
   legal and the tick recovers (spin recovery, hold or escape): the per-obstacle cost is the
-  tick's CPU over the empty tick's, per obstacle;
+  tick's CPU over the empty tick's, per obstacle, so it counts the recovery's own cost (placing and
+  checking the spin headings, much the same at any count) against the obstacles too;
 - "spread N": N small circles (radius 2 m) over the 130 m around the vehicle: some rollouts stay
   legal up to 200 of them (the cost of the tick itself per obstacle);
 - "boxed in": a closed ring of 40 circles 30 m out and 160 more beyond: every rollout and every
@@ -17,7 +18,8 @@ The paper's window (31 yaw rates x 22 steps, p = 11 s, the multicopter's lag) at
 Each case runs on the compiled backend (numba, when installed) and on the numpy backend, in
 alternating rounds; a figure is the median over rounds of the CPU per call
 (``time.process_time``). Targets: the boxed-in tick <= 5 ms; the per-obstacle cost flat up to
-200 obstacles.
+200 obstacles. To compare two versions, run it from each tree in turn, several times, and
+compare medians.
 """
 
 from __future__ import annotations

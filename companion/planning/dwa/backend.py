@@ -50,6 +50,7 @@ class Backend:
     pick: Callable = evaluate.pick
     pick_goals: Callable = evaluate.pick_goals
     spin_checks: Callable = recovery.spin_checks
+    braking_checks: Callable = recovery.braking_checks
 
     def cull(self, snapshot: ObstacleSnapshot, x_m: float, y_m: float, reach_m: float, horizon_s: float,
              to_xy: tuple[float, float] | None = None) -> Culled:
@@ -63,10 +64,19 @@ class Backend:
         """:meth:`.ObstacleSnapshot.near` with this backend's culling."""
         return self.cull(snapshot, x_m, y_m, reach_m, horizon_s, to_xy).subset()
 
-    def heading_scores(self, pts: np.ndarray, final_heading: np.ndarray, goals) -> np.ndarray:
-        """:func:`.heading.heading_scores` with this backend's critic."""
-        return self.heading_from_ends(pts[:, -1, 0], pts[:, -1, 1], final_heading, goals, pts[0, 0], pts[..., 0],
-                                      pts[..., 1])
+    def heading_scores(self, pts: np.ndarray, final_heading: np.ndarray, goals,
+                       rows: np.ndarray | None = None) -> np.ndarray:
+        """:func:`.heading.heading_scores` with this backend's critic; ``rows``: those rollouts'
+        only (0 elsewhere), each the same as among all (a rollout's score is its own, once
+        whether they all go for the first goal is settled over all of them)."""
+        ex, ey, origin = pts[:, -1, 0], pts[:, -1, 1], pts[0, 0]
+        if rows is None:
+            return self.heading_from_ends(ex, ey, final_heading, goals, origin, pts[..., 0], pts[..., 1])
+        single = heading.resolve_single(ex, ey, goals, origin, None)
+        scores = np.zeros(len(pts))
+        scores[rows] = self.heading_from_ends(ex[rows], ey[rows], final_heading[rows], goals, origin, pts[rows, :, 0],
+                                              pts[rows, :, 1], single)
+        return scores
 
 
 NUMPY = Backend("numpy")
@@ -85,6 +95,7 @@ COMPILED = None if geometry_jit is None else Backend(
     pick=evaluate_jit.pick,
     pick_goals=evaluate_jit.pick_goals,
     spin_checks=recovery_jit.spin_checks,
+    braking_checks=recovery_jit.braking_checks,
 )
 
 DEFAULT = NUMPY if COMPILED is None else COMPILED

@@ -61,6 +61,14 @@ def separation_reach(config: DwaConfig) -> tuple[float, float]:
             config.horizon_s + config.spin_time_s + config.tracking_lag_s + config.dt_s)
 
 
+def within_separation_reach(pose: Pose, others: Sequence[OtherUav], config: DwaConfig) -> tuple[OtherUav, ...]:
+    """The UAVs of ``others`` within :func:`separation_reach` of the pose: the others can bind
+    no rule of this config, nor its recovery's or its hover's."""
+    metres, seconds = separation_reach(config)
+    return tuple(o for o in others if math.hypot(pose.x_m - o.x_m, pose.y_m - o.y_m)
+                 <= metres + math.hypot(o.vx_m_s, o.vy_m_s) * seconds)
+
+
 def fence_distance(pose: Pose, config: DwaConfig) -> float | None:
     """The pose's distance inside the fence (negative outside), or None when no fence or no
     rollout can reach it."""

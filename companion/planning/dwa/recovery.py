@@ -37,7 +37,8 @@ import numpy as np
 
 from companion.planning.dwa.evaluate import command_for, evaluate
 from companion.planning.dwa.geometry import inflated_clearance
-from companion.planning.dwa.legality import Rule, inside_fence_by, separation_limits2, uav_distance2
+from companion.planning.dwa.legality import (Rule, fence_distance, inside_fence_by, separation_limits2,
+                                             uav_distance2, within_separation_reach)
 from companion.planning.dwa.shapes import rotation
 from companion.planning.dwa.sightline import sightline_term
 from companion.planning.dwa.snapshot import ObstacleSnapshot
@@ -58,7 +59,7 @@ class HoverCheck:
     margins: np.ndarray | None  # (O, 1) inflation margins of ``field``
     floor_inflated: np.ndarray | None  # (O, 1) how deep the pose is in each inflated obstacle now (<= 0)
     floor_true: np.ndarray | None
-    sep_from: tuple[OtherUav, ...]  # the UAVs kept separated from
+    sep_from: tuple[OtherUav, ...]  # the UAVs kept separated from, those within reach (separation_reach)
     sep_limit2: np.ndarray | None  # (N, 1, 1) the squared separation kept from each, when any
     sep_bare2: np.ndarray | None  # the same without the right of way's margin (on the true footprints)
 
@@ -66,18 +67,26 @@ class HoverCheck:
 @dataclass(frozen=True, eq=False)
 class Stuck:
     """What the tick that found no legal rollout hands the recovery: each rule's mask per
-    rollout point (S, K + 1), the heading critic (S,), the obstacles within reach, and how to
-    work out the rollouts' clearances to them (O, S * (K + 1)): only the escape reads those, so
+    rollout point (S, K + 1), and how to work out the heading critic (S,), the obstacles within
+    reach and the rollouts' clearances to them (O, S * (K + 1)): only the escape reads those, so
     a vehicle that holds or recovers never pays for them."""
 
     ok_by_rule: dict[Rule, np.ndarray]
-    heading: np.ndarray
-    near: ObstacleSnapshot
+    heading_critic: Callable[[], np.ndarray]
+    near_obstacles: Callable[[], ObstacleSnapshot]
     clearances: Callable[[], np.ndarray | None]
     lagged_clearances: Callable[[], np.ndarray | None] = lambda: None  # the same, as a lagging plant flies them
     # The separation rule (S, K + 1) without the right of way's margin, on the rollouts and as a
     # lagging plant flies them (None: no UAV can bind).
     bare_separation: Callable[[], np.ndarray | None] = lambda: None
+
+    @cached_property
+    def heading(self) -> np.ndarray:
+        return self.heading_critic()
+
+    @cached_property
+    def near(self) -> ObstacleSnapshot:
+        return self.near_obstacles()
 
     @cached_property
     def clear(self) -> np.ndarray | None:
@@ -149,18 +158,14 @@ def hover_check(pose: Pose, separate_from: Sequence[OtherUav], snapshot: Obstacl
         # others stay clear of it, so their floors are 0 and they never bind.
         close = config.backend.cull(field_h, pose.x_m, pose.y_m, config.stop_drift_m + 1.0, float(t_hover[-1]))
         floor_inf, floor_true = np.zeros((field_h.count, 1)), np.zeros((field_h.count, 1))
-    bx, by = braking_segment(pose, config)
+    sep_from = within_separation_reach(pose, separate_from, config) if config.min_separation_m > 0 else ()
+    if (floor_inf is not None and close.count) or sep_from:  # else hovering is clear of everything
+        bx, by = braking_segment(pose, config)
     if floor_inf is not None and close.count:
-        sx, sy = np.repeat(bx, hover_steps + 1), np.repeat(by, hover_steps + 1)
-        hc = config.backend.inflated_clearance(sx, sy, np.tile(t_hover, len(bx)), close.subset())
-        if len(bx) > 1:  # the worst point of the braking segment at each time; the floor is the pose's
-            hc = np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(bx), -1).min(axis=1)[:, 1:]], axis=1)
-        near_margins = margins[close.keep]
-        floor_inf[close.keep] = np.minimum(hc[:, 0:1], 0.0)
-        floor_true[close.keep] = np.minimum(hc[:, 0:1] + near_margins, 0.0)
-        hover_inf &= (hc >= floor_inf[close.keep] - 1e-9).all(axis=0)
-        hover_true &= (hc + near_margins >= floor_true[close.keep] - 1e-9).all(axis=0)
-    sep_from = tuple(separate_from) if config.min_separation_m > 0 else ()
+        floor_inf[close.keep], floor_true[close.keep], clear_inf, clear_true = config.backend.braking_checks(
+            bx, by, t_hover, close.subset())
+        hover_inf &= clear_inf
+        hover_true &= clear_true
     sep_limit2 = sep_bare2 = None
     if sep_from:
         sep_limit2 = separation_limits2(pose, sep_from, config).reshape(-1, 1, 1)
@@ -185,6 +190,20 @@ def braking_segment(pose: Pose, config: DwaConfig) -> tuple[np.ndarray, np.ndarr
     return pose.x_m + ahead * (config.tracking_lag_s * vx), pose.y_m + ahead * (config.tracking_lag_s * vy)
 
 
+def braking_checks(bx: np.ndarray, by: np.ndarray, t_s: np.ndarray,
+                   snap: ObstacleSnapshot) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The obstacles of ``snap`` against the braking segment (bx, by) over the times t_s (T,):
+    how deep its first point is in each inflated and each true obstacle at t_s[0] (<= 0; (O, 1)
+    each), and at each time whether the segment's worst point is no deeper in any ((T,) each)."""
+    hc = inflated_clearance(np.repeat(bx, len(t_s)), np.repeat(by, len(t_s)), np.tile(t_s, len(bx)), snap)
+    if len(bx) > 1:  # the worst point of the braking segment at each time; the floor is the pose's
+        hc = np.concatenate([hc[:, 0:1], hc.reshape(len(hc), len(bx), -1).min(axis=1)[:, 1:]], axis=1)
+    margins = np.concatenate([snap.circle_margin_m, snap.poly_margin_m])[:, None]
+    floor_inf, floor_true = np.minimum(hc[:, 0:1], 0.0), np.minimum(hc[:, 0:1] + margins, 0.0)
+    return (floor_inf, floor_true, (hc >= floor_inf - 1e-9).all(axis=0),
+            (hc + margins >= floor_true - 1e-9).all(axis=0))
+
+
 # Spacing of the points a braking segment is judged on (m): far below any obstacle's size.
 _DRIFT_STEP_M = 2.0
 
@@ -192,35 +211,31 @@ _DRIFT_STEP_M = 2.0
 def spin_candidates(pose: Pose, config: DwaConfig, hover: HoverCheck) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The recovery rollouts placed at the pose (R, K + 1, 2), which of them are legal on the
     inflated and on the true footprints (R,) each, and their distance critic (R,)."""
-    dt = config.dt_s
     body = config.rec_body_xy_m
     pts = (body.reshape(-1, 2) @ rotation(pose.heading_rad)).reshape(body.shape)
-    pts += (pose.x_m, pose.y_m)
+    pts.view(np.complex128)[...] += complex(pose.x_m, pose.y_m)  # x + x_m, y + y_m: a (2,) broadcast is slower
     px, py = pts[..., 0], pts[..., 1]
     n_r = len(pts)
-    rules = np.ones(px.shape, dtype=bool)
-    fence = config.fence_m
-    if fence is not None:
-        here = min(pose.x_m - fence[0], fence[2] - pose.x_m, pose.y_m - fence[1], fence[3] - pose.y_m)
-        rules &= inside_fence_by(px, py, fence) >= min(here, 0.0) - 1e-9
-    rules_true = rules
-    if hover.sep_limit2 is not None:  # (N, R, K + 1) at once; on the true footprints, the bare separation
+    delay_k = np.rint((config.rec_delay_s + config.tracking_lag_s) / config.dt_s).astype(int)  # hovers until going
+    ok_inf, ok_true = hover.inflated[delay_k], hover.true[delay_k]
+    here = fence_distance(pose, config)  # each rule only where it can bind, as on the tick's rollouts
+    if here is not None:
+        inside = (inside_fence_by(px, py, config.fence_m) >= min(here, 0.0) - 1e-9)[:, 1:].all(axis=1)
+        ok_inf, ok_true = ok_inf & inside, ok_true & inside
+    if hover.sep_limit2 is not None:  # (N, R, K) at once; on the true footprints, the bare separation
         t = config.rec_point_times_s.reshape(n_r, -1)
         ox, oy, ovx, ovy = np.array([(o.x_m, o.y_m, o.vx_m_s, o.vy_m_s) for o in hover.sep_from]).T[:, :, None, None]
-        d2 = (px - ox - ovx * t) ** 2 + (py - oy - ovy * t) ** 2
-        rules = rules & (d2 >= hover.sep_limit2).all(axis=0)
-        rules_true = rules_true & (d2 >= hover.sep_bare2).all(axis=0)
-    delay_k = np.rint((config.rec_delay_s + config.tracking_lag_s) / dt).astype(int)  # hovers until it gets going
-    ok_inf = hover.inflated[delay_k] & rules[:, 1:].all(axis=1)
-    ok_true = hover.true[delay_k] & rules_true[:, 1:].all(axis=1)
+        d2 = ((px - ox - ovx * t) ** 2 + (py - oy - ovy * t) ** 2)[..., 1:]
+        ok_inf = ok_inf & (d2 >= hover.sep_limit2).all(axis=(0, 2))
+        ok_true = ok_true & (d2 >= hover.sep_bare2).all(axis=(0, 2))
     if not hover.field.count:
         return pts, ok_inf, ok_true, np.full(n_r, config.distance_saturation_m)
-    return (pts, *config.backend.spin_checks(px, py, config, hover, ok_inf, ok_true))
+    return (pts, *config.backend.spin_checks(pts, config, hover, ok_inf, ok_true))
 
 
-def spin_checks(px: np.ndarray, py: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: np.ndarray,
+def spin_checks(pts: np.ndarray, config: DwaConfig, hover: HoverCheck, ok_inf: np.ndarray,
                 ok_true: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The obstacle rule on the recovery rollouts (px, py) (R, K + 1) against ``hover.field``:
+    """The obstacle rule on the recovery rollouts ``pts`` (R, K + 1, 2) against ``hover.field``:
     ``ok_inf`` and ``ok_true`` (R,), which may still be legal on the inflated and on the true
     footprints, narrowed to those that are, and the distance critic (R,), meaningful where
     either is legal.
@@ -230,6 +245,7 @@ def spin_checks(px: np.ndarray, py: np.ndarray, config: DwaConfig, hover: HoverC
     bounding disc than the saturation plus 1 m can neither break the rule nor set the critic):
     when the vehicle is boxed in (every rollout breaks the rule a few points out) this stops
     after a few points instead of measuring every point of every heading to every obstacle."""
+    px, py = pts[..., 0], pts[..., 1]
     field, times = hover.field, config.rec_point_times_s.reshape(px.shape)
     limits = np.stack([hover.floor_inflated[:, 0], hover.floor_true[:, 0], hover.margins[:, 0]])  # (3, O)
     beyond = max(config.distance_saturation_m, 0.0) + 1.0
@@ -261,7 +277,9 @@ def spin_recovery(pose: Pose, goals: LocalGoals, other: OtherUav | None, snapsho
                   config: DwaConfig, pts: np.ndarray, legal: np.ndarray, distance: np.ndarray,
                   reason: str) -> NoLegalRollout:
     """Yaw in place (speed 0) toward the best legal recovery rollout's heading."""
-    scores = config.backend.heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals)
+    # the heading critic of the legal ones only: the others' never counts
+    scores = config.backend.heading_scores(pts, pose.heading_rad + config.rec_final_dheading_rad, goals,
+                                           np.flatnonzero(legal))
     sight = sightline_term(pose, other, snapshot, config, pts[:, -1, 0], pts[:, -1, 1])
     total = evaluate(config, legal, scores, distance, sight)
     i = int(total.argmax())

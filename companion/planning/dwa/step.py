@@ -185,30 +185,32 @@ def _rules(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig) -> _Ru
 
 def _recover(pose: Pose, goals: LocalGoals, other: OtherUav | None, scene: _Scene, window: _Window, rules: _Rules,
              config: DwaConfig) -> NoLegalRollout:
-    """No legal rollout: the recovery reads every rollout's heading, and the escape every
-    rollout's clearances (worked out only then)."""
-    near = scene.culled.subset()
+    """No legal rollout: the escape reads every rollout's heading critic and clearances (worked
+    out only then)."""
+    near = scene.culled.subset  # built on first use
 
     def clearances() -> np.ndarray | None:
         clear = rules.clear
         if scene.culled.count and clear is None:  # the compiled pass left some out
             if config.row_of is None:
                 return config.backend.inflated_clearance(window.px.ravel(), window.py.ravel(), config.point_times_s,
-                                                         near)
+                                                         near())
             clear = config.backend.inflated_clearance(window.gx.ravel(), window.gy.ravel(), config.geo_point_times_s,
-                                                      near)
+                                                      near())
         if clear is not None and config.row_of is not None:  # the escape reads every rollout's
             return clear.reshape(len(clear), *window.gx.shape)[:, config.row_of].reshape(len(clear), -1)
         return clear
 
-    heading = config.backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad,
-                                               goals, (pose.x_m, pose.y_m), window.px, window.py, scene.single,
-                                               _soonest(config))
+    def heading() -> np.ndarray:
+        return config.backend.heading_from_ends(window.ex, window.ey, pose.heading_rad + config.final_dheading_rad,
+                                                goals, (pose.x_m, pose.y_m), window.px, window.py, scene.single,
+                                                _soonest(config))
+
     def lagged_clearances() -> np.ndarray | None:
         xy = lagged_points(pose, config) if scene.culled.count else None
         if xy is None:
             return None
-        return config.backend.inflated_clearance(xy[0], xy[1], config.point_times_s, near)
+        return config.backend.inflated_clearance(xy[0], xy[1], config.point_times_s, near())
 
     def bare_separation() -> np.ndarray | None:
         return _separation(pose, scene, window, config, courtesy=False) if scene.binding else None
@@ -254,9 +256,10 @@ def _soonest(config: DwaConfig) -> float:
 def warm_up_kernels() -> None:
     """Load (or compile) the compiled kernels of branches a throwaway tick at the station may not
     take: the heading critic over a goal window, the obstacle terms and the sight lines' frame,
-    and the fused obstacle pass and choice near an obstacle, with the argument types a flight
-    passes them (see companion.app.warmup), on the default backend (what a config gets); the
-    fused pick over a goal window too."""
+    the hover check's braking segment next to an obstacle, and the fused obstacle pass and
+    choice near an obstacle, with the argument types a flight passes them (see
+    companion.app.warmup), on the default backend (what a config gets); the fused pick over a
+    goal window too."""
     px = np.zeros((2, 3))
     goals = LocalGoals(np.array([[5.0, 0.0], [9.0, 0.0]]), (0.0, 0.0), 1.0, 1.0, ends_at_station=True)
     DEFAULT.heading_from_ends(px[:, -1], px[:, -1], np.zeros(2), goals, (0.0, 0.0), px, px, False, _SOONEST_DEG)
@@ -264,6 +267,7 @@ def warm_up_kernels() -> None:
     circle = ObstacleSnapshot.build([("c", 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)], [])
     ends = np.zeros((2, 2))
     DEFAULT.sightline_depths(ends[:, 0], ends[:, 1], (5.0, 5.0), 1.0, circle)
+    DEFAULT.braking_checks(np.zeros(2), np.zeros(2), np.zeros(3), circle)
     config = DwaConfig(speed_m_s=10.0, max_yaw_rate_rad_s=0.3, samples=3, dt_s=0.5, prediction_time_s=1.0, w_h=1.0,
                        w_d=1.0, w_s=1.0, sightline_cap_m=50.0)
     plan_step(Pose(0.0, 0.0, 0.0), (100.0, 0.0), OtherUav(0.0, 50.0, 0.0, 0.0), ObstacleSnapshot.build(
