@@ -15,7 +15,7 @@ from companion.planning import timed_route
 from companion.planning.timed_route import TimedRoute
 from companion.planning.timed_route_jit import latest_near, progress_in, schedule_in
 
-needs_numba = pytest.mark.skipif(latest_near is None or progress_in is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+needs_numba = pytest.mark.skipif(latest_near is None or progress_in is None or schedule_in is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
 OFFSETS = np.arange(0.0, 60.0 + 0.25, 0.5)  # a ScheduleClock's default window
 
 
