@@ -45,21 +45,16 @@ def test_a_replayed_flight_is_the_flight(seed, index, variant, contact):
     assert not any(r is s for r, s in zip(flown.ticks[top], first.flight.results))
 
 
-def test_a_forecast_flown_by_another_variant_is_not_replayed():
+@pytest.mark.parametrize("forecast_by, flown_by, replayed", [
+    ("astar-bdwa-nosparse", "astar-bdwa", False),  # another variant's forecast: another flight
+    ("bdwa", "dwa", True),  # the first flies without the sightline term: one flight for both
+])
+def test_a_forecast_is_replayed_only_by_a_variant_that_flies_the_first_vehicle_alike(forecast_by, flown_by, replayed):
     s = generate_scenario(7, 0, ScenarioConfig())
-    other = first_forecast(s.mission.with_variant("astar-bdwa-nosparse"), s.routes)
-    mission = s.mission.with_variant("astar-bdwa")
-    run = simulate(mission, routes=s.routes, first=other)
-    top = mission.by_priority[0].name
-    assert not any(r is o for r, o in zip(run.ticks[top], other.flight.results))
-
-
-def test_bdwa_and_dwa_replay_one_forecast():
-    s = generate_scenario(7, 0, ScenarioConfig())
-    first = first_forecast(s.mission.with_variant("bdwa"), s.routes)
-    mission = s.mission.with_variant("dwa")
+    first = first_forecast(s.mission.with_variant(forecast_by), s.routes)
+    mission = s.mission.with_variant(flown_by)
     run = simulate(mission, routes=s.routes, first=first)
-    assert run.ticks[mission.by_priority[0].name][0] is first.flight.results[0]
+    assert (run.ticks[mission.by_priority[0].name][0] is first.flight.results[0]) == replayed
 
 
 def test_the_first_vehicle_flies_its_forecast_in_a_timed_flight():
