@@ -43,18 +43,6 @@ class CoordinatedPlan:
     timed: dict[str, TimedRoute]
     blocking: dict[str, Blocking]
     planned: dict[str, bool]  # False: no space-time plan at all, the route at cruise speed
-    # What the first vehicle's planner tracks: its route at cruise after its hold, as its forecast
-    # was flown. Tracking the forecast itself (a flight slower than cruise, read back at 1 s
-    # samples), it drifted 10-25 m from it; tracked alike, the forecast is its flight to the tick
-    # until a lower vehicle comes within separation reach. The others are planned and clocked
-    # against ``timed`` (the forecast, held).
-    first_tracks: TimedRoute | None = None
-
-    def tracked(self, name: str) -> TimedRoute | None:
-        """The timed route vehicle ``name``'s planner tracks (:attr:`first_tracks` for the first)."""
-        if self.first_tracks is not None and name == self.first_tracks.vehicle:
-            return self.first_tracks
-        return self.timed.get(name)
 
 
 def departure_hold(mission: "Mission", first: TimedRoute, grid: OccupancyGrid, shadows: SightShadows,
@@ -101,7 +89,7 @@ def plan_coordinated(mission: "Mission", routes: "Mapping[str, Route]", first: T
         else:
             timed[v.name] = forecast(v.name, routes[v.name].sparse_enu_m, v.speed_m_s)
             blocking[v.name], planned[v.name], steps[v.name] = Blocking.NONE, False, 0.0
-    return CoordinatedPlan(hold_s, steps, timed, blocking, planned, held(route_forecast(mission, routes), hold_s))
+    return CoordinatedPlan(hold_s, steps, timed, blocking, planned)
 
 
 def route_forecast(mission: "Mission", routes: "Mapping[str, Route]", name: str | None = None) -> TimedRoute:

@@ -76,10 +76,9 @@ def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | No
     if plan is not None:
         timed_routes, blocking, hold_s = plan.timed, plan.blocking, plan.hold_s
     timed = dict(timed_routes or {})
-    tracked = plan.tracked if plan is not None else timed.get  # the first tracks what its forecast flew
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
                                              earlier=higher_routes(mission, routes, v.name),
-                                             timed_route=tracked(v.name),
+                                             timed_route=timed.get(v.name),
                                              sight_near_m=sight_near_m(mission, timed, v.name))
                 for v in mission.by_priority}
     return FleetSetup(planners, ScheduleClocks(mission, timed, blocking=blocking) if timed_variant else None, timed, hold_s,
