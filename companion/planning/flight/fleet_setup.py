@@ -25,7 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from companion.planning.coordination.plan import CoordinatedPlan, plan_coordinated
+from companion.planning.coordination.plan import plan_coordinated
 from companion.planning.coordination.search import Blocking
 from companion.planning.routes import higher_routes
 from companion.planning.coordination.replan import ScheduleClocks
@@ -56,24 +56,23 @@ class FleetSetup:
 
 def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | None = None,
                 timed_routes: Mapping[str, TimedRoute] | None = None,
-                blocking: Mapping[str, Blocking] | None = None, *, first: TimedRoute | None = None,
-                plan: CoordinatedPlan | None = None) -> FleetSetup:
+                blocking: Mapping[str, Blocking] | None = None, *, first: TimedRoute | None = None) -> FleetSetup:
     """The planners and schedule clocks that fly ``mission`` with ``variant`` (default: the
     mission's). ``timed_routes`` (timed variants): the routes with arrival times to fly; by default
     the coordinated space-time plan (:func:`coordination.plan.plan_coordinated`, seconds of numpy)
     against ``first``, the first vehicle's forecast (:func:`forecast.first_forecast`), which the
-    caller then passes in. A caller that already has the plan passes it in (``plan``), or routes
-    of its own (``timed_routes``, each flown as given), with their ``blocking``: what each plan
-    keeps, which an in-flight re-plan must keep at least as well; unknown, any re-plan is adopted."""
+    caller then passes in. A caller that already has the plan passes its routes in, with its
+    ``blocking``: what each plan keeps, which an in-flight re-plan must keep at least as well;
+    unknown, any re-plan is adopted. A forecast flown headless (:class:`replay.FlownForecast`)
+    brings its flight, for the runner to read the first vehicle back from (:attr:`FleetSetup.solo`)."""
     variant = variant or mission.planner.variant
     timed_variant = VARIANTS[variant].timed
     hold_s = None
-    if plan is None and timed_routes is None and timed_variant and routes:
+    if timed_routes is None and timed_variant and routes:
         if first is None:
             raise ValueError(f"build_fleet: variant {variant!r} plans against the first vehicle's forecast: "
                              f"pass first (forecast.first_forecast)")
         plan = plan_coordinated(mission, routes, first)  # the space-time plan (docs/design.md)
-    if plan is not None:
         timed_routes, blocking, hold_s = plan.timed, plan.blocking, plan.hold_s
     timed = dict(timed_routes or {})
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
