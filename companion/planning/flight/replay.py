@@ -1,14 +1,15 @@
 """A vehicle's flight alone, recorded tick by tick, and replayed where the fleet's flight repeats it.
 
-Every flight of a pair or a fleet begins with the first vehicle in priority flown alone (its
-forecast: :mod:`forecast`), and the first vehicle then flies the mission again with the others.
+A certified flight of a pair or a fleet begins with the first vehicle in priority flown alone
+(its forecast: :mod:`forecast`), and the first vehicle then flies the mission again with the others.
 It reacts to them through its separation rule only (it hides from nobody), and that rule cannot
 bind while every other vehicle is out of its reach (:func:`.dwa.legality.separation_reach`). Until
 then it decides, tick by tick, what it decided alone: the runner (:func:`loop.fly`) reads those
 decisions back instead of deciding them again (on the bench's pairs, about nine tenths of the
 first vehicle's ticks). When another vehicle comes within reach, the planner first re-decides the
 ticks replayed, from the poses recorded (:meth:`SoloFlight.catch_up`), so that it holds what it
-would have held, and decides from there on.
+would have held, and decides from there on. The timed variant's first vehicle is not read back:
+in flight it tracks the forecast itself, which its solo flight could not (:func:`solo_key` differs).
 
     fly(alone, fleet, routes, record="a").solo          # the forecast's flight (forecast.py)
     solo.replays(mission, "a", planners["a"])           # the same vehicle, planner and world?
