@@ -125,8 +125,11 @@ class FleetView:
             me, you = self.uavs[i], self.uavs[1 - i]
             speed = math.hypot(you.vx_m_s, you.vy_m_s)
             return math.hypot(you.x_m - me.x_m, you.y_m - me.y_m) > self.reach[i][0] + speed * self.reach[i][1]
-        gap = np.delete(self.gap[i], i)
-        return bool(np.all(gap > self.reach[i][0] + np.delete(self.speed, i) * self.reach[i][1]))
+        return not self._near(i).size
+
+    def _near(self, i: int) -> np.ndarray:
+        """The others within vehicle i's separation reach (more than two vehicles)."""
+        return np.flatnonzero((self.ranks != i) & (self.gap[i] <= self.reach[i][0] + self.speed * self.reach[i][1]))
 
     def reaction(self, i: int) -> Reaction:
         if len(self.uavs) == 2:  # a pair, as react_to answers it: the other is the partner and the separation set
@@ -140,7 +143,7 @@ class FleetView:
                 pool = assigned
         above = pool & self.flying & (ranks < (i if pool is others else count))  # assigned: all count as above
         j = int(np.argmin(np.where(above if above.any() else pool, self.gap[i], np.inf)))  # ties: the lower rank
-        near = np.flatnonzero(others & (self.gap[i] <= self.reach[i][0] + self.speed * self.reach[i][1]))
+        near = self._near(i)
         if count > 2:  # react_to's right of way
             separate = tuple(self.with_way[k] if k < i else self.uavs[k] for k in near)
         else:

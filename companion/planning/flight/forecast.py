@@ -34,7 +34,6 @@ from companion.planning.flight.replay import FlownForecast
 from companion.planning.routes import plan_routes
 from companion.planning.timed_route import TimedRoute
 
-
 if TYPE_CHECKING:
     from collections.abc import Mapping
 

@@ -26,12 +26,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to_ned, ned_to_enu, ned_yaw_to_enu_heading
+from uav_model.frames import enu_heading_to_ned_yaw, enu_to_ned, enu_yaw_rate_to_ned, ned_to_enu
 from uav_model.mission import Mission
 from companion.planning.budget import Budget, spend
-from companion.planning.dwa import OtherUav, Pose
+from companion.planning.dwa import OtherUav
 from companion.planning.fleet import FleetView
-from companion.planning.flight.replay import SoloFlight, decide, solo_key
+from companion.planning.flight.replay import SoloFlight, SoloRecorder, decide, pose_of
 from companion.planning.obstacle_field import ObstacleField
 from companion.planning.vehicle_planner import TickResult
 from companion.planning.metrics import (PlannerCounts, RunSummary, ScheduleRecord, Track, TruthGeometry,
@@ -140,7 +140,7 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
     solo = fleet.solo if len(names) > 1 and fleet.solo is not None and \
         fleet.solo.replays(mission, top, planners[top]) else None
     replayed = 0  # ticks of the first vehicle read from solo (while solo is not None)
-    recorded = None if record is None else ([], [], solo_key(mission, record, planners[record]), [])
+    recorder = None if record is None else SoloRecorder(mission, record, planners[record])
 
     def stop_replay(k: int) -> None:  # the first vehicle decides again from tick k on
         nonlocal solo
@@ -170,13 +170,10 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
             names, hides, reach)
         for name in list(active):
             own = states[name]
-            x, y = here[name]
             planner = planners[name]
-            vx, vy, _ = ned_to_enu(own.vn_m_s, own.ve_m_s)
-            pose = Pose(x, y, ned_yaw_to_enu_heading(own.yaw_rad), vx, vy)
             result = None
             if name == top and solo is not None:
-                if k < len(solo.results) and solo.poses[k] == pose and view.alone(0):
+                if k < len(solo.results) and (solo.states[k] is own or solo.states[k] == own) and view.alone(0):
                     result = solo.results[k]  # what it decided here alone: nobody can bind it
                     replayed = k + 1
                 else:
@@ -187,12 +184,10 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
                 else:
                     reaction = view.reaction(rank[name])
                     other, separate_from = reaction.other, reaction.separate_from
-                result = decide(planner, pose, other, snapshot, t, None if clocks is None else clocks.now(name, t),
-                                separate_from)
-            if recorded is not None and name == record:
-                recorded[0].append(pose)
-                recorded[1].append(planner.detours)
-                recorded[3].append(own)
+                result = decide(planner, pose_of(own), other, snapshot, t,
+                                None if clocks is None else clocks.now(name, t), separate_from)
+            if recorder is not None and name == record:
+                recorder.add(own)
             ticks[name].append(result)
             if result.arrived:
                 active.remove(name)
@@ -234,9 +229,8 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         timed_replans=0 if clocks is None else clocks.replans.get(n, 0)) for n in names},
         schedule=ScheduleRecord(fleet.coordination.hold_s_max, fleet.coordination.forecast.value,
                                 fleet.departure_hold_s))
-    kept = None if recorded is None else SoloFlight(record, recorded[2], *(tuple(r[:len(ticks[record])]) for r in (
-        recorded[0], ticks[record], recorded[1], recorded[3])))
-    return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started, kept)
+    return RunResult(mission, variant, dict(routes), tracks, ticks, summary, time.perf_counter() - started,
+                     None if recorder is None else recorder.flight(ticks[record]))
 
 
 def tracks_from_rows(names: list[str], rows: list, last_row: dict[str, int | None], dt: float) -> dict[str, Track]:

@@ -7,7 +7,7 @@ bind while every other vehicle is out of its reach (:func:`.dwa.legality.separat
 then it decides, tick by tick, what it decided alone: the runner (:func:`loop.fly`) reads those
 decisions back instead of deciding them again (on the bench's pairs, about nine tenths of the
 first vehicle's ticks). When another vehicle comes within reach, the planner first re-decides the
-ticks replayed, from the poses recorded (:meth:`SoloFlight.catch_up`), so that it holds what it
+ticks replayed, from the states recorded (:meth:`SoloFlight.catch_up`), so that it holds what it
 would have held, and decides from there on. The timed variant's first vehicle is not read back:
 in flight it tracks the forecast itself, which its solo flight could not (:func:`solo_key` differs).
 
@@ -23,15 +23,24 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from companion.planning.dwa import Pose
 from companion.planning.timed_route import TimedRoute
 from companion.planning.vehicle_planner import VARIANTS, VariantSpec
+from uav_model.frames import ned_to_enu, ned_yaw_to_enu_heading
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission
     from uav_model.plant import KinematicState
-    from companion.planning.dwa import ObstacleSnapshot, OtherUav, Pose
+    from companion.planning.dwa import ObstacleSnapshot, OtherUav
     from companion.planning.obstacle_field import ObstacleField
     from companion.planning.vehicle_planner import TickResult, VehiclePlanner
+
+
+def pose_of(state: "KinematicState") -> Pose:
+    """The plant's state as its planner is given it: ENU position, heading and velocity."""
+    x, y, _ = ned_to_enu(state.north_m, state.east_m)
+    vx, vy, _ = ned_to_enu(state.vn_m_s, state.ve_m_s)
+    return Pose(x, y, ned_yaw_to_enu_heading(state.yaw_rad), vx, vy)
 
 
 def decide(planner: "VehiclePlanner", pose: "Pose", other: "OtherUav | None", snapshot: "ObstacleSnapshot",
@@ -66,16 +75,15 @@ def solo_key(mission: "Mission", name: str, planner: "VehiclePlanner") -> tuple:
 
 @dataclass(frozen=True, eq=False)
 class SoloFlight:
-    """Vehicle ``vehicle`` flown alone (:func:`loop.fly` with ``record``): per tick, the pose its
-    planner was given, what it decided, how many detours it had planned by then, and its plant's
-    state."""
+    """Vehicle ``vehicle`` flown alone (:func:`loop.fly` with ``record``): per tick, its plant's
+    state (its planner was given :func:`pose_of` it), what it decided, and how many detours it had
+    planned by then."""
 
     vehicle: str
     key: tuple  # solo_key of the flight
-    poses: tuple["Pose", ...]
+    states: tuple["KinematicState", ...]
     results: tuple["TickResult", ...]
     detours: tuple[int, ...]
-    states: tuple["KinematicState", ...]
 
     def replays(self, mission: "Mission", name: str, planner: "VehiclePlanner") -> bool:
         """Whether ``name``, flown by ``planner`` in ``mission``, decides alone what this flight did."""
@@ -84,12 +92,32 @@ class SoloFlight:
     def catch_up(self, planner: "VehiclePlanner", ticks: int, field: "ObstacleField", dt_s: float,
                  timed: bool) -> None:
         """Have ``planner`` (fresh, as this flight's was) decide the first ``ticks`` ticks again
-        from the poses recorded, so that it holds what this flight's planner held then.
+        from the states recorded, so that it holds what this flight's planner held then.
         ``timed``: the runner reads a timed route (its clock is sim time for a vehicle alone)."""
         times = dt_s * np.arange(ticks)
         for k, snapshot in zip(range(ticks), field.at_times(times)):
             t = k * dt_s
-            decide(planner, self.poses[k], None, snapshot, t, t if timed else None, ())
+            decide(planner, pose_of(self.states[k]), None, snapshot, t, t if timed else None, ())
+
+
+class SoloRecorder:
+    """Keeps one vehicle's flight tick by tick while :func:`loop.fly` flies it (``record``)."""
+
+    def __init__(self, mission: "Mission", name: str, planner: "VehiclePlanner"):
+        self.name, self.planner = name, planner
+        self.key = solo_key(mission, name, planner)  # as built: a detour changes its goals later
+        self.states: list["KinematicState"] = []
+        self.detours: list[int] = []
+
+    def add(self, state: "KinematicState") -> None:
+        """The vehicle was in ``state`` this tick and has decided (its detours counted after)."""
+        self.states.append(state)
+        self.detours.append(self.planner.detours)
+
+    def flight(self, results: "list[TickResult]") -> SoloFlight:
+        """The flight kept, up to the ticks it was scored on (a run cut at a broken rule drops the rest)."""
+        n = len(results)
+        return SoloFlight(self.name, self.key, tuple(self.states[:n]), tuple(results), tuple(self.detours[:n]))
 
 
 @dataclass(frozen=True, eq=False)
