@@ -101,8 +101,7 @@ class FlightPlan:
         runner builds them (:func:`companion.planning.flight.fleet_setup.build_fleet`), on the
         coordinated plan computed before (:attr:`coordinated`)."""
         plan = self.coordinated
-        return build_fleet(self.mission, self.routes, self.variant, None if plan is None else plan.timed,
-                           None if plan is None else plan.blocking)
+        return build_fleet(self.mission, self.routes, self.variant, plan=plan)
 
     def nodes_enu_m(self, vehicle: VehicleSpec) -> np.ndarray:
         """The local goals the vehicle's planner follows, start first (what gets uploaded)."""

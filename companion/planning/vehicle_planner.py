@@ -140,6 +140,10 @@ _AIM_FRACTION = 0.5  # of the arrival radius, aimed at by a speed window (see Ve
 # metres behind its plan, and the real closest approach then where no plan had it).
 SIGHT_LAG_M = 50.0
 _PROGRESS_M = 20.0  # the remaining route must shorten by more than this to count as progress
+# How far a vehicle may run ahead of its pace (VehiclePlanner.pace) along it: half a second at
+# cruise, and far more than a flight read against its own forecast ever leads it (the forecast
+# keeps every second tick's position: its along-track error is centimetres).
+PACE_LEAD_M = 5.0
 
 
 @dataclass(frozen=True)
@@ -167,9 +171,13 @@ class VehiclePlanner:
 
     def __init__(self, name: str, config: DwaConfig, tracker: LocalGoalTracker, arrival_radius_m: float,
                  detour_policy: DetourPolicy | None = None, timed_route: "TimedRoute | None" = None,
-                 approach: DwaConfig | None = None, sight_near_m: float | None = None):
+                 approach: DwaConfig | None = None, sight_near_m: float | None = None,
+                 pace: "TimedRoute | None" = None):
         self.name = name
         self.timed_route = timed_route  # when given, flown on schedule (a speed window is needed)
+        # A plan it must not run ahead of by more than PACE_LEAD_M (see _schedule): with a timed route only.
+        self.pace = pace if timed_route is not None else None
+        self._pace_along_m: float | None = None
         self.config = config
         self.tracker = tracker
         self.arrival_radius_m = arrival_radius_m
@@ -205,11 +213,13 @@ class VehiclePlanner:
     @classmethod
     def build(cls, mission: "Mission", vehicle: "VehicleSpec", route: "Route | None",
               variant: str | None = None, *, earlier: "Iterable[Route]" = (),
-              timed_route: "TimedRoute | None" = None, sight_near_m: float | None = None) -> "VehiclePlanner":
+              timed_route: "TimedRoute | None" = None, sight_near_m: float | None = None,
+              pace: "TimedRoute | None" = None) -> "VehiclePlanner":
         """The planner for ``vehicle``; ``route`` is required for the A* variants. ``earlier``:
         the routes of the vehicles above it (:func:`routes.higher_routes`), which a detour after a
         stall keeps to the priority rule first. ``timed_route`` (arrival times along the route) is
-        tracked by the timed variant and ignored by the others.
+        tracked by the timed variant and ignored by the others; ``pace``, with it, a plan the
+        vehicle must not run ahead of (:attr:`.coordination.plan.CoordinatedPlan.first_tracks`).
 
         Priority (paper §II.B: the UAV leaving A "is prioritized to arrive"): the first vehicle in
         priority order has right of way and flies without the sightline term; every other
@@ -239,7 +249,7 @@ class VehiclePlanner:
             # kilometre (another side of an obstacle), and its times mean nothing elsewhere.
             tracker = LocalGoalTracker(timed.path_xy, mission.planner.acceptance_radius_m)
         return cls(vehicle.name, config, tracker, mission.safety.arrival_radius_m, detour_policy, timed,
-                   approach_config(mission, config), sight_near_m if timed is not None else None)
+                   approach_config(mission, config), sight_near_m if timed is not None else None, pace)
 
     def plan_detour(self, x_m: float, y_m: float) -> np.ndarray | None:
         """A new route from (x, y) to the station, or None when there is none. Reads only what
@@ -263,7 +273,7 @@ class VehiclePlanner:
         adopted = nodes is not None and len(nodes) >= 2
         if adopted:
             self.tracker = LocalGoalTracker(nodes, self.tracker.acceptance_radius_m)
-            self.timed_route = None  # off the timed path: its times no longer apply; cruise
+            self.timed_route = self.pace = None  # off the timed path: its times no longer apply; cruise
         self._progress = (self.tracker.remaining_m(x_m, y_m), t_s)
         return adopted
 
@@ -300,6 +310,13 @@ class VehiclePlanner:
         # Where it is along its path (near where it was), the speed that keeps it on time, its lead.
         self._along_m, speed, self.lead_m, waiting = route.schedule_of(own.x_m, own.y_m, t_s, self.config.speed_m_s,
                                                                        self._along_m)
+        if self.pace is not None:
+            # More than PACE_LEAD_M ahead of its pace, it flies the pace's schedule instead (no
+            # faster than its own). Where it flies as its pace was flown, it is never that far ahead.
+            self._pace_along_m, paced, lead_m, _ = self.pace.schedule_of(own.x_m, own.y_m, t_s, self.config.speed_m_s,
+                                                                        self._pace_along_m)
+            if lead_m > PACE_LEAD_M:
+                speed, waiting = min(speed, paced), True
         if self._goals_on_path:
             # A space-time path can step out and back (a cell or a few beside a wait, round a
             # shadow's edge); the multicopter cuts such a corner and never reaches the node, so
@@ -329,17 +346,11 @@ class VehiclePlanner:
         Once inside the arrival radius the vehicle has arrived for good and holds.
         """
         started = time.perf_counter()
-        sx, sy = self.station_xy
-        to_station_m = math.hypot(own.x_m - sx, own.y_m - sy)
-        if self.arrived or to_station_m <= self.arrival_radius_m:
-            self.arrived, self._turning_to = True, None
-            return TickResult(t_s, None, (sx, sy), self.tracker.index, True,
+        to_station_m, scheduled = self._advance(own, t_s, schedule_t_s)
+        if self.arrived:
+            return TickResult(t_s, None, self.station_xy, self.tracker.index, True,
                               (time.perf_counter() - started) * 1e3, "arrived")
-        goal = self.tracker.update(own.x_m, own.y_m)
-        scheduled, held = self._schedule(own, t_s if schedule_t_s is None else schedule_t_s)
         goal = self.tracker.goal_xy
-        if self.detour_policy is not None and not self.detour_due:
-            self._watch_progress(own.x_m, own.y_m, t_s, held)
         config, aim_m = self.config, self._aim_radius_m
         if self._unsighted is not None and self.timed_route is not None and other is not None and \
                 (math.hypot(other.x_m - own.x_m, other.y_m - own.y_m) > self.sight_near_m
@@ -360,6 +371,32 @@ class VehiclePlanner:
                 return TickResult(t_s, decision.escape, goal, self.tracker.index, False, ms, None, decision.reason)
             return TickResult(t_s, None, goal, self.tracker.index, False, ms, decision.reason)
         return TickResult(t_s, decision, goal, self.tracker.index, False, ms)
+
+    def _advance(self, own: Pose, t_s: float, schedule_t_s: float | None) -> tuple[float, float | None]:
+        """What a tick keeps before it decides: arrival (then nothing else), the local goal, the
+        schedule and the progress watch. Returns the distance to the station and the speed the
+        schedule asks for (None: cruise)."""
+        sx, sy = self.station_xy
+        to_station_m = math.hypot(own.x_m - sx, own.y_m - sy)
+        if self.arrived or to_station_m <= self.arrival_radius_m:
+            self.arrived, self._turning_to = True, None
+            return to_station_m, None
+        self.tracker.update(own.x_m, own.y_m)
+        scheduled, held = self._schedule(own, t_s if schedule_t_s is None else schedule_t_s)
+        if self.detour_policy is not None and not self.detour_due:
+            self._watch_progress(own.x_m, own.y_m, t_s, held)
+        return to_station_m, scheduled
+
+    def follow(self, own: Pose, t_s: float, schedule_t_s: float | None, decided: TickResult) -> bool:
+        """Keep what :meth:`tick` would keep from ``own`` at ``t_s``, where it decided ``decided``
+        (known already: a flight recorded, :mod:`.flight.replay`), without deciding again. A
+        spin recovery's heading depends on the decision itself: returns False, keeping nothing,
+        for a tick that recovered (call :meth:`tick` for it)."""
+        if decided.recovery_reason is not None:
+            return False
+        self._advance(own, t_s, schedule_t_s)
+        self._turning_to = None
+        return True
 
     def _keep_turning(self, own: Pose, decision: NoLegalRollout, config: DwaConfig) -> tuple[Command, str]:
         """A yaw in place keeps its way round until it faces the heading it set out for.

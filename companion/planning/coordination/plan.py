@@ -20,6 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from companion.planning.coordination.certificate import hold_partner, least_hold
 from companion.planning.coordination.search import Blocking, near_margin_m, plan_vehicle
 from companion.planning.coordination.shadow import SightShadows
@@ -43,6 +45,24 @@ class CoordinatedPlan:
     timed: dict[str, TimedRoute]
     blocking: dict[str, Blocking]
     planned: dict[str, bool]  # False: no space-time plan at all, the route at cruise speed
+    # What the first vehicle's planner tracks: its route at cruise after its hold, as its forecast
+    # was flown (so that, headless, its flight is its forecast to the tick until another vehicle
+    # comes within its separation reach, and is read back: flight.replay). It is paced by
+    # ``timed`` (its forecast, held), which the others are planned and clocked against: it never
+    # runs more than :data:`.vehicle_planner.PACE_LEAD_M` ahead of it (PX4 flies a corner faster than the plant
+    # the forecast is flown on, and a running ahead of its forecast met b with the line open).
+    first_tracks: TimedRoute | None = None
+
+    def tracked(self, name: str) -> TimedRoute | None:
+        """The timed route vehicle ``name``'s planner tracks (:attr:`first_tracks` for the first)."""
+        if self.first_tracks is not None and name == self.first_tracks.vehicle:
+            return self.first_tracks
+        return self.timed.get(name)
+
+    def paced(self, name: str) -> TimedRoute | None:
+        """The plan vehicle ``name`` must not run ahead of, when it tracks another (the first: its forecast)."""
+        tracked = self.tracked(name)
+        return None if tracked is self.timed.get(name) else self.timed.get(name)
 
 
 def departure_hold(mission: "Mission", first: TimedRoute, grid: OccupancyGrid, shadows: SightShadows,
@@ -89,7 +109,9 @@ def plan_coordinated(mission: "Mission", routes: "Mapping[str, Route]", first: T
         else:
             timed[v.name] = forecast(v.name, routes[v.name].sparse_enu_m, v.speed_m_s)
             blocking[v.name], planned[v.name], steps[v.name] = Blocking.NONE, False, 0.0
-    return CoordinatedPlan(hold_s, steps, timed, blocking, planned)
+    cruise = route_forecast(mission, routes)  # what the first's forecast flight tracked (none to pace: it is that)
+    same = np.array_equal(cruise.t_s, first.t_s) and np.array_equal(cruise.xy_enu_m, first.xy_enu_m)
+    return CoordinatedPlan(hold_s, steps, timed, blocking, planned, None if same else held(cruise, hold_s))
 
 
 def route_forecast(mission: "Mission", routes: "Mapping[str, Route]", name: str | None = None) -> TimedRoute:

@@ -25,7 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from companion.planning.coordination.plan import plan_coordinated
+from companion.planning.coordination.plan import CoordinatedPlan, plan_coordinated
 from companion.planning.coordination.search import Blocking
 from companion.planning.routes import higher_routes
 from companion.planning.coordination.replan import ScheduleClocks
@@ -56,28 +56,34 @@ class FleetSetup:
 
 def build_fleet(mission: Mission, routes: Mapping[str, Route], variant: str | None = None,
                 timed_routes: Mapping[str, TimedRoute] | None = None,
-                blocking: Mapping[str, Blocking] | None = None, *, first: TimedRoute | None = None) -> FleetSetup:
+                blocking: Mapping[str, Blocking] | None = None, *, first: TimedRoute | None = None,
+                plan: CoordinatedPlan | None = None) -> FleetSetup:
     """The planners and schedule clocks that fly ``mission`` with ``variant`` (default: the
     mission's). ``timed_routes`` (timed variants): the routes with arrival times to fly; by default
     the coordinated space-time plan (:func:`coordination.plan.plan_coordinated`, seconds of numpy)
     against ``first``, the first vehicle's forecast (:func:`forecast.first_forecast`), which the
-    caller then passes in. A caller that already has the plan passes its routes in, with its
-    ``blocking``: what each plan keeps, which an in-flight re-plan must keep at least as well;
-    unknown, any re-plan is adopted. A forecast flown headless (:class:`replay.FlownForecast`)
+    caller then passes in. A caller that already has the plan passes it in (``plan``), or only its
+    routes, with their ``blocking``: what each plan keeps, which an in-flight re-plan must keep at
+    least as well; unknown, any re-plan is adopted. From a plan, the first vehicle tracks what its
+    forecast flight tracked, paced by its forecast (:attr:`CoordinatedPlan.first_tracks`); from
+    routes alone, it tracks its own. A forecast flown headless (:class:`replay.FlownForecast`)
     brings its flight, for the runner to read the first vehicle back from (:attr:`FleetSetup.solo`)."""
     variant = variant or mission.planner.variant
     timed_variant = VARIANTS[variant].timed
     hold_s = None
-    if timed_routes is None and timed_variant and routes:
+    if plan is None and timed_routes is None and timed_variant and routes:
         if first is None:
             raise ValueError(f"build_fleet: variant {variant!r} plans against the first vehicle's forecast: "
                              f"pass first (forecast.first_forecast)")
         plan = plan_coordinated(mission, routes, first)  # the space-time plan (docs/design.md)
-        timed_routes, blocking, hold_s = plan.timed, plan.blocking, plan.hold_s
+        hold_s = plan.hold_s
+    if plan is not None:
+        timed_routes, blocking = plan.timed, plan.blocking
     timed = dict(timed_routes or {})
+    tracked, paced = (plan.tracked, plan.paced) if plan is not None else (timed.get, lambda name: None)
     planners = {v.name: VehiclePlanner.build(mission, v, routes.get(v.name), variant,
                                              earlier=higher_routes(mission, routes, v.name),
-                                             timed_route=timed.get(v.name),
+                                             timed_route=tracked(v.name), pace=paced(v.name),
                                              sight_near_m=sight_near_m(mission, timed, v.name))
                 for v in mission.by_priority}
     return FleetSetup(planners, ScheduleClocks(mission, timed, blocking=blocking) if timed_variant else None, timed, hold_s,

@@ -138,15 +138,21 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
     bad = None
     top = names[0]
     solo = fleet.solo if len(names) > 1 and fleet.solo is not None and \
-        fleet.solo.replays(mission, top, planners[top]) else None
-    replayed = 0  # ticks of the first vehicle read from solo (while solo is not None)
+        fleet.solo.replays(mission, top, planners[top], dt) else None
+    read_last = None  # the first vehicle's last tick, when it was read from solo
+    kept = 0  # ticks of the first vehicle its planner has kept (decided, or followed from solo)
     recorder = None if record is None else SoloRecorder(mission, record, planners[record])
 
-    def stop_replay(k: int) -> None:  # the first vehicle decides again from tick k on
+    def catch_up(k: int) -> None:  # the first vehicle's planner keeps what it would have by tick k
+        nonlocal kept
+        if solo is not None and kept < k:
+            solo.catch_up(planners[top], kept, k, field, dt, clocks is not None)
+        kept = k
+
+    def stop_replay(k: int) -> None:  # the first vehicle decides again from tick k on, for good
         nonlocal solo
-        if solo is not None:
-            solo.catch_up(planners[top], k, field, dt, clocks is not None)
-            solo = None
+        catch_up(k)
+        solo = None
 
     snapshots = field.at_times(dt * np.arange(n_ticks))
     for k in range(n_ticks):
@@ -168,16 +174,18 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
             rows[-1],
             [_other(states[n], here[n], parked=n not in active) for n in names],
             names, hides, reach)
+        read = False  # the first vehicle's tick read from solo
         for name in list(active):
             own = states[name]
             planner = planners[name]
             result = None
             if name == top and solo is not None:
-                if k < len(solo.results) and (solo.states[k] is own or solo.states[k] == own) and view.alone(0):
-                    result = solo.results[k]  # what it decided here alone: nobody can bind it
-                    replayed = k + 1
+                if k >= len(solo.results) or not (solo.states[k] is own or solo.states[k] == own):
+                    stop_replay(k)  # off its flight alone: it never gets back on it
+                elif view.alone(0):
+                    result, read, read_last = solo.results[k], True, k  # what it decided here alone: nobody can bind it
                 else:
-                    stop_replay(k)
+                    catch_up(k)  # within someone's reach, on its flight alone still: it decides
             if result is None:
                 if view is None:
                     other, separate_from = None, ()
@@ -186,6 +194,8 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
                     other, separate_from = reaction.other, reaction.separate_from
                 result = decide(planner, pose_of(own), other, snapshot, t,
                                 None if clocks is None else clocks.now(name, t), separate_from)
+                if name == top:
+                    kept, read_last = k + 1, None
             if recorder is not None and name == record:
                 recorder.add(own)
             ticks[name].append(result)
@@ -202,7 +212,7 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         if not active:
             break
         for name, command in commands.items():
-            if name == top and solo is not None and k + 1 < len(solo.states):
+            if name == top and read and k + 1 < len(solo.states):
                 states[name] = solo.states[k + 1]  # where the same command took it alone
             else:
                 states[name] = step(states[name], command, limits[name], dt)
@@ -225,7 +235,7 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         no_rollout_ticks=sum(r.command is None and not r.arrived for r in ticks[n]),
         escape_ticks=sum(r.escape_reason is not None for r in ticks[n]),
         recovery_ticks=sum(r.recovery_reason is not None for r in ticks[n]),
-        stall_detours=solo.detours[replayed - 1] if n == top and solo is not None and replayed else planners[n].detours,
+        stall_detours=fleet.solo.detours[read_last] if n == top and read_last is not None else planners[n].detours,
         timed_replans=0 if clocks is None else clocks.replans.get(n, 0)) for n in names},
         schedule=ScheduleRecord(fleet.coordination.hold_s_max, fleet.coordination.forecast.value,
                                 fleet.departure_hold_s))

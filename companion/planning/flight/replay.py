@@ -25,7 +25,7 @@ import numpy as np
 
 from companion.planning.dwa import Pose
 from companion.planning.timed_route import TimedRoute
-from companion.planning.vehicle_planner import VARIANTS, VariantSpec
+from companion.planning.vehicle_planner import PACE_LEAD_M, VARIANTS, VariantSpec
 from uav_model.frames import ned_to_enu, ned_yaw_to_enu_heading
 
 if TYPE_CHECKING:
@@ -48,9 +48,13 @@ def decide(planner: "VehiclePlanner", pose: "Pose", other: "OtherUav | None", sn
     """One vehicle's tick in the headless runner: its planner's decision, then a new route from
     here at once when it made no progress for a while."""
     result = planner.tick(pose, other, snapshot, t_s, separate_from=separate_from, schedule_t_s=schedule_t_s)
+    _detour(planner, pose, t_s)
+    return result
+
+
+def _detour(planner: "VehiclePlanner", pose: "Pose", t_s: float) -> None:
     if planner.detour_due:
         planner.adopt_detour(planner.plan_detour(pose.x_m, pose.y_m), pose.x_m, pose.y_m, t_s)
-    return result
 
 
 def forecast_key(mission: "Mission") -> VariantSpec:
@@ -85,19 +89,39 @@ class SoloFlight:
     results: tuple["TickResult", ...]
     detours: tuple[int, ...]
 
-    def replays(self, mission: "Mission", name: str, planner: "VehiclePlanner") -> bool:
-        """Whether ``name``, flown by ``planner`` in ``mission``, decides alone what this flight did."""
-        return name == self.vehicle and solo_key(mission, name, planner) == self.key
+    def replays(self, mission: "Mission", name: str, planner: "VehiclePlanner", dt_s: float) -> bool:
+        """Whether ``name``, flown by ``planner`` in ``mission``, decides alone what this flight
+        did: the same key, and, for a planner with a pace (the timed variant's first vehicle,
+        paced by this very flight), never as far ahead of it as the pace would act on at ``dt_s``
+        a tick (schedule time is sim time for the first vehicle)."""
+        if name != self.vehicle or solo_key(mission, name, planner) != self.key:
+            return False
+        pace = planner.pace
+        if pace is None:
+            return True
+        along, speed_m_s = None, planner.config.speed_m_s
+        for k, state in enumerate(self.states):  # as the planner's _schedule reads its pace, tick by tick
+            pose = pose_of(state)
+            along, _, lead_m, _ = pace.schedule_of(pose.x_m, pose.y_m, k * dt_s, speed_m_s, along)
+            if lead_m > PACE_LEAD_M:
+                return False
+        return True
 
-    def catch_up(self, planner: "VehiclePlanner", ticks: int, field: "ObstacleField", dt_s: float,
+    def catch_up(self, planner: "VehiclePlanner", start: int, stop: int, field: "ObstacleField", dt_s: float,
                  timed: bool) -> None:
-        """Have ``planner`` (fresh, as this flight's was) decide the first ``ticks`` ticks again
-        from the states recorded, so that it holds what this flight's planner held then.
-        ``timed``: the runner reads a timed route (its clock is sim time for a vehicle alone)."""
-        times = dt_s * np.arange(ticks)
-        for k, snapshot in zip(range(ticks), field.at_times(times)):
+        """Have ``planner`` (as this flight's was at tick ``start``) keep what it would have kept
+        deciding ticks ``start`` to ``stop`` from the states recorded: what this flight's planner
+        held then. It follows the decisions recorded (:meth:`VehiclePlanner.follow`) and decides
+        again only a spin recovery's (its heading is kept). ``timed``: the runner reads a timed
+        route (its clock is sim time for a vehicle alone)."""
+        for k in range(start, stop):
             t = k * dt_s
-            decide(planner, pose_of(self.states[k]), None, snapshot, t, t if timed else None, ())
+            pose = pose_of(self.states[k])
+            if planner.follow(pose, t, t if timed else None, self.results[k]):
+                _detour(planner, pose, t)
+            else:  # a spin recovery: decided again, among its obstacles then
+                snapshot = next(field.at_times(dt_s * np.array([k], dtype=float)))
+                decide(planner, pose, None, snapshot, t, t if timed else None, ())
 
 
 class SoloRecorder:
