@@ -1,7 +1,8 @@
 """Coordinated timing: prioritised space-time planning that keeps the sight lines blocked.
 
 Vehicles are planned in ``mission.by_priority`` order (the paper's rule, section III.A). The
-first flies as its forecast has it (the caller's: :func:`companion.planning.flight.forecast.first_forecast`),
+first flies as its forecast has it (the caller's: :func:`companion.planning.flight.forecast.first_forecast`;
+its planner tracks what the forecast flight tracked, paced by the forecast: :attr:`CoordinatedPlan.first_tracks`),
 after a departure hold when the mission allows one (``coordination.hold_s_max``; the least that
 keeps the line to the vehicle hiding from it blocked, found as the occlusion certificate finds it:
 :func:`certificate.least_hold`). Every later vehicle is planned against the forecasts of all

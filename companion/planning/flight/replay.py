@@ -5,14 +5,18 @@ A certified flight of a pair or a fleet begins with the first vehicle in priorit
 It reacts to them through its separation rule only (it hides from nobody), and that rule cannot
 bind while every other vehicle is out of its reach (:func:`.dwa.legality.separation_reach`). Until
 then it decides, tick by tick, what it decided alone: the runner (:func:`loop.fly`) reads those
-decisions back instead of deciding them again (on the bench's pairs, about nine tenths of the
-first vehicle's ticks). When another vehicle comes within reach, the planner first re-decides the
-ticks replayed, from the states recorded (:meth:`SoloFlight.catch_up`), so that it holds what it
-would have held, and decides from there on. The timed variant's first vehicle is not read back:
-in flight it tracks the forecast itself, which its solo flight could not (:func:`solo_key` differs).
+decisions back instead of deciding them again. When another vehicle comes within reach, its
+planner first catches up on the ticks read, from the states and decisions recorded
+(:meth:`SoloFlight.catch_up`: it follows them, :meth:`VehiclePlanner.follow`, without deciding),
+so that it holds what it would have held, and decides while anyone is within reach. Once nobody
+is, if the separation rule never changed a decision, it is still where it flew alone and is read
+back again. The timed variant's first vehicle tracks what its solo flight tracked (its route at
+cruise), paced by the forecast made of that flight, which a flight that is the forecast never
+outruns (:meth:`SoloFlight.replays` checks it tick by tick); after a departure hold it is another
+flight (:func:`solo_key` differs).
 
     fly(alone, fleet, routes, record="a").solo          # the forecast's flight (forecast.py)
-    solo.replays(mission, "a", planners["a"])           # the same vehicle, planner and world?
+    solo.replays(mission, "a", planners["a"], dt_s)     # the same vehicle, planner and world?
 """
 
 from __future__ import annotations
