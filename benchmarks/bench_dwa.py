@@ -25,7 +25,8 @@ from uav_model.mission import parse_mission
 from companion.planning.dwa import Command, OtherUav, Pose, plan_step
 from companion.planning.dwa.backend import COMPILED, NUMPY
 from companion.planning.obstacle_field import ObstacleField
-from companion.planning.vehicle_planner import VehiclePlanner, window_settings
+from companion.planning.variants import window_settings
+from companion.planning.vehicle_planner import VehiclePlanner
 from companion.bench.machine import machine_line
 
 HEAD = """

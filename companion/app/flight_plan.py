@@ -23,7 +23,7 @@ from companion.planning.errors import NoPath
 from companion.planning.flight.fleet_setup import FleetSetup, build_fleet
 from companion.planning.flight.forecast import first_forecast, mission_certificates
 from companion.planning.timed_route import TimedRoute
-from companion.planning.vehicle_planner import VARIANTS, variant_needs_route, variant_nodes
+from companion.planning.variants import VARIANTS, variant_needs_route, variant_nodes
 from companion.vehicle.port import GeoWaypoint
 
 from companion.planning.routes import Route, plan_routes

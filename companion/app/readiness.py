@@ -25,7 +25,7 @@ from companion.app.preflight import (LIMIT_PARAMS, OBL_ACTIONS, OBL_HOLD, Prefli
 from companion.errors import PreflightRefused
 from companion.planning.errors import PlanningError
 from companion.planning.routes import Route
-from companion.planning.vehicle_planner import VARIANTS
+from companion.planning.variants import VARIANTS
 from uav_model.mission import Mission, MissionError
 from companion.vehicle.port import LandedState, Vehicle
 

@@ -33,7 +33,7 @@ from companion.bench.weights import COLUMNS as WEIGHT_COLUMNS
 from companion.bench.weights import Weights
 from companion.planning.errors import NoPath
 from companion.planning.timed_route import TimedRoute
-from companion.planning.vehicle_planner import variant_needs_route
+from companion.planning.variants import variant_needs_route
 from companion.planning.metrics import FailureReason, vehicle_lower_bound_s
 from companion.planning.flight.forecast import first_forecast, mission_certificates
 from companion.planning.flight.replay import forecast_key

@@ -19,7 +19,8 @@ import pytest
 from companion.planning.dwa import NO_OBSTACLES, DwaConfig, Pose
 from companion.planning.local_goals import LocalGoalTracker
 from companion.planning.flight.loop import body_command
-from companion.planning.vehicle_planner import VehiclePlanner, approach_config
+from companion.planning.variants import approach_config
+from companion.planning.vehicle_planner import VehiclePlanner
 from uav_model.mission import load_mission
 from tests.planning.test_speed_window import V, timed_config
 from uav_model.frames import enu_heading_to_ned_yaw, ned_yaw_to_enu_heading

@@ -31,7 +31,8 @@ from companion.planning.routes import higher_routes
 from companion.planning.coordination.replan import ScheduleClocks
 from companion.planning.coordination.clocks import sight_near_m
 from companion.planning.flight.replay import FlownForecast, SoloFlight
-from companion.planning.vehicle_planner import VARIANTS, VehiclePlanner
+from companion.planning.variants import VARIANTS
+from companion.planning.vehicle_planner import VehiclePlanner
 from uav_model.mission import CoordinationSettings
 
 if TYPE_CHECKING:

@@ -19,7 +19,7 @@ from companion.planning.flight.fleet_setup import build_fleet
 from companion.planning.flight.forecast import first_forecast, mission_certificates
 from companion.planning.flight.loop import RunResult, fly
 from companion.planning.routes import plan_routes
-from companion.planning.vehicle_planner import VARIANTS, variant_needs_route
+from companion.planning.variants import VARIANTS, variant_needs_route
 
 if TYPE_CHECKING:
     from uav_model.mission import Mission

@@ -29,7 +29,8 @@ import numpy as np
 
 from companion.planning.dwa import Pose
 from companion.planning.timed_route import TimedRoute
-from companion.planning.vehicle_planner import PACE_LEAD_M, VARIANTS, VariantSpec
+from companion.planning.variants import VARIANTS, VariantSpec
+from companion.planning.vehicle_planner import PACE_LEAD_M
 from uav_model.frames import ned_to_enu, ned_yaw_to_enu_heading
 
 if TYPE_CHECKING:
