@@ -56,6 +56,8 @@ def flown_forecast(mission: "Mission", route: "Route", name: str, budget: "Budge
     routes = {name: route}
     # Alone, it is planned against nobody: a timed variant tracks its route at cruise.
     fleet = build_fleet(alone, routes, first=route_forecast(alone, routes))
+    # Alone, nobody holds its schedule back: it reads its route at sim time, without the clocks' bookkeeping.
+    fleet = dataclasses.replace(fleet, clocks=None)
     # Only the track is wanted: no lower bound to score it against (on a large mission that
     # bound's visibility graph costs more than the flight, and no budget meters it).
     flown = fly(alone, fleet, routes, lower_bounds_s={name: None}, budget=budget, record=name)
