@@ -91,9 +91,10 @@ def plan_coordinated(mission: "Mission", routes: "Mapping[str, Route]", first: T
     """Timed routes for every vehicle (see the module doc) against ``first``, the first
     vehicle's forecast without a hold. ``hold_s``: its departure hold; by default
     :func:`departure_hold`."""
-    grid = grid or rasterise(mission.world, mission.planner.grid_resolution_m)
-    shadows = shadows or SightShadows(mission.world, grid)
     order = mission.by_priority
+    if len(order) > 1:  # alone (a forecast's flight), nobody is planned in space and time
+        grid = grid or rasterise(mission.world, mission.planner.grid_resolution_m)
+        shadows = shadows or SightShadows(mission.world, grid)
     top = order[0]
     memo: dict = {}
     if hold_s is None:
