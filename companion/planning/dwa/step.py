@@ -43,7 +43,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     culled = None
     if config.count > config.samples:  # a speed window: keep clear of receding obstacles turning back too
         culled = _cull(pose, snapshot, config)  # only those in reach can bind, turned back or not
-        cautious = with_turned_back(snapshot, pose.x_m, pose.y_m, culled.keep)
+        cautious = with_turned_back(snapshot, pose.x_m, pose.y_m, culled.keep) if culled.count else snapshot
         if cautious is not snapshot:
             found = _step(pose, goals, other, cautious, snapshot, config, scheduled_speed_m_s, separate_from,
                           cautious=True)
