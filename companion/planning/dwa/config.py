@@ -99,6 +99,9 @@ class DwaConfig:
     reach_m: float = field(init=False, repr=False)  # how far a rollout goes: v K dt
     all_legal: np.ndarray = field(init=False, repr=False)  # (S,) all True
     saturated_m: np.ndarray = field(init=False, repr=False)  # (S,) all distance_saturation_m
+    # all_legal and saturated_m as writable copies, as the compiled choice reads every critic row
+    # (one signature); it never writes them.
+    choice_rows: tuple[np.ndarray, np.ndarray] = field(init=False, repr=False)
     saturated_sums: tuple[float, ...] = field(init=False, repr=False)  # [n]: numpy's sum of n of them
     saturated_sums_m: np.ndarray = field(init=False, repr=False)  # the same as an array (compiled choice)
     weights: np.ndarray = field(init=False, repr=False)  # (w_h, w_d, w_s, w_v)
@@ -161,6 +164,7 @@ class DwaConfig:
                             ("saturated_m", np.full(len(w), self.distance_saturation_m))):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
+        object.__setattr__(self, "choice_rows", (self.all_legal.copy(), self.saturated_m.copy()))
         object.__setattr__(self, "saturated_sums", tuple(float(self.saturated_m[:n].sum()) for n in range(len(w) + 1)))
         moving = self.speeds_m_s > 0.0
         object.__setattr__(self, "cruise_speed_scores", scores_at(self.speeds_m_s, self.speed_m_s, self.speed_m_s))

@@ -55,6 +55,26 @@ class Command:
     legal_count: int  # how many of the samples were legal
 
 
+def command_of(values: tuple) -> Command:
+    """``Command(*values)`` (the compiled picks' seven values, in field order), made with the
+    slots' own setters instead of the frozen dataclass's ``__init__``, which guards each field's
+    assignment: half the cost, and every tick makes one."""
+    out = _NEW(Command)
+    _SET_YAW(out, values[0])
+    _SET_SPEED(out, values[1])
+    _SET_HEADING(out, values[2])
+    _SET_DISTANCE(out, values[3])
+    _SET_SIGHTLINE(out, values[4])
+    _SET_EVAL(out, values[5])
+    _SET_LEGAL(out, values[6])
+    return out
+
+
+_NEW = object.__new__
+(_SET_YAW, _SET_SPEED, _SET_HEADING, _SET_DISTANCE, _SET_SIGHTLINE, _SET_EVAL,
+ _SET_LEGAL) = (getattr(Command, name).__set__ for name in Command.__slots__)
+
+
 @dataclass(frozen=True, slots=True)
 class NoLegalRollout:
     """Every sampled rollout breaks a rule within the horizon. The vehicle holds (hovers) this
