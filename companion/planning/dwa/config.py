@@ -91,6 +91,7 @@ class DwaConfig:
     # row among the G distinct ones (geo_hom_m (3, G * (K + 1)), geo_point_times_s); None: all differ.
     row_of: np.ndarray | None = field(init=False, repr=False)
     distinct_row: np.ndarray = field(init=False, repr=False)  # (S,) int64: row_of, or each rollout's own row
+    end_points: np.ndarray = field(init=False, repr=False)  # (S,) each rollout's prediction point among the distinct
     geo_hom_m: np.ndarray = field(init=False, repr=False)
     geo_point_times_s: np.ndarray = field(init=False, repr=False)
     # Plain numbers and constant rows the tick reads, derived once (a property would recompute).
@@ -150,6 +151,9 @@ class DwaConfig:
         distinct_row = np.arange(len(w), dtype=np.int64) if row_of is None else row_of.astype(np.int64)
         distinct_row.setflags(write=False)
         object.__setattr__(self, "distinct_row", distinct_row)
+        end_points = distinct_row * (steps + 1) + steps
+        end_points.setflags(write=False)
+        object.__setattr__(self, "end_points", end_points)
         object.__setattr__(self, "geo_hom_m", homogeneous(body[distinct].reshape(-1, 2)))
         geo_times = np.tile(t, len(distinct))
         geo_times.setflags(write=False)  # read-only as point_times_s: one compiled signature for either

@@ -139,11 +139,11 @@ class _Window:
     def of(cls, pose: Pose, scene: _Scene, config: DwaConfig) -> "_Window":
         place = placement(pose)
         if scene.culled.count or scene.binding or scene.fence_here is not None or not scene.single:
-            gx, gy = _placed(place, config)
-            row_of = config.row_of
-            if row_of is None:
-                return cls(gx[:, -1], gy[:, -1], gx, gy, None)
-            return cls(gx[row_of, -1], gy[row_of, -1], gx, gy, row_of)
+            # the distinct rollouts' points (2, G * (K + 1)): every rollout when all differ
+            xy = place @ (config.body_hom_m if config.row_of is None else config.geo_hom_m)
+            n_k = config.steps + 1
+            ends = xy.take(config.end_points, axis=1)  # every rollout's prediction point, in one call
+            return cls(ends[0], ends[1], xy[0].reshape(-1, n_k), xy[1].reshape(-1, n_k), config.row_of)
         ex, ey = place @ config.end_hom_m
         return cls(ex, ey, None, None, None)
 
@@ -314,14 +314,6 @@ def _toward_only_hovers(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_
         return False
     toward = config.yaw_rates_rad_s * turn_error_rad >= 0.0
     return not np.count_nonzero(legal & moving & toward) and bool(np.count_nonzero(legal & moving))
-
-
-def _placed(place: np.ndarray, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct rollouts placed at the pose (gx, gy (G, K + 1)): every rollout when all
-    differ (``config.row_of`` None), else ``row_of`` spreads them to all."""
-    xy = place @ (config.body_hom_m if config.row_of is None else config.geo_hom_m)
-    n_k = config.steps + 1
-    return xy[0].reshape(-1, n_k), xy[1].reshape(-1, n_k)
 
 
 def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig, ex: np.ndarray,
