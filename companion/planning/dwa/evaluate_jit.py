@@ -12,7 +12,7 @@ import numpy as np
 from companion.planning.dwa.geometry import one_layout
 from companion.planning.dwa.heading_jit import _heading_toward, heading_goals_rows
 from companion.planning.dwa.jit import inline, jit
-from companion.planning.dwa.types import Command, LocalGoals, command_of
+from companion.planning.dwa.types import Command, LocalGoals, make_command
 
 if TYPE_CHECKING:
     from companion.planning.dwa.config import DwaConfig
@@ -27,7 +27,7 @@ def choose(config: DwaConfig, critics: Critics, heading: np.ndarray) -> tuple[in
 def pick(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarray, heading_rad: float,
          target_xy: tuple[float, float]) -> Command:
     """:func:`.evaluate.pick`, compiled: one call."""
-    return command_of(_pick(one_layout(ex), one_layout(ey), float(heading_rad),
+    return make_command(*_pick(one_layout(ex), one_layout(ey), float(heading_rad),
                             (float(target_xy[0]), float(target_xy[1])), _critic_rows(config, critics),
                             config.choice_consts))
 
@@ -37,7 +37,7 @@ def pick_goals(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarr
     """:func:`.evaluate.pick_goals`, compiled: one call."""
     window = (one_layout(goals.nodes_xy), one_layout(goals.prev_nodes_xy), one_layout(goals.radius2_m2),
               bool(goals.ends_at_station), float(soonest_deg))
-    return command_of(_pick_goals(one_layout(ex), one_layout(ey), float(heading_rad), one_layout(gx), one_layout(gy),
+    return make_command(*_pick_goals(one_layout(ex), one_layout(ey), float(heading_rad), one_layout(gx), one_layout(gy),
                                   config.distinct_row, window, _critic_rows(config, critics), config.choice_consts))
 
 

@@ -4,7 +4,9 @@ why there is none, and the local-goal window the heading critic scores toward.""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -55,24 +57,20 @@ class Command:
     legal_count: int  # how many of the samples were legal
 
 
-def command_of(values: tuple) -> Command:
-    """``Command(*values)`` (the compiled picks' seven values, in field order), made with the
-    slots' own setters instead of the frozen dataclass's ``__init__``, which guards each field's
-    assignment: half the cost, and every tick makes one."""
-    out = _NEW(Command)
-    _SET_YAW(out, values[0])
-    _SET_SPEED(out, values[1])
-    _SET_HEADING(out, values[2])
-    _SET_DISTANCE(out, values[3])
-    _SET_SIGHTLINE(out, values[4])
-    _SET_EVAL(out, values[5])
-    _SET_LEGAL(out, values[6])
-    return out
+def slots_constructor(cls: type) -> Callable[..., Any]:
+    """A function making ``cls(*values)`` for a frozen dataclass with slots, every field given in
+    order, with the slots' own setters: the dataclass's ``__init__`` guards each assignment (a
+    frozen instance refuses setattr), which costs twice as much, and every tick makes a Command
+    and a tick result. Generated as the dataclass's own ``__init__`` is, one line per field."""
+    names = cls.__slots__
+    scope = {"new": object.__new__, "cls": cls, **{f"set_{n}": getattr(cls, n).__set__ for n in names}}
+    lines = [f"def make({', '.join(names)}):", "    out = new(cls)", *(f"    set_{n}(out, {n})" for n in names),
+             "    return out"]
+    exec("\n".join(lines), scope)  # the code is made here, from the class's own field names
+    return scope["make"]
 
 
-_NEW = object.__new__
-(_SET_YAW, _SET_SPEED, _SET_HEADING, _SET_DISTANCE, _SET_SIGHTLINE, _SET_EVAL,
- _SET_LEGAL) = (getattr(Command, name).__set__ for name in Command.__slots__)
+make_command = slots_constructor(Command)  # Command(*values), every field given (the compiled picks)
 
 
 @dataclass(frozen=True, slots=True)
