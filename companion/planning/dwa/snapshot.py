@@ -248,13 +248,17 @@ def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float,
     disc and speed, so the same culling keeps it exactly when it keeps the original, and a copy
     culled away changes nothing."""
     n_c = len(snapshot.circle_ids)
-    moves = snapshot.speed_m_s > 0.0
+    speeds = snapshot.speed_m_s
     away = []  # rows of the moving obstacles that move away; a few of many, so one by one (every tick)
-    for i in (moves if among is None else moves & among).nonzero()[0].tolist():
+    # the culling keeps a few: its rows read one by one, those that do not move skipped
+    for i in (speeds > 0.0 if among is None else among).nonzero()[0].tolist():
+        speed = float(speeds[i])
+        if not speed > 0.0:
+            continue
         vx, vy = (snapshot.circle_vel_m_s[i] if i < n_c else snapshot.poly_vel_m_s[i - n_c]).tolist()
         dx, dy = float(snapshot.bound_xy_m[i, 0]) - x_m, float(snapshot.bound_xy_m[i, 1]) - y_m
         along = vx * dx + vy * dy
-        if along > 0.0 and along > _AWAY_COS * float(snapshot.speed_m_s[i]) * float(np.hypot(dx, dy)):
+        if along > 0.0 and along > _AWAY_COS * speed * float(np.hypot(dx, dy)):
             away.append(i)
     if not away:
         return snapshot
