@@ -19,6 +19,7 @@ import numpy as np
 
 from companion.planning.dwa import Command, DwaConfig, NoLegalRollout, ObstacleSnapshot, OtherUav, Pose, plan_step
 from companion.planning.dwa.legality import separation_reach
+from companion.planning.dwa.types import slots_constructor
 from companion.planning.errors import BudgetExceeded, NoPath
 from companion.planning.grid import rasterise
 from companion.planning.local_goals import LocalGoalTracker
@@ -58,6 +59,7 @@ class TickResult:
         return 0.0 if self.command is None else self.command.speed_m_s
 
 
+_make_result = slots_constructor(TickResult)  # TickResult(*values), every field given: every tick makes one
 _AIM_FRACTION = 0.5  # of the arrival radius, aimed at by a speed window (see VehiclePlanner)
 # A vehicle this far behind its timed plan flies it without the sightline term: the term had
 # it hover where the line was blocked while the plan moved on (stalls of 40-60 s, b hundreds of
@@ -294,7 +296,7 @@ class VehiclePlanner:
             if decision.escape is not None:
                 return TickResult(t_s, decision.escape, goal, self.tracker.index, False, ms, None, decision.reason)
             return TickResult(t_s, None, goal, self.tracker.index, False, ms, decision.reason)
-        return TickResult(t_s, decision, goal, self.tracker.index, False, ms)
+        return _make_result(t_s, decision, goal, self.tracker.index, False, ms, None, None, None)
 
     def _advance(self, own: Pose, t_s: float, schedule_t_s: float | None) -> tuple[float, float | None]:
         """What a tick keeps before it decides: arrival (then nothing else), the local goal, the

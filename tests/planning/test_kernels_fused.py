@@ -83,6 +83,26 @@ def test_fused_choice_matches_numpy(case, seed: int, tx: float, ty: float, headi
 
 @needs_numba
 @settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**31), st.integers(1, 40), st.sampled_from([0.0, -0.0, 7.5]), st.sampled_from([0.0, -0.0, -3.0]),
+       st.floats(-4.0, 4.0))
+def test_heading_toward_shared_prediction_points(seed: int, n: int, tx: float, ty: float, heading_rad: float) -> None:
+    """Runs of rollouts sharing one prediction point (a speed window's hovers), some on the
+    target's axes or on the target itself, with zeros of either sign: the compiled heading
+    critic toward one target gives, rollout by rollout, numpy's bits."""
+    rng = np.random.default_rng(seed)
+    pool = np.array([tx, -tx, tx + 1e-13, 0.0, -0.0, 5.0, -5.0])
+    ex, ey = rng.choice(pool, n), rng.choice(pool - tx + ty, n)
+    runs = np.repeat(np.arange(n), rng.integers(1, 5, n))[:n]  # consecutive rollouts sharing a point
+    ex, ey = ex[runs], ey[runs]
+    final = heading_rad + rng.uniform(-1.5, 1.5, n)
+    goals = LocalGoals.single((tx, ty))
+    got = COMPILED.heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True)
+    reference = NUMPY.heading_from_ends(ex, ey, final, goals, (0.0, 0.0), None, None, True)
+    assert same_bits(got, reference)
+
+
+@needs_numba
+@settings(max_examples=200, deadline=None)
 @given(choices(), st.integers(0, 2**31), st.integers(1, 4), st.booleans(), st.floats(-4.0, 4.0))
 def test_fused_goal_window_choice_matches_numpy(case, seed: int, n_goals: int, station: bool,
                                                 heading_rad: float) -> None:

@@ -91,6 +91,7 @@ class DwaConfig:
     # row among the G distinct ones (geo_hom_m (3, G * (K + 1)), geo_point_times_s); None: all differ.
     row_of: np.ndarray | None = field(init=False, repr=False)
     distinct_row: np.ndarray = field(init=False, repr=False)  # (S,) int64: row_of, or each rollout's own row
+    end_points: np.ndarray = field(init=False, repr=False)  # (S,) each rollout's prediction point among the distinct
     geo_hom_m: np.ndarray = field(init=False, repr=False)
     geo_point_times_s: np.ndarray = field(init=False, repr=False)
     # Plain numbers and constant rows the tick reads, derived once (a property would recompute).
@@ -99,6 +100,9 @@ class DwaConfig:
     reach_m: float = field(init=False, repr=False)  # how far a rollout goes: v K dt
     all_legal: np.ndarray = field(init=False, repr=False)  # (S,) all True
     saturated_m: np.ndarray = field(init=False, repr=False)  # (S,) all distance_saturation_m
+    # all_legal and saturated_m as writable copies, as the compiled choice reads every critic row
+    # (one signature); it never writes them.
+    choice_rows: tuple[np.ndarray, np.ndarray] = field(init=False, repr=False)
     saturated_sums: tuple[float, ...] = field(init=False, repr=False)  # [n]: numpy's sum of n of them
     saturated_sums_m: np.ndarray = field(init=False, repr=False)  # the same as an array (compiled choice)
     weights: np.ndarray = field(init=False, repr=False)  # (w_h, w_d, w_s, w_v)
@@ -147,6 +151,9 @@ class DwaConfig:
         distinct_row = np.arange(len(w), dtype=np.int64) if row_of is None else row_of.astype(np.int64)
         distinct_row.setflags(write=False)
         object.__setattr__(self, "distinct_row", distinct_row)
+        end_points = distinct_row * (steps + 1) + steps
+        end_points.setflags(write=False)
+        object.__setattr__(self, "end_points", end_points)
         object.__setattr__(self, "geo_hom_m", homogeneous(body[distinct].reshape(-1, 2)))
         geo_times = np.tile(t, len(distinct))
         geo_times.setflags(write=False)  # read-only as point_times_s: one compiled signature for either
@@ -161,6 +168,7 @@ class DwaConfig:
                             ("saturated_m", np.full(len(w), self.distance_saturation_m))):
             value.setflags(write=False)
             object.__setattr__(self, name, value)
+        object.__setattr__(self, "choice_rows", (self.all_legal.copy(), self.saturated_m.copy()))
         object.__setattr__(self, "saturated_sums", tuple(float(self.saturated_m[:n].sum()) for n in range(len(w) + 1)))
         moving = self.speeds_m_s > 0.0
         object.__setattr__(self, "cruise_speed_scores", scores_at(self.speeds_m_s, self.speed_m_s, self.speed_m_s))

@@ -12,7 +12,7 @@ import numpy as np
 from companion.planning.dwa.geometry import one_layout
 from companion.planning.dwa.heading_jit import _heading_toward, heading_goals_rows
 from companion.planning.dwa.jit import inline, jit
-from companion.planning.dwa.types import Command, LocalGoals
+from companion.planning.dwa.types import Command, LocalGoals, make_command
 
 if TYPE_CHECKING:
     from companion.planning.dwa.config import DwaConfig
@@ -27,9 +27,9 @@ def choose(config: DwaConfig, critics: Critics, heading: np.ndarray) -> tuple[in
 def pick(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarray, heading_rad: float,
          target_xy: tuple[float, float]) -> Command:
     """:func:`.evaluate.pick`, compiled: one call."""
-    return Command(*_pick(one_layout(ex), one_layout(ey), float(heading_rad),
-                          (float(target_xy[0]), float(target_xy[1])), _critic_rows(config, critics),
-                          config.choice_consts))
+    return make_command(*_pick(one_layout(ex), one_layout(ey), float(heading_rad),
+                            (float(target_xy[0]), float(target_xy[1])), _critic_rows(config, critics),
+                            config.choice_consts))
 
 
 def pick_goals(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarray, heading_rad: float,
@@ -37,8 +37,8 @@ def pick_goals(config: DwaConfig, critics: Critics, ex: np.ndarray, ey: np.ndarr
     """:func:`.evaluate.pick_goals`, compiled: one call."""
     window = (one_layout(goals.nodes_xy), one_layout(goals.prev_nodes_xy), one_layout(goals.radius2_m2),
               bool(goals.ends_at_station), float(soonest_deg))
-    return Command(*_pick_goals(one_layout(ex), one_layout(ey), float(heading_rad), one_layout(gx), one_layout(gy),
-                                config.distinct_row, window, _critic_rows(config, critics), config.choice_consts))
+    return make_command(*_pick_goals(one_layout(ex), one_layout(ey), float(heading_rad), one_layout(gx), one_layout(gy),
+                                  config.distinct_row, window, _critic_rows(config, critics), config.choice_consts))
 
 
 _NONE = np.zeros(0)  # a critic that is off
@@ -47,9 +47,12 @@ _NONE = np.zeros(0)  # a critic that is off
 def _critic_rows(config: DwaConfig, c: Critics) -> tuple:
     """The critics as the compiled choice reads them: one signature per kernel (each new one
     compiles or loads in flight; see app/warmup.py), so the read-only all-legal mask and
-    saturated distances go as writable copies (S elements)."""
-    legal = c.legal if c.legal.flags.writeable else c.legal.copy()
-    distance = c.distance if c.distance.flags.writeable else c.distance.copy()
+    saturated distances go as the config's writable copies (:attr:`.DwaConfig.choice_rows`,
+    which the compiled code never writes)."""
+    legal = c.legal if c.legal.flags.writeable else config.choice_rows[0] if c.legal is config.all_legal \
+        else c.legal.copy()
+    distance = c.distance if c.distance.flags.writeable else config.choice_rows[1] \
+        if c.distance is config.saturated_m else c.distance.copy()
     return (legal, float(c.turn_error), distance, c.distance is config.saturated_m,
             _NONE if c.sightline is None else c.sightline, c.sightline is not None,
             _NONE if c.speed is None else c.speed, c.speed is not None)

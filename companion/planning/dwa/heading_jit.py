@@ -29,10 +29,18 @@ def heading_from_ends(ex: np.ndarray, ey: np.ndarray, final_heading: np.ndarray,
 
 @jit
 def _heading_toward(ex, ey, final_heading, tx, ty):
-    """The heading critic (S,) toward one target (tx, ty): 180 - |heading - bearing| in deg."""
+    """The heading critic (S,) toward one target (tx, ty): 180 - |heading - bearing| in deg.
+    A rollout whose prediction point is the one before's (a speed window's hovers share theirs)
+    reuses its bearing: the same nonzero differences give arctan2 the same arguments (a zero
+    is worked out again, as its sign counts)."""
     out = np.empty(len(ex))
+    bearing = dx0 = dy0 = 0.0
     for i in range(len(ex)):
-        bearing = np.arctan2(ty - ey[i], tx - ex[i])
+        dy = ty - ey[i]
+        dx = tx - ex[i]
+        if i == 0 or dx != dx0 or dy != dy0 or dx == 0.0 or dy == 0.0:
+            bearing = np.arctan2(dy, dx)
+            dx0, dy0 = dx, dy
         deviation = abs((final_heading[i] - bearing + np.pi) % (2.0 * np.pi) - np.pi)
         out[i] = 180.0 - np.degrees(deviation)
     return out

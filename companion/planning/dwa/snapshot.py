@@ -178,10 +178,23 @@ class ObstacleSnapshot:
         :func:`.geometry.one_layout`); made once per snapshot."""
         cached = self._subsets.get(_ARRAYS)
         if cached is None:
-            values = [getattr(self, name) for name in ARRAY_FIELDS]
-            if values[4].ndim != 3:  # no polygons at all: the shapes of the one signature
-                values[4:9] = [np.zeros((0, 0, 2))] * 3 + [np.zeros((0, 0))] * 2
-            cached = self._subsets[_ARRAYS] = tuple(one_layout(v) for v in values)
+            shared = None if self._shared is None else self._shared[2].get(_ARRAYS)
+            if shared is None:
+                values = [getattr(self, name) for name in ARRAY_FIELDS]
+                if values[4].ndim != 3:  # no polygons at all: the shapes of the one signature
+                    values[4:9] = [np.zeros((0, 0, 2))] * 3 + [np.zeros((0, 0))] * 2
+                cached = tuple(one_layout(v) for v in values)
+                if self._shared is not None:  # what does not move, laid out once for every snapshot sharing it
+                    moved = self._shared[1]
+                    self._shared[2][_ARRAYS] = (cached, [(i, name) for i, name in enumerate(ARRAY_FIELDS)
+                                                         if name in moved])
+            else:
+                fixed, moved = shared
+                values = list(fixed)
+                for i, name in moved:
+                    values[i] = one_layout(getattr(self, name))
+                cached = tuple(values)
+            self._subsets[_ARRAYS] = cached
         return cached
 
     def _take(self, keep: np.ndarray, key: bytes) -> "ObstacleSnapshot":
@@ -235,13 +248,17 @@ def with_turned_back(snapshot: ObstacleSnapshot, x_m: float, y_m: float,
     disc and speed, so the same culling keeps it exactly when it keeps the original, and a copy
     culled away changes nothing."""
     n_c = len(snapshot.circle_ids)
-    moves = snapshot.speed_m_s > 0.0
+    speeds = snapshot.speed_m_s
     away = []  # rows of the moving obstacles that move away; a few of many, so one by one (every tick)
-    for i in np.flatnonzero(moves if among is None else moves & among).tolist():
+    # the culling keeps a few: its rows read one by one, those that do not move skipped
+    for i in (speeds > 0.0 if among is None else among).nonzero()[0].tolist():
+        speed = float(speeds[i])
+        if not speed > 0.0:
+            continue
         vx, vy = (snapshot.circle_vel_m_s[i] if i < n_c else snapshot.poly_vel_m_s[i - n_c]).tolist()
         dx, dy = float(snapshot.bound_xy_m[i, 0]) - x_m, float(snapshot.bound_xy_m[i, 1]) - y_m
         along = vx * dx + vy * dy
-        if along > 0.0 and along > _AWAY_COS * float(snapshot.speed_m_s[i]) * float(np.hypot(dx, dy)):
+        if along > 0.0 and along > _AWAY_COS * speed * float(np.hypot(dx, dy)):
             away.append(i)
     if not away:
         return snapshot

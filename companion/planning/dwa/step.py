@@ -43,7 +43,7 @@ def plan_step(pose: Pose, goals: LocalGoals | tuple[float, float], other: OtherU
     culled = None
     if config.count > config.samples:  # a speed window: keep clear of receding obstacles turning back too
         culled = _cull(pose, snapshot, config)  # only those in reach can bind, turned back or not
-        cautious = with_turned_back(snapshot, pose.x_m, pose.y_m, culled.keep)
+        cautious = with_turned_back(snapshot, pose.x_m, pose.y_m, culled.keep) if culled.count else snapshot
         if cautious is not snapshot:
             found = _step(pose, goals, other, cautious, snapshot, config, scheduled_speed_m_s, separate_from,
                           cautious=True)
@@ -132,18 +132,18 @@ class _Window:
 
     def _spread(self) -> tuple[np.ndarray | None, np.ndarray | None]:
         if self._px is None and self.gx is not None:
-            self._px, self._py = np.take(self.gx, self._row_of, axis=0), np.take(self.gy, self._row_of, axis=0)
+            self._px, self._py = self.gx.take(self._row_of, axis=0), self.gy.take(self._row_of, axis=0)
         return self._px, self._py
 
     @classmethod
     def of(cls, pose: Pose, scene: _Scene, config: DwaConfig) -> "_Window":
         place = placement(pose)
         if scene.culled.count or scene.binding or scene.fence_here is not None or not scene.single:
-            gx, gy = _placed(place, config)
-            row_of = config.row_of
-            if row_of is None:
-                return cls(gx[:, -1], gy[:, -1], gx, gy, None)
-            return cls(gx[row_of, -1], gy[row_of, -1], gx, gy, row_of)
+            # the distinct rollouts' points (2, G * (K + 1)): every rollout when all differ
+            xy = place @ (config.body_hom_m if config.row_of is None else config.geo_hom_m)
+            n_k = config.steps + 1
+            ends = xy.take(config.end_points, axis=1)  # every rollout's prediction point, in one call
+            return cls(ends[0], ends[1], xy[0].reshape(-1, n_k), xy[1].reshape(-1, n_k), config.row_of)
         ex, ey = place @ config.end_hom_m
         return cls(ex, ey, None, None, None)
 
@@ -170,7 +170,8 @@ def _rules(pose: Pose, scene: _Scene, window: _Window, config: DwaConfig) -> _Ru
             clear, ok, distance, legal = config.backend.obstacle_rule(window.gx, window.gy, scene.culled, config,
                                                                       config.geo_point_times_s)
             row_of = config.row_of
-            ok_by_rule[Rule.OBSTACLE], distance = ok[row_of], distance[row_of]
+            # take: a fancy index of a 2-D boolean array costs five times as much
+            ok_by_rule[Rule.OBSTACLE], distance = ok.take(row_of, axis=0), distance[row_of]
             legal = None if legal is None else legal[row_of]
     else:
         distance = no_obstacle_in_reach(config)
@@ -314,14 +315,6 @@ def _toward_only_hovers(legal: np.ndarray, config: DwaConfig, scheduled_speed_m_
         return False
     toward = config.yaw_rates_rad_s * turn_error_rad >= 0.0
     return not np.count_nonzero(legal & moving & toward) and bool(np.count_nonzero(legal & moving))
-
-
-def _placed(place: np.ndarray, config: DwaConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct rollouts placed at the pose (gx, gy (G, K + 1)): every rollout when all
-    differ (``config.row_of`` None), else ``row_of`` spreads them to all."""
-    xy = place @ (config.body_hom_m if config.row_of is None else config.geo_hom_m)
-    n_k = config.steps + 1
-    return xy[0].reshape(-1, n_k), xy[1].reshape(-1, n_k)
 
 
 def _sightline(pose: Pose, other: OtherUav | None, snapshot: ObstacleSnapshot, config: DwaConfig, ex: np.ndarray,

@@ -4,7 +4,9 @@ why there is none, and the local-goal window the heading critic scores toward.""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -53,6 +55,22 @@ class Command:
     sightline_score: float
     eval_score: float  # normalised, weighted total
     legal_count: int  # how many of the samples were legal
+
+
+def slots_constructor(cls: type) -> Callable[..., Any]:
+    """A function making ``cls(*values)`` for a frozen dataclass with slots, every field given in
+    order, with the slots' own setters: the dataclass's ``__init__`` guards each assignment (a
+    frozen instance refuses setattr), which costs twice as much, and every tick makes a Command
+    and a tick result. Generated as the dataclass's own ``__init__`` is, one line per field."""
+    names = cls.__slots__
+    scope = {"new": object.__new__, "cls": cls, **{f"set_{n}": getattr(cls, n).__set__ for n in names}}
+    lines = [f"def make({', '.join(names)}):", "    out = new(cls)", *(f"    set_{n}(out, {n})" for n in names),
+             "    return out"]
+    exec("\n".join(lines), scope)  # the code is made here, from the class's own field names
+    return scope["make"]
+
+
+make_command = slots_constructor(Command)  # Command(*values), every field given (the compiled picks)
 
 
 @dataclass(frozen=True, slots=True)
