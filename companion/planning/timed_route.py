@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.planning.errors import PlanningError
-from companion.planning.timed_route_jit import interp_in, latest_near, progress_near, schedule_in
+from companion.planning.timed_route_jit import first_lead_over, interp_in, latest_near, progress_near, schedule_in
 
 _WAIT_SPEED_M_S = 1e-6  # slower than this, a planned segment is a wait
 
@@ -264,6 +264,23 @@ class TimedRoute:
         along = float(self.progress_of(x_m, y_m, near_along_m)[0])
         speed = float(self.target_speed_of(x_m, y_m, t_s, max_speed_m_s, lookahead_s, along))
         return along, speed, along - float(self.planned_along_at(t_s)), bool(self.is_waiting_at(t_s))
+
+    def first_lead_over(self, xs_m: np.ndarray, ys_m: np.ndarray, ts_s: np.ndarray, limit_m: float) -> int | None:
+        """The first k at which a vehicle at (``xs_m[k]``, ``ys_m[k]``) at plan time ``ts_s[k]``,
+        read tick after tick as :meth:`schedule_of` reads it (each near the last one's progress),
+        leads the plan by more than ``limit_m``; None when it never does. One compiled call
+        when numba is installed (the same bits)."""
+        if first_lead_over is not None and len(self.t_s) > 1:
+            k = first_lead_over(self.t_s, self._along_m, self._start, self._d, self._len2_div, self._len,
+                                np.asarray(xs_m, dtype=float), np.asarray(ys_m, dtype=float),
+                                np.asarray(ts_s, dtype=float), PROGRESS_BACK_M, PROGRESS_AHEAD_M, float(limit_m))
+            return None if k < 0 else int(k)
+        along = None
+        for k, (x, y, t) in enumerate(zip(xs_m, ys_m, ts_s)):
+            along, _, lead_m, _ = self.schedule_of(float(x), float(y), float(t), 0.0, along)
+            if lead_m > limit_m:
+                return k
+        return None
 
     def _target_speed(self, along: np.float64, off: np.float64, t_s: float, max_speed_m_s: float,
                       lookahead_s: float) -> np.float64:

@@ -39,7 +39,7 @@ def interp_in(x, xp, fp, j):
 
 
 if numba is None:
-    latest_near = progress_in = progress_near = schedule_in = None
+    latest_near = progress_in = progress_near = schedule_in = first_lead_over = None
 else:
     @numba.njit(cache=True, nogil=True)
     def _bisect_left(a, x, lo, hi):  # pragma: no cover
@@ -148,3 +148,16 @@ else:
         if t_s[0] <= t < t_s[last]:
             planned = speed[min(max(_bisect_right(t_s, t, 0, last + 1) - 1, 0), last - 1)]
         return along, target, lead, t < arrival_s and planned < wait_speed_m_s
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def first_lead_over(t_s, along_m, start, d, len2_div, seg_len, xs, ys, ts, back_m, ahead_m,
+                        limit_m):  # pragma: no cover
+        """:meth:`.TimedRoute.first_lead_over`: each position's lead as ``schedule_in`` reads it,
+        near the last one's progress, until one leads by more than ``limit_m``."""
+        near = np.nan
+        for k in range(len(xs)):
+            along, _ = progress_near(start, d, len2_div, along_m, seg_len, xs[k], ys[k], near, back_m, ahead_m)
+            if along - _interp(ts[k], t_s, along_m) > limit_m:
+                return k
+            near = along
+        return -1

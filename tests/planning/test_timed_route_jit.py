@@ -129,3 +129,30 @@ def test_compiled_schedule_gives_the_plain_float_bits(route: TimedRoute, x: floa
     got = route.schedule_of(x, y, t, max_speed, near)
     assert [type(v) for v in got] == [float, float, float, bool]
     assert np.array(got[:3]).tobytes() == np.array(expected[:3]).tobytes() and got[3] == expected[3]
+
+
+@needs_numba
+@settings(max_examples=200, deadline=None)
+@given(routes(), st.lists(st.tuples(st.floats(-450.0, 450.0), st.floats(-450.0, 450.0), st.floats(-20.0, 200.0)),
+                          min_size=1, max_size=30), st.sampled_from([0.0, 5.0, 50.0]))
+def test_the_first_lead_over_a_limit_is_the_compiled_and_the_tick_by_tick_one(route, track, limit):
+    """A recorded flight checked against a pace in one compiled call finds the tick that
+    :meth:`TimedRoute.schedule_of`, asked tick by tick, finds (or none)."""
+    xs, ys, ts = (np.array(c) for c in zip(*track))
+    mp = pytest.MonkeyPatch()
+    try:
+        mp.setattr(timed_route, "first_lead_over", None)
+        mp.setattr(timed_route, "schedule_in", None)
+        expected = route.first_lead_over(xs, ys, ts, limit)
+    finally:
+        mp.undo()
+    assert route.first_lead_over(xs, ys, ts, limit) == expected
+
+
+def test_a_vehicle_ahead_of_its_pace_is_found_at_the_first_tick_ahead():
+    route = TimedRoute("v", np.array([0.0, 100.0]), np.array([[0.0, 0.0], [1000.0, 0.0]]))  # 10 m/s
+    ts = np.arange(0.0, 10.0, 1.0)
+    on = 10.0 * ts
+    assert route.first_lead_over(on, np.zeros_like(ts), ts, 5.0) is None
+    ahead = on + np.where(ts >= 6.0, 6.0, 0.0)
+    assert route.first_lead_over(ahead, np.zeros_like(ts), ts, 5.0) == 6

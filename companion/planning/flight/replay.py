@@ -104,13 +104,9 @@ class SoloFlight:
         pace = planner.pace
         if pace is None:
             return True
-        along, speed_m_s = None, planner.config.speed_m_s
-        for k, state in enumerate(self.states):  # as the planner's _schedule reads its pace, tick by tick
-            pose = pose_of(state)
-            along, _, lead_m, _ = pace.schedule_of(pose.x_m, pose.y_m, k * dt_s, speed_m_s, along)
-            if lead_m > PACE_LEAD_M:
-                return False
-        return True
+        poses = [pose_of(state) for state in self.states]  # as the planner's _schedule reads its pace, tick by tick
+        return pace.first_lead_over([p.x_m for p in poses], [p.y_m for p in poses],
+                                    dt_s * np.arange(len(poses)), PACE_LEAD_M) is None
 
     def catch_up(self, planner: "VehiclePlanner", start: int, stop: int, field: "ObstacleField", dt_s: float,
                  timed: bool) -> None:
