@@ -280,7 +280,6 @@ if numba is not None:
             y1 = min(y0 + t, len(ys))
             for wt in range(need.shape[1]):
                 todo = need[ty, wt] & ~done[ty, wt]
-                done[ty, wt] |= todo
                 for b in range(64):
                     if not (todo >> np.uint64(b)) & np.uint64(1):
                         continue
@@ -289,9 +288,9 @@ if numba is not None:
                     if inside:
                         _set_tile_rows(bits, x0, x1, y0, y1)
                         continue
-                    tx, ty_ = 0.5 * (xs[x0] + xs[x1 - 1]), 0.5 * (ys[y0] + ys[y1 - 1])
+                    mx, my = 0.5 * (xs[x0] + xs[x1 - 1]), 0.5 * (ys[y0] + ys[y1 - 1])  # the tile's centre
                     half = 0.5 * math.hypot(xs[x1 - 1] - xs[x0], ys[y1 - 1] - ys[y0])
-                    dx, dy = tx - px, ty_ - py
+                    dx, dy = mx - px, my - py
                     len2 = dx * dx + dy * dy
                     m = 0
                     full = False
@@ -312,3 +311,4 @@ if numba is not None:
                     elif m:
                         _blocked_tile(bits, xs, ys, x0, x1, y0, y1, px, py, circles, start, v, normal, offset,
                                       outside, cand, m)
+                done[ty, wt] |= todo  # after its tiles' bits: a tile marked done is never half-written
