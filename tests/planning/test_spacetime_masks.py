@@ -10,7 +10,7 @@ import pytest
 
 from companion.planning.coordination import bitgrid
 from companion.planning.coordination.plan import plan_coordinated, route_forecast
-from companion.planning.coordination.search import problem_for
+from companion.planning.coordination.search import Blocking, problem_for
 from companion.planning.coordination.shadow import SightShadows
 from companion.planning.coordination.spacetime import SightRule, allowed_table, forward, on_path, stay_from
 from companion.planning.grid import rasterise
@@ -102,7 +102,7 @@ class _Forgetful(dict):
 
 
 def test_closest_approach_plans_are_the_same_with_the_tables_kept_or_rebuilt(problems):
-    from companion.planning.coordination.search import Blocking, solve
+    from companion.planning.coordination.search import solve
     for p in problems:
         kept = solve(p, Blocking.CLOSEST_APPROACH, 20.0)
         assert kept is not None and len(p.tables) >= 2
@@ -144,3 +144,29 @@ def test_forward_sets_on_the_tiles_reached_and_the_states_on_a_path_equal_those_
                 blocked = p.blocked_by_all(k, path[k])
                 assert np.array_equal(blocked, path[k] & _fresh_blocked(p, k))
     assert {(SightRule.FREE, True), (SightRule.BLOCKED_WHEN_NEAR, True)} <= seen  # sets on a path, not only empty ones
+
+
+def test_plans_are_the_same_on_the_numpy_paths():
+    """Without the compiled kernels (no numba: whole masks at once, the numpy tile maps, growth
+    and backtracking) the plans are the same, closest-approach ones too."""
+    from companion.planning.coordination import backtrack, shadow, tiles
+    sc = generate_scenario(7, 9, ScenarioConfig())
+    mission, routes = sc.mission, sc.routes
+    first = route_forecast(mission, routes)
+    compiled = plan_coordinated(mission, routes, first, hold_s=0.0)
+    kernels = [(shadow, "_blocked_jit"), (backtrack, "_step_back_jit")]
+    kernels += [(bitgrid, n) for n in ("_farther_jit", "_nearest_jit", "_grow_jit", "_dilate_within_jit",
+                                       "_allowed_jit", "_within_any_jit")]
+    kernels += [(tiles, n) for n in ("_tiles_of_jit", "_spills_jit", "_missing_jit")]
+    saved = [getattr(m, n) for m, n in kernels]
+    for m, n in kernels:
+        setattr(m, n, None)
+    try:
+        plain = plan_coordinated(mission, routes, first, hold_s=0.0)
+    finally:
+        for (m, n), kernel in zip(kernels, saved):
+            setattr(m, n, kernel)
+    assert set(compiled.blocking.values()) >= {Blocking.CLOSEST_APPROACH}
+    assert plain.blocking == compiled.blocking and plain.planned == compiled.planned
+    for name, route in compiled.timed.items():
+        assert np.array_equal(plain.timed[name].t_s, route.t_s) and np.array_equal(plain.timed[name].xy_enu_m, route.xy_enu_m)
