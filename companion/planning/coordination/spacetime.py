@@ -182,7 +182,7 @@ class SpaceTimeProblem:
             if key[0] == "points":
                 value = np.array(got, dtype=float).reshape(-1, 2)
             else:
-                value = np.stack(got) if got else self._none
+                value = got[0][None] if len(got) == 1 else np.stack(got) if got else self._none  # one: a view
             self._stacks[key] = value
         return value
 
