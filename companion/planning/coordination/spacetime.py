@@ -12,9 +12,11 @@ Reachability is a set per step, so each step is a few shifted ORs of a boolean a
     F[k+1] = grow(F[k]) & allowed(k+1)          forward, from the start cell at k = 0
     B[k]   = grow(B[k+1]) & allowed(k)          backward, from the goal cell at the horizon
 
-F[k] & B[k] are the states on some start-to-goal path. Once every higher-priority vehicle has
-arrived, ``allowed`` no longer changes; each pass stops there as soon as its set stops changing
-(the sets are the same for every later step).
+F[k] & B[k] are the states on some start-to-goal path, found back from the goal within the forward
+sets, without ``allowed`` (:func:`on_path`). Once every higher-priority vehicle has arrived,
+``allowed`` no longer changes; each pass stops there as soon as its set stops changing (the sets
+are the same for every later step). ``allowed(k)`` is read only among the cells grown from step
+k - 1, so its sight-shadow masks are computed on those cells' tiles only (:class:`AllowedTable`).
 """
 
 from __future__ import annotations
@@ -137,7 +139,7 @@ class SpaceTimeProblem:
             self._xs, self._ys, xy, self.model.min_distance_m ** 2, strict=False))
 
     def allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf, need: np.ndarray | None = None) -> np.ndarray:
-        """Packed cells allowed at step k, exact on the tiles of tile map ``need`` (:mod:`bitgrid`;
+        """Packed cells allowed at step k, exact on the tiles of tile map ``need`` (:mod:`tiles`;
         default: every tile); ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR (squared, so that a
         tie with the distance it came from stays a tie)."""
         spend(self.budget)
