@@ -1,13 +1,14 @@
 """The packed-bit dilation of the space-time wavefront: compiled and numpy paths give the same
 words, and both agree with a plain boolean dilation."""
 
+import contextlib
 import math
 
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from companion.planning.coordination import bitgrid
+from companion.planning.coordination import bitgrid, tiles
 
 
 def _bool_dilate(mask: np.ndarray, kind: int) -> np.ndarray:
@@ -59,15 +60,17 @@ def _numpy_paths():
 
     @contextlib.contextmanager
     def off():
-        names = ("_farther_jit", "_nearest_jit", "_grow_jit", "_dilate_within_jit", "_allowed_jit", "_within_any_jit")
-        saved = [getattr(bitgrid, n) for n in names]
-        for n in names:
-            setattr(bitgrid, n, None)
+        names = [(bitgrid, n) for n in ("_farther_jit", "_nearest_jit", "_grow_jit", "_dilate_within_jit",
+                                        "_allowed_jit", "_within_any_jit")]
+        names += [(tiles, n) for n in ("_tiles_of_jit", "_spills_jit", "_missing_jit")]
+        saved = [getattr(m, n) for m, n in names]
+        for m, n in names:
+            setattr(m, n, None)
         try:
             yield
         finally:
-            for n, kernel in zip(names, saved):
-                setattr(bitgrid, n, kernel)
+            for (m, n), kernel in zip(names, saved):
+                setattr(m, n, kernel)
     return off()
 
 
@@ -140,6 +143,9 @@ def test_compiled_allowed_mask_equals_the_masks_one_by_one(cells, q, mode, seed)
         want = bitgrid.allowed(free, xs, ys, far, shadows, pts, near2)
     assert np.array_equal(bitgrid.allowed(free, xs, ys, far, shadows, pts, near2), want)
     assert np.array_equal(bitgrid.allowed(free, xs, ys, far[:0], shadows[:0], pts[:0], near2), free)
+    some = tiles.tiles_of(bitgrid.pack(rng.random(shape) < 0.01))  # only these tiles' rows are asked for
+    rows = np.repeat(bitgrid.unpack(some, -(-len(xs) // tiles.TILE)).any(axis=1), tiles.TILE)[:len(ys)]
+    assert np.array_equal(bitgrid.allowed(free, xs, ys, far, shadows, pts, near2, some)[rows], want[rows])
 
 
 @pytest.mark.skipif(bitgrid.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
@@ -156,3 +162,48 @@ def test_compiled_cells_within_any_point_equal_the_masks_one_by_one(cells, q):
     for xy in points:
         union |= bitgrid.pack(bitgrid.distance2(xs, ys, xy) <= d2)
     assert np.array_equal(want, union)
+
+
+@settings(max_examples=80, deadline=None)
+@given(ny=st.integers(1, 40), nx=st.integers(1, 700), seed=st.integers(0, 2**32 - 1),
+       density=st.sampled_from([0.0, 0.001, 0.02, 0.5]))
+def test_tile_maps_hold_the_tiles_of_the_set_cells_on_either_path(ny, nx, seed, density):
+    """tiles_of: the TILE x TILE tiles with a set cell; spills: a set cell outside a tile map; missing:
+    a tile of one map not in another. Compiled and numpy paths, against a plain boolean tiling."""
+    rng = np.random.default_rng(seed)
+    mask = rng.random((ny, nx)) < density
+    t = tiles.TILE
+    padded = np.zeros((-(-ny // t) * t, -(-nx // t) * t), dtype=bool)
+    padded[:ny, :nx] = mask
+    want = bitgrid.pack(padded.reshape(padded.shape[0] // t, t, -1, t).any(axis=(1, 3)))
+    some = want & bitgrid.pack(rng.random((padded.shape[0] // t, padded.shape[1] // t)) < 0.5)
+    assert want.shape == tiles.tile_shape(ny, nx) == tiles.all_tiles(ny, nx).shape
+    for numpy_only in (False, True):
+        with _numpy_paths() if numpy_only else contextlib.nullcontext():
+            bits = bitgrid.pack(mask)
+            assert np.array_equal(tiles.tiles_of(bits), want)
+            assert not tiles.spills(bits, want) and not tiles.spills(bits, tiles.all_tiles(ny, nx))
+            assert tiles.spills(bits, some) == bool((want & ~some).any()) == tiles.missing(want, some)
+            assert not tiles.missing(want, tiles.all_tiles(ny, nx))
+
+
+@pytest.mark.skipif(bitgrid.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+@settings(max_examples=80, deadline=None)
+@given(ny=st.integers(1, 30), nx=st.integers(1, 150), seed=st.integers(0, 2**32 - 1),
+       moves=st.lists(st.sampled_from([4, 8]), min_size=1, max_size=6), density=st.sampled_from([0.05, 0.3, 0.9]))
+def test_compiled_backtrack_step_equals_the_numpy_step(ny, nx, seed, moves, density):
+    """step_back: the predecessor deepest in the layer, then the nearest, then the first in row
+    order (ties are common on dense layers); none when no cell of the layer reaches the cell."""
+    from companion.planning.coordination import backtrack
+    rng = np.random.default_rng(seed)
+    layer = bitgrid.pack(rng.random((ny, nx)) < density)
+    free = rng.random((ny, nx)) < 0.85
+    cell = (int(rng.integers(nx)), int(rng.integers(ny)))
+    free[cell[1], cell[0]] = True
+    m = np.asarray(moves, dtype=np.int64)
+    saved, backtrack._step_back_jit = backtrack._step_back_jit, None
+    try:
+        want = backtrack.step_back(layer, free, cell, m)
+    finally:
+        backtrack._step_back_jit = saved
+    assert backtrack.step_back(layer, free, cell, m) == want

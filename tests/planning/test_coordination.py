@@ -190,6 +190,38 @@ def test_compiled_shadow_masks_equal_the_numpy_masks_on_tangents_from_cells(worl
     shadows = SightShadows(world, grid)
     assert np.array_equal(shadows.blocked_from(p), _numpy_mask(shadows, p))
 
+@pytest.mark.skipif(shadow_module.numba is None, reason="needs the fast extra (numba): pip install -e '.[fast]'")
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(worlds(1, 5), st.floats(6.0, 30.0), st.tuples(st.floats(-50.0, 1050.0), st.floats(-50.0, 1050.0)),
+       st.integers(0, 2**32 - 1))
+def test_a_shadow_mask_computed_tile_by_tile_is_the_numpy_mask_on_its_tiles(world, resolution_m, p, seed):
+    """ShadowMask: the tiles asked for, in a few asks and single cells, are the numpy mask's; the
+    others stay empty until asked for; the whole budget is charged once, at creation."""
+    from companion.planning.budget import WorkBudget
+    from companion.planning.coordination import bitgrid, tiles as tile_maps
+    from companion.planning.coordination.shadow import ShadowMask
+    grid = rasterise(world, resolution_m)
+    shadows = SightShadows(world, grid)
+    ny, nx = grid.shape
+    want = bitgrid.pack(_numpy_mask(shadows, p))
+    rng = np.random.default_rng(seed)
+    budget = WorkBudget(10 ** 6)
+    mask = ShadowMask(shadows, p, budget)
+    assert budget.spent == shadows.mask_units
+    every = bitgrid.unpack(shadows.all_tiles, -(-nx // tile_maps.TILE))
+    asked = np.zeros_like(every)
+    for _ in range(3):
+        ask = every & (rng.random(every.shape) < 0.3)
+        asked |= ask
+        mask.cover(bitgrid.pack(ask))
+        cells = np.kron(asked, np.ones((tile_maps.TILE, tile_maps.TILE), dtype=bool))[:ny, :nx]
+        got = bitgrid.unpack(mask.bits, nx)
+        assert np.array_equal(got[cells], bitgrid.unpack(want, nx)[cells]) and not got[~cells].any()
+    for x, y in zip(rng.integers(0, nx, 5), rng.integers(0, ny, 5)):
+        assert mask.test(int(x), int(y)) == bitgrid.test(want, int(x), int(y))
+    assert np.array_equal(mask.cover(shadows.all_tiles), want) and budget.spent == shadows.mask_units
+
+
 # --- the space-time plan ------------------------------------------------------------------------
 
 def _check_plan(mission, plan, sample_s: float = 0.5) -> dict:

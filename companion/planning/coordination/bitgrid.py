@@ -83,6 +83,8 @@ def nearest(bits: np.ndarray, xs: np.ndarray, ys: np.ndarray,
     return float(d2[i]), (int(ix[i]), int(iy[i]))
 
 
+TILE = 8  # cells per side of a tile (tiles.py): a tile's row of cells is one byte of a word
+
 _ONE = np.uint64(1)
 _TOP = np.uint64(63)
 
@@ -126,14 +128,16 @@ def dilate_within(m: np.ndarray, free: np.ndarray, moves: tuple[int, ...]) -> np
 
 
 def allowed(free: np.ndarray, xs: np.ndarray, ys: np.ndarray, far: np.ndarray, shadows: np.ndarray,
-            points: np.ndarray, near2: float | None) -> np.ndarray:
+            points: np.ndarray, near2: float | None, tiles: np.ndarray | None = None) -> np.ndarray:
     """Packed: ``free`` and every mask of ``far`` (k, ny, words), and for each mask of ``shadows``
     (m, ny, words) with its point ``points[i]``: in it (``near2`` None), or in it or farther
     than ``near2`` from the point (:func:`farther`, strictly). One compiled pass when numba is
-    installed: the same sums and bit operations as the masks one by one, so the same bits."""
+    installed: the same sums and bit operations as the masks one by one, so the same bits.
+    ``tiles``: a tile map (:mod:`tiles`); the result is then only for the rows of its tiles (the
+    compiled pass leaves the others empty, the numpy one computes them too)."""
     if _allowed_jit is not None:
         return _allowed_jit(free, far, shadows, xs, ys, points, -1.0 if near2 is None else float(near2),
-                            near2 is not None)
+                            near2 is not None, np.ones((-(-free.shape[0] // TILE), 1), dtype=np.uint64) if tiles is None else tiles)
     ok = free.copy()
     for mask in far:
         ok &= mask
@@ -236,21 +240,38 @@ if numba is not None:
         return out
 
     @numba.njit(cache=True, nogil=True, error_model="numpy")
-    def _allowed_jit(free, far, shadows, xs, ys, points, near2, near):
-        out = free.copy()
-        for j in range(far.shape[0]):
-            out &= far[j]
+    def _allowed_jit(free, far, shadows, xs, ys, points, near2, near, tiles):
+        ny, words = free.shape
+        rows = np.zeros(ny, dtype=np.bool_)  # the rows of the tiles asked for
+        for ty in range(tiles.shape[0]):
+            for j in range(tiles.shape[1]):
+                if tiles[ty, j]:
+                    rows[ty * TILE:ty * TILE + TILE] = True
+                    break
+        out = np.zeros_like(free)
+        for iy in range(ny):
+            if rows[iy]:
+                for w in range(words):
+                    v = free[iy, w]
+                    for j in range(far.shape[0]):
+                        v &= far[j, iy, w]
+                    out[iy, w] = v
         nx = len(xs)
         full = ~np.uint64(0)
         for i in range(shadows.shape[0]):
             if not near:
-                out &= shadows[i]
+                for iy in range(ny):
+                    if rows[iy]:
+                        for w in range(words):
+                            out[iy, w] &= shadows[i, iy, w]
                 continue
             x, y = points[i, 0], points[i, 1]
             ax = (xs - x) ** 2  # as _farther_jit: the cells not farther are a span of each row
             centre = np.searchsorted(xs, x)
-            span = np.zeros(out.shape[1], dtype=np.uint64)
-            for iy in range(len(ys)):
+            span = np.zeros(words, dtype=np.uint64)
+            for iy in range(ny):
+                if not rows[iy]:
+                    continue
                 lo, hi = _within_span(ax, (ys[iy] - y) ** 2, centre, nx, near2)
                 if lo >= hi:
                     continue
@@ -320,13 +341,16 @@ if numba is not None:
                 word = bits[iy, w]
                 if word == 0:
                     continue
-                for b in range(64):
-                    if not (word >> np.uint64(b)) & np.uint64(1):
+                for b8 in range(0, 64, 8):
+                    if not (word >> np.uint64(b8)) & np.uint64(255):  # an empty byte: 8 cells skipped at once
                         continue
-                    ix = w * 64 + b
-                    d = math.inf
-                    for j in range(len(points)):
-                        d = min(d, (xs[ix] - points[j, 0]) ** 2 + (ys[iy] - points[j, 1]) ** 2)
-                    if d < best:
-                        best, bx, by = d, ix, iy
+                    for b in range(b8, b8 + 8):
+                        if not (word >> np.uint64(b)) & np.uint64(1):
+                            continue
+                        ix = w * 64 + b
+                        d = math.inf
+                        for j in range(len(points)):
+                            d = min(d, (xs[ix] - points[j, 0]) ** 2 + (ys[iy] - points[j, 1]) ** 2)
+                        if d < best:
+                            best, bx, by = d, ix, iy
         return best, bx, by

@@ -24,25 +24,27 @@ import math
 import numpy as np
 
 from companion.planning.coordination import bitgrid
-from companion.planning.coordination.spacetime import AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, backtrack, stay_from
+from companion.planning.coordination.backtrack import backtrack
+from companion.planning.coordination.spacetime import AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table, stay_from
 
 
 class _Witness:
-    """W(k) for one D (memoised per step; fixed from ``settled`` on, like ``allowed``)."""
+    """W(k) for one D among given cells (the distance masks kept per step; fixed from
+    ``settled`` on, like ``allowed``)."""
 
     def __init__(self, problem: SpaceTimeProblem, near2_m2: float):
         self.problem, self.near2_m2 = problem, near2_m2
-        self._masks: dict[int, np.ndarray] = {}
+        self._within: dict[int, np.ndarray] = {}
 
-    def __getitem__(self, k: int) -> np.ndarray:
-        k = min(k, self.problem.settled)
-        mask = self._masks.get(k)
-        if mask is None:
-            p = self.problem
-            within = bitgrid.within_any(p._xs, p._ys, np.array(p.sight_positions(k), dtype=float).reshape(-1, 2),
-                                        self.near2_m2)
-            mask = self._masks[k] = p.blocked_by_all(k) & within
-        return mask
+    def at(self, k: int, bits: np.ndarray) -> np.ndarray:
+        """The cells of packed ``bits`` in W(k)."""
+        p = self.problem
+        k = min(k, p.settled)
+        within = self._within.get(k)
+        if within is None:
+            within = self._within[k] = bitgrid.within_any(
+                p._xs, p._ys, np.array(p.sight_positions(k), dtype=float).reshape(-1, 2), self.near2_m2)
+        return p.blocked_by_all(k, bits & within)
 
 
 def earliest_near(problem: SpaceTimeProblem, near2_m2: float, margin_m: float,
@@ -62,17 +64,17 @@ def earliest_near(problem: SpaceTimeProblem, near2_m2: float, margin_m: float,
 
 def _forward(problem: SpaceTimeProblem, table: AllowedTable, witness: _Witness,
              last: int) -> tuple[Layers, Layers, int] | None:
-    start = problem.cell_mask(problem.start) & table[0]
+    start = table.at(0, problem.cell_mask(problem.start))
     stay = stay_from(problem, table)
     if not start.any() or stay is None or stay > last:
         return None
-    f0, f1 = [start], [start & witness[0]]
+    f0, f1 = [start], [witness.at(0, start)]
     arrive = 0 if stay == 0 and problem.has(f1[0], problem.goal) else None
     k = 0
     while arrive is None and k < last:
         k += 1
-        g0 = problem.grow(f0[-1]) & table[k]
-        g1 = (problem.grow(f1[-1]) & table[k]) | (g0 & witness[k])
+        g0 = table.after(f0[-1], k)
+        g1 = table.after(f1[-1], k) | witness.at(k, g0)
         if k > problem.settled and np.array_equal(g0, f0[-1]) and np.array_equal(g1, f1[-1]):
             arrive = max(stay, k - 1) if problem.has(g1, problem.goal) else None
             break  # nothing changes any more: the goal is in F1 from now on, or never
@@ -91,7 +93,7 @@ def _backtrack(problem: SpaceTimeProblem, reach: Layers, passed: Layers, witness
                arrive: int) -> list[tuple[int, int]]:
     tail = [problem.goal]  # latest first
     k = arrive
-    while not problem.has(witness[k] & reach[k], tail[-1]):
+    while not problem.has(witness.at(k, reach[k]), tail[-1]):
         tail.append(backtrack(problem, passed, tail[-1], k, k - 1)[0])
         k -= 1
     head = backtrack(problem, reach, tail[-1], k, 0)

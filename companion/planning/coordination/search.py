@@ -36,10 +36,11 @@ import numpy as np
 
 from companion.planning.budget import Budget
 from companion.planning.grid import OccupancyGrid
+from companion.planning.coordination.backtrack import backtrack
 from companion.planning.coordination.nearpath import best_near
 from companion.planning.coordination.shadow import SightShadows
 from companion.planning.coordination.spacetime import (AllowedTable, Layers, SightRule, SpaceTimeProblem, allowed_table,
-                                                       backtrack, backward, earliest_arrival, forward, stay_from,
+                                                       earliest_arrival, forward, on_path, stay_from,
                                                        step_model)
 from companion.planning.timed_route import TimedRoute
 
@@ -86,7 +87,7 @@ def _earliest(problem: SpaceTimeProblem, blocking: Blocking) -> tuple[Layers, in
     """Forward layers up to the earliest arrival under a per-instant rule, and that step."""
     rule = SightRule.BLOCKED if blocking is Blocking.WHOLE_FLIGHT else SightRule.FREE
     table = allowed_table(problem, rule)
-    start = problem.cell_mask(problem.start) & table[0]
+    start = table.at(0, problem.cell_mask(problem.start))
     if not start.any():
         return None
     layers = forward(problem, table, start, 0, stop_at_arrival=True)
@@ -109,15 +110,14 @@ def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[All
     for _ in range(_MAX_NEAR_ROUNDS):
         table = allowed_table(problem, SightRule.BLOCKED_WHEN_NEAR,
                               (math.sqrt(near2) + margin_m) ** 2 if margin_m else near2)
-        start = problem.cell_mask(problem.start) & table[0]
+        start = table.at(0, problem.cell_mask(problem.start))
         if not start.any():
             return None
         fwd = forward(problem, table, start, 0)
         stay = None if fwd.empty else stay_from(problem, table)
         if stay is None or earliest_arrival(problem, fwd, stay) is None:
             return None  # no path at all: no need for the backward pass
-        bwd = backward(problem, table)
-        best = _closest_blocked(problem, fwd, bwd)
+        best = _closest_blocked(problem, on_path(problem, fwd))
         if best is None:
             return None
         d2, cell, k = best
@@ -127,18 +127,17 @@ def _near_witness(problem: SpaceTimeProblem, margin_m: float = 0.0) -> tuple[All
     raise RuntimeError(f"closest-approach search did not settle in {_MAX_NEAR_ROUNDS} rounds")
 
 
-def _closest_blocked(problem: SpaceTimeProblem, fwd: Layers, bwd: Layers) -> tuple[float, tuple[int, int], int] | None:
+def _closest_blocked(problem: SpaceTimeProblem, path: Layers) -> tuple[float, tuple[int, int], int] | None:
     """The least squared distance to the nearest higher vehicle it hides from over states on a full
-    path that are blocked from all of those: (squared distance, cell, step), earliest step on ties."""
-    steps = sorted(set(range(0, fwd.first + len(fwd.head) + 1)) | set(range(len(bwd.head) + 1))
-                   | set(range(problem.horizon - len(bwd.tail), problem.horizon + 1)))
+    path (``path``: :func:`spacetime.on_path`) that are blocked from all of those: (squared
+    distance, cell, step), earliest step on ties. Between its head and its tail nothing changes
+    (the set, nor the vehicles' positions, fixed from ``settled`` on): the first such step stands for all."""
+    steps = sorted(set(range(len(path.head) + 1)) | set(range(problem.horizon - len(path.tail), problem.horizon + 1)))
     best = None
     for k in steps:
         if k > problem.horizon:
             continue
-        if k < fwd.first:
-            continue
-        states = fwd[k] & bwd[k] & problem.blocked_by_all(k)
+        states = problem.blocked_by_all(k, path[k])
         if not states.any():
             continue
         d2, cell = problem.nearest_d2(k, states)

@@ -26,6 +26,7 @@ import numpy as np
 import shapely
 
 from companion.planning.budget import Budget, spend
+from companion.planning.coordination import bitgrid, tiles
 from companion.planning.grid import OccupancyGrid
 from uav_model.world import World
 
@@ -77,14 +78,14 @@ class SightShadows:
         self._bounds = _bounding_discs(self._circle_rows, self._pieces)
         self._extent = max(float(np.abs(xs).max()), float(np.abs(ys).max()), 1.0)
         self.mask_units = len(self._circles) + sum(len(v) for v, _, _ in self._pieces)
+        self.all_tiles = tiles.all_tiles(*self.shape)
 
     def blocked_from(self, xy: tuple[float, float], budget: Budget | None = None) -> np.ndarray:
         """(ny, nx) bool: the segment from each cell centre to ``xy`` meets a true obstacle.
         ``budget``: charged :attr:`mask_units`; :class:`budget.BudgetSpent` when it runs out."""
         px, py = float(xy[0]), float(xy[1])
         if _blocked_jit is not None:
-            spend(budget, self.mask_units)
-            return self._blocked_compiled(px, py)
+            return bitgrid.unpack(ShadowMask(self, (px, py), budget).cover(self.all_tiles), self.shape[1])
         dx, dy = self._qx - px, self._qy - py  # q - p, broadcast (1, nx) and (ny, 1)
         out = np.zeros(self.shape, dtype=bool)
         len2 = dx * dx + dy * dy
@@ -105,18 +106,27 @@ class SightShadows:
             out |= self._meets_convex(px, py, dx, dy, v, normal, offset)
         return out
 
-    def _blocked_compiled(self, px: float, py: float) -> np.ndarray:
-        """blocked_from by the compiled loop: the same operations per cell, on the cells each
-        obstacle can block (the others cannot be blocked by it), so the same mask. Each edge's
-        side of p stays a numpy product, as in the numpy mask."""
-        slack = _SLACK * max(self._extent, abs(px), abs(py))
+    def fill(self, bits: np.ndarray, done: np.ndarray, need: np.ndarray, xy: tuple[float, float],
+             outside: np.ndarray) -> None:
+        """The compiled mask from ``xy`` packed into ``bits`` on the tiles of tile map ``need``
+        (:mod:`bitgrid`) that ``done`` has not, and those added to ``done``; ``outside``:
+        :meth:`outside`. The same operations per cell as the numpy mask, on the cells each
+        obstacle can block (the others cannot be blocked by it), so the same bits."""
+        slack = _SLACK * max(self._extent, abs(xy[0]), abs(xy[1]))
         if not self._pieces:
-            return _blocked_jit(self._xs, self._ys, px, py, self._circle_rows, np.zeros(1, dtype=np.int64),
-                                np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.bool_),
-                                self._bounds, slack)
-        outside = np.concatenate([normal @ (px, py) - offset > 0 for _, normal, offset in self._pieces])
-        return _blocked_jit(self._xs, self._ys, px, py, self._circle_rows, self._piece_start, self._piece_v,
-                            self._piece_n, self._piece_off, outside, self._bounds, slack)
+            _blocked_jit(bits, done, need, self._xs, self._ys, xy[0], xy[1], self._circle_rows,
+                         np.zeros(1, dtype=np.int64), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), outside,
+                         self._bounds, slack)
+            return
+        _blocked_jit(bits, done, need, self._xs, self._ys, xy[0], xy[1], self._circle_rows, self._piece_start,
+                     self._piece_v, self._piece_n, self._piece_off, outside, self._bounds, slack)
+
+    def outside(self, xy: tuple[float, float]) -> np.ndarray:
+        """Whether ``xy`` is outside each convex piece's edge, in order (a numpy product, as in
+        the numpy mask)."""
+        if not self._pieces:
+            return np.zeros(0, dtype=np.bool_)
+        return np.concatenate([normal @ xy - offset > 0 for _, normal, offset in self._pieces])
 
     def _meets_convex(self, px: float, py: float, dx: np.ndarray, dy: np.ndarray, v: np.ndarray,
                       normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -134,11 +144,46 @@ class SightShadows:
         return ~(separated | above | below)
 
 
-# Tiles of _TILE x _TILE cells: an obstacle is tested on a tile's cells only when it can block
-# one of them (see _blocked_jit). Its bounding disc gets a slack of _SLACK times the largest
-# coordinate: far more than the per-cell tests' rounding (~1e-12 m at a few km), far less than a cell.
-_TILE = 8
+class ShadowMask:
+    """The sight shadow of one point (:meth:`SightShadows.blocked_from`) packed (:mod:`bitgrid`),
+    computed a tile at a time as it is asked for: ``cover(need)`` is exact on the tiles of tile
+    map ``need`` and of every earlier ask. A space-time search reads a step's masks only on the
+    cells it can reach at that step, often a tenth of the grid. Created, it charges ``budget`` a
+    whole mask's units (the numpy path computes the whole mask then, charging as it goes)."""
+
+    __slots__ = ("bits", "done", "_shadows", "_xy", "_outside")
+
+    def __init__(self, shadows: SightShadows, xy: tuple[float, float], budget: Budget | None = None):
+        self._shadows, self._xy = shadows, (float(xy[0]), float(xy[1]))
+        ny, nx = shadows.shape
+        if _blocked_jit is None:
+            self.bits = bitgrid.pack(shadows.blocked_from(self._xy, budget))
+            self.done, self._outside = shadows.all_tiles, None
+            return
+        spend(budget, shadows.mask_units)
+        self.bits = np.zeros((ny, -(-nx // 64)), dtype=np.uint64)
+        self.done = np.zeros(tiles.tile_shape(ny, nx), dtype=np.uint64)
+        self._outside = shadows.outside(self._xy)
+
+    def cover(self, need: np.ndarray) -> np.ndarray:
+        """The packed mask, exact on the tiles of ``need`` (and of those covered before)."""
+        if tiles.missing(need, self.done):
+            self._shadows.fill(self.bits, self.done, need, self._xy, self._outside)
+        return self.bits
+
+    def test(self, x: int, y: int) -> bool:
+        """Whether cell (x, y) is in the shadow (its tile alone computed)."""
+        tx, ty = x // _TILE, y // _TILE
+        if not bitgrid.test(self.done, tx, ty):
+            self.cover(bitgrid.single(self.done.shape, tx, ty))
+        return bitgrid.test(self.bits, x, y)
+
+
+# An obstacle is tested on a tile's cells (tiles.TILE x TILE) only when it can block one of
+# them (see _blocked_jit). Its bounding disc gets a slack of _SLACK times the largest coordinate:
+# far more than the per-cell tests' rounding (~1e-12 m at a few km), far less than a cell.
 _SLACK = 1e-6
+_TILE = tiles.TILE
 
 
 def _bounding_discs(circles: np.ndarray, pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> np.ndarray:
@@ -152,16 +197,23 @@ def _bounding_discs(circles: np.ndarray, pieces: list[tuple[np.ndarray, np.ndarr
     return np.array(rows, dtype=float).reshape(-1, 4)
 
 
-_blocked_jit = None
+_blocked_jit = None  # None: the numpy masks (tests and the numpy-only bench set it so)
 if numba is not None:
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _set_tile_rows(bits, x0, x1, y0, y1):
+        """Every cell of the tile set (a tile's row lies in one word)."""
+        row = ((np.uint64(1) << np.uint64(x1 - x0)) - np.uint64(1)) << np.uint64(x0 & 63)
+        for iy in range(y0, y1):
+            bits[iy, x0 >> 6] |= row
+
     @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-    def _blocked_tile(out, xs, ys, x0, x1, y0, y1, px, py, circles, start, v, normal, offset, outside, cand, m):
+    def _blocked_tile(bits, xs, ys, x0, x1, y0, y1, px, py, circles, start, v, normal, offset, outside, cand, m):
         """The numpy mask's tests on the tile's cells, for the candidate obstacles only."""
         n_c = len(circles)
         for iy in range(y0, y1):
             qy = ys[iy]
             dy = qy - py
-            row = out[iy]
+            row = np.uint64(0)
             for ix in range(x0, x1):
                 qx = xs[ix]
                 dx = qx - px
@@ -194,13 +246,17 @@ if numba is not None:
                         if not (above or below):
                             blocked = True
                             break
-                row[ix] = blocked
+                if blocked:
+                    row |= np.uint64(1) << np.uint64(ix - x0)
+            bits[iy, x0 >> 6] |= row << np.uint64(x0 & 63)
 
     @numba.njit(cache=True, nogil=True, error_model="numpy")
-    def _blocked_jit(xs, ys, px, py, circles, start, v, normal, offset, outside, bounds, slack):
-        """SightShadows.blocked_from per cell: circles (C, 3) as (x, y, r), convex pieces k as
-        rows start[k]:start[k + 1] of v, normal, offset; ``outside``: p outside edge j;
-        ``bounds``: :func:`_bounding_discs` (obstacle o: circle o, else piece o - C).
+    def _blocked_jit(bits, done, need, xs, ys, px, py, circles, start, v, normal, offset, outside, bounds, slack):
+        """SightShadows.blocked_from per cell, packed into ``bits`` on the tiles of ``need`` not
+        in ``done`` (tile maps, :mod:`bitgrid`), which it adds to ``done``: circles (C, 3) as
+        (x, y, r), convex pieces k as rows start[k]:start[k + 1] of v, normal, offset;
+        ``outside``: p outside edge j; ``bounds``: :func:`_bounding_discs` (obstacle o: circle o,
+        else piece o - C).
 
         Tile by tile, with the segment from p to the tile's centre: a segment from p to any cell
         q of the tile lies within the tile's half-diagonal of it (its point at fraction s is
@@ -213,38 +269,46 @@ if numba is not None:
         their rounding (no edge of a piece has both ends outside, and its vertices lie on both
         sides of the segment's line), and the whole tile is."""
         n_c, n_k = len(circles), len(start) - 1
-        out = np.zeros((len(ys), len(xs)), dtype=np.bool_)
+        inside = False  # p inside a circle: everything is blocked
         for c in range(n_c):
             wx, wy, r = circles[c, 0] - px, circles[c, 1] - py, circles[c, 2]
-            if wx * wx + wy * wy < r * r:  # p inside: everything is blocked
-                out[:, :] = True
-                return out
+            inside = inside or wx * wx + wy * wy < r * r
         cand = np.empty(n_c + n_k, dtype=np.int64)
-        for y0 in range(0, len(ys), _TILE):
-            y1 = min(y0 + _TILE, len(ys))
-            for x0 in range(0, len(xs), _TILE):
-                x1 = min(x0 + _TILE, len(xs))
-                tx, ty = 0.5 * (xs[x0] + xs[x1 - 1]), 0.5 * (ys[y0] + ys[y1 - 1])
-                half = 0.5 * math.hypot(xs[x1 - 1] - xs[x0], ys[y1 - 1] - ys[y0])
-                dx, dy = tx - px, ty - py
-                len2 = dx * dx + dy * dy
-                m = 0
-                full = False
-                for o in range(n_c + n_k):  # the point of segment p -> centre nearest the discs' centre
-                    wx, wy = bounds[o, 0] - px, bounds[o, 1] - py
-                    u = 0.0 if len2 == 0.0 else min(max((wx * dx + wy * dy) / len2, 0.0), 1.0)
-                    ex, ey = wx - u * dx, wy - u * dy
-                    e2 = ex * ex + ey * ey
-                    reach, deep = bounds[o, 2] + half + slack, bounds[o, 3] - half - slack
-                    if deep > 0.0 and e2 < deep * deep:
-                        full = True
-                        break
-                    if e2 <= reach * reach:
-                        cand[m] = o
-                        m += 1
-                if full:
-                    out[y0:y1, x0:x1] = True
-                elif m:
-                    _blocked_tile(out, xs, ys, x0, x1, y0, y1, px, py, circles, start, v, normal, offset,
-                                  outside, cand, m)
-        return out
+        t = _TILE
+        for ty in range(need.shape[0]):
+            y0 = ty * t
+            y1 = min(y0 + t, len(ys))
+            for wt in range(need.shape[1]):
+                todo = need[ty, wt] & ~done[ty, wt]
+                for b in range(64):
+                    if not (todo >> np.uint64(b)) & np.uint64(1):
+                        continue
+                    x0 = (wt * 64 + b) * t
+                    x1 = min(x0 + t, len(xs))
+                    if inside:
+                        _set_tile_rows(bits, x0, x1, y0, y1)
+                        continue
+                    mx, my = 0.5 * (xs[x0] + xs[x1 - 1]), 0.5 * (ys[y0] + ys[y1 - 1])  # the tile's centre
+                    half = 0.5 * math.hypot(xs[x1 - 1] - xs[x0], ys[y1 - 1] - ys[y0])
+                    dx, dy = mx - px, my - py
+                    len2 = dx * dx + dy * dy
+                    m = 0
+                    full = False
+                    for o in range(n_c + n_k):  # the point of segment p -> centre nearest the discs' centre
+                        wx, wy = bounds[o, 0] - px, bounds[o, 1] - py
+                        u = 0.0 if len2 == 0.0 else min(max((wx * dx + wy * dy) / len2, 0.0), 1.0)
+                        ex, ey = wx - u * dx, wy - u * dy
+                        e2 = ex * ex + ey * ey
+                        reach, deep = bounds[o, 2] + half + slack, bounds[o, 3] - half - slack
+                        if deep > 0.0 and e2 < deep * deep:
+                            full = True
+                            break
+                        if e2 <= reach * reach:
+                            cand[m] = o
+                            m += 1
+                    if full:
+                        _set_tile_rows(bits, x0, x1, y0, y1)
+                    elif m:
+                        _blocked_tile(bits, xs, ys, x0, x1, y0, y1, px, py, circles, start, v, normal, offset,
+                                      outside, cand, m)
+                done[ty, wt] |= todo  # after its tiles' bits: a tile marked done is never half-written

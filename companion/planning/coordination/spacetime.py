@@ -12,9 +12,11 @@ Reachability is a set per step, so each step is a few shifted ORs of a boolean a
     F[k+1] = grow(F[k]) & allowed(k+1)          forward, from the start cell at k = 0
     B[k]   = grow(B[k+1]) & allowed(k)          backward, from the goal cell at the horizon
 
-F[k] & B[k] are the states on some start-to-goal path. Once every higher-priority vehicle has
-arrived, ``allowed`` no longer changes; each pass stops there as soon as its set stops changing
-(the sets are the same for every later step).
+F[k] & B[k] are the states on some start-to-goal path, found back from the goal within the forward
+sets, without ``allowed`` (:func:`on_path`). Once every higher-priority vehicle has arrived,
+``allowed`` no longer changes; each pass stops there as soon as its set stops changing (the sets
+are the same for every later step). ``allowed(k)`` is read only among the cells grown from step
+k - 1, so its sight-shadow masks are computed on those cells' tiles only (:class:`AllowedTable`).
 """
 
 from __future__ import annotations
@@ -25,10 +27,10 @@ from enum import Enum
 
 import numpy as np
 
-from companion.planning.coordination import bitgrid
+from companion.planning.coordination import bitgrid, tiles
 from companion.planning.budget import Budget, spend
 from companion.planning.grid import OccupancyGrid
-from companion.planning.coordination.shadow import SightShadows
+from companion.planning.coordination.shadow import ShadowMask, SightShadows
 from companion.planning.timed_route import TimedRoute
 
 
@@ -99,8 +101,10 @@ class SpaceTimeProblem:
         xs, ys = grid.cell_centres()
         self._xs, self._ys = xs, ys
         self._memo = {} if memo is None else memo
-        self._blocked: dict[int, np.ndarray] = {}
+        self._blocked: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # blocked_by_all's, with its tiles
         self._stacks: dict[tuple, np.ndarray] = {}
+        self._shadow_stacks: dict[int, list] = {}  # per step: [masks, stacked, tiles covered]
+        self.all_tiles = shadows.all_tiles
         self._no_points = np.zeros((0, 2))
         self.tables: dict[tuple, "AllowedTable"] = {}  # allowed_table's, by (rule, near2)
         self._none = np.zeros((0,) + self.free_bits.shape, dtype=np.uint64)
@@ -127,26 +131,49 @@ class SpaceTimeProblem:
             value = self._memo[key] = make()
         return value
 
-    def shadow_bits(self, xy: tuple[float, float]) -> np.ndarray:
-        return self._memoised(("shadow", xy), lambda: bitgrid.pack(self.shadows.blocked_from(xy, self.budget)))
+    def shadow_mask(self, xy: tuple[float, float]) -> ShadowMask:
+        return self._memoised(("shadow", xy), lambda: ShadowMask(self.shadows, xy, self.budget))
 
     def far_bits(self, xy: tuple[float, float]) -> np.ndarray:
         return self._memoised(("far", xy, self.model.min_distance_m), lambda: bitgrid.farther(
             self._xs, self._ys, xy, self.model.min_distance_m ** 2, strict=False))
 
-    def allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf) -> np.ndarray:
-        """Packed cells allowed at step k; ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR
-        (squared, so that a tie with the distance it came from stays a tie)."""
+    def allowed(self, k: int, rule: SightRule, near2_m2: float = math.inf, need: np.ndarray | None = None) -> np.ndarray:
+        """Packed cells allowed at step k, exact on the tiles of tile map ``need`` (:mod:`tiles`;
+        default: every tile); ``near2_m2``: the squared D of BLOCKED_WHEN_NEAR (squared, so that a
+        tie with the distance it came from stays a tie)."""
         spend(self.budget)
+        return self.allowed_on(k, rule, near2_m2, self.all_tiles if need is None else need)
+
+    def allowed_on(self, k: int, rule: SightRule, near2_m2: float, need: np.ndarray) -> np.ndarray:
+        """:meth:`allowed` without charging the budget (a mask already charged, asked on more tiles)."""
         k = min(k, self.settled)
         far = self._stacked(("far", k), lambda: [self.far_bits(xy) for xy in self.positions(k)])
         if rule is SightRule.FREE:
             shadows, points = self._none, self._no_points
         else:
-            shadows = self._stacked(("shadow", k), lambda: [self.shadow_bits(xy) for xy in self.sight_positions(k)])
+            shadows = self._shadows_on(k, need)
             points = self._stacked(("points", k), lambda: self.sight_positions(k))
         return bitgrid.allowed(self.free_bits, self._xs, self._ys, far, shadows, points,
-                               near2_m2 if rule is SightRule.BLOCKED_WHEN_NEAR else None)
+                               near2_m2 if rule is SightRule.BLOCKED_WHEN_NEAR else None, need)
+
+    def _shadows_on(self, k: int, need: np.ndarray) -> np.ndarray:
+        """The shadow masks of step k's ``sight`` positions stacked (m, ny, words), exact on the
+        tiles of ``need``: created once per step, stacked again only when asked on more tiles."""
+        entry = self._shadow_stacks.get(k)
+        if entry is None:
+            masks = [self.shadow_mask(xy) for xy in self.sight_positions(k)]
+            entry = self._shadow_stacks[k] = [masks, None, None]
+        masks, stacked, done = entry
+        if len(masks) <= 1:  # a view of the one mask: it stays current as the mask grows
+            if stacked is None:
+                entry[1] = stacked = masks[0].bits[None] if masks else self._none
+            if masks:
+                masks[0].cover(need)
+        elif stacked is None or tiles.missing(need, done):
+            done = entry[2] = need if done is None else done | need
+            entry[1] = stacked = np.stack([m.cover(done) for m in masks])
+        return stacked
 
     def _stacked(self, key: tuple, items) -> np.ndarray:
         """The masks (or points) ``items()`` lists for a step, stacked once per problem: every
@@ -157,7 +184,7 @@ class SpaceTimeProblem:
             if key[0] == "points":
                 value = np.array(got, dtype=float).reshape(-1, 2)
             else:
-                value = np.stack(got) if got else self._none
+                value = got[0][None] if len(got) == 1 else np.stack(got) if got else self._none  # one: a view
             self._stacks[key] = value
         return value
 
@@ -172,20 +199,22 @@ class SpaceTimeProblem:
         if rule is SightRule.FREE:
             return True
         sight = range(len(d2)) if self._sight is None else self._sight
-        return all(bitgrid.test(self.shadow_bits(self.positions(k)[i]), gx, gy)
+        return all(self.shadow_mask(self.positions(k)[i]).test(gx, gy)
                    or (rule is SightRule.BLOCKED_WHEN_NEAR and d2[i] > near2_m2) for i in sight)
 
-    def blocked_by_all(self, k: int) -> np.ndarray:
-        """Packed free cells blocked from every vehicle of ``sight`` at step k (kept per step: it
-        depends on nothing else)."""
+    def blocked_by_all(self, k: int, bits: np.ndarray | None = None) -> np.ndarray:
+        """Packed free cells blocked from every vehicle of ``sight`` at step k, among packed
+        ``bits`` (default: every cell). Kept per step: the first ask on its tiles only, an ask
+        beyond them on the whole grid (as :meth:`AllowedTable.at`)."""
         k = min(k, self.settled)
-        out = self._blocked.get(k)
-        if out is None:
+        entry = self._blocked.get(k)
+        if entry is None or entry[1] is not None and (bits is None or tiles.spills(bits, entry[1])):
+            done = tiles.tiles_of(bits) if entry is None and bits is not None else None
             out = self.free_bits.copy()
             for xy in self.sight_positions(k):
-                out &= self.shadow_bits(xy)
-            self._blocked[k] = out
-        return out
+                out &= self.shadow_mask(xy).cover(self.all_tiles if done is None else done)
+            entry = self._blocked[k] = (out, done)
+        return entry[0] if bits is None else bits & entry[0]
 
     def nearest_d2(self, k: int, bits: np.ndarray) -> tuple[float, tuple[int, int]]:
         """The least squared distance to a vehicle of ``sight`` over the cells of ``bits`` at step k."""
@@ -239,7 +268,7 @@ def forward(problem: SpaceTimeProblem, allowed: "AllowedTable", seed: np.ndarray
     masks = [seed]
     stay: int | None = None
     for k in range(k0 + 1, problem.horizon + 1):
-        nxt = problem.grow(masks[-1]) & allowed[k]
+        nxt = allowed.after(masks[-1], k)
         if k > problem.settled and np.array_equal(nxt, masks[-1]):
             break
         masks.append(nxt)
@@ -252,39 +281,52 @@ def forward(problem: SpaceTimeProblem, allowed: "AllowedTable", seed: np.ndarray
     return Layers(k0, masks, problem.horizon)
 
 
-def backward(problem: SpaceTimeProblem, allowed: "AllowedTable") -> Layers:
-    """B[k] for k = 0..horizon: the states from which the goal is reached by the horizon."""
-    tail = [problem.cell_mask(problem.goal) & allowed[problem.horizon]]
-    k = problem.horizon  # tail[-1] is B[k]
-    while k > problem.settled:  # allowed is fixed here: grow until the set stops changing
-        nxt = problem.grow(tail[-1]) & allowed[k - 1]
+def on_path(problem: SpaceTimeProblem, fwd: Layers) -> Layers:
+    """P[k] = F[k] & B[k] for k = 0..horizon: the states of forward layers ``fwd`` (from step 0)
+    from which the goal is reached by the horizon. A successor of a state of F[k] that is allowed
+    at k + 1 is in F[k + 1], so P[k] = grow(P[k + 1]) & F[k] from the goal cell in F[horizon]:
+    B (the backward pass on the allowed masks) without its masks, on the forward sets only."""
+    steady = fwd.first + len(fwd.head) - 1  # F is fixed from here on
+    tail = [problem.cell_mask(problem.goal) & fwd[problem.horizon]]
+    k = problem.horizon  # tail[-1] is P[k]
+    while k > steady:  # grow until the set stops changing
+        nxt = problem.grow(tail[-1]) & fwd[k - 1]
         if np.array_equal(nxt, tail[-1]):
             break
         tail.append(nxt)
         k -= 1
-    steady = tail.pop()
-    head = [steady]
-    for _ in range(min(k, problem.settled)):
-        j = min(k, problem.settled) - len(head)
-        head.append(problem.grow(head[-1]) & allowed[j])
-    head.reverse()  # head[j] = B[j], its last entry the steady set
+    head = [tail.pop()]
+    for j in range(min(k, steady) - 1, -1, -1):
+        head.append(problem.grow(head[-1]) & fwd[j])
+    head.reverse()  # head[j] = P[j], its last entry the steady set
     return Layers(0, head, problem.horizon, tail)
 
 
 class AllowedTable:
     """allowed(k) under one rule, computed on first use (a dead forward pass never asks for
-    the later steps); from ``settled`` on every step is the same."""
+    the later steps) and on the tiles asked for (the sets a search reaches); from ``settled`` on
+    every step is the same."""
 
     def __init__(self, problem: SpaceTimeProblem, rule: SightRule, near2_m2: float = math.inf):
         self.problem, self.rule, self.near2_m2 = problem, rule, near2_m2
-        self._masks: dict[int, np.ndarray] = {}
+        self._masks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # per step: the mask, its tiles
 
-    def __getitem__(self, k: int) -> np.ndarray:
-        k = min(k, self.problem.settled)
-        mask = self._masks.get(k)
-        if mask is None:
-            mask = self._masks[k] = self.problem.allowed(k, self.rule, self.near2_m2)
-        return mask
+    def at(self, k: int, bits: np.ndarray) -> np.ndarray:
+        """The cells of packed ``bits`` allowed at step k. The first ask at a step computes the
+        mask on its tiles only; an ask beyond them (another pass) on the whole grid."""
+        p = self.problem
+        k = min(k, p.settled)
+        entry = self._masks.get(k)
+        if entry is None:
+            need = tiles.tiles_of(bits) if self.rule is not SightRule.FREE else None
+            entry = self._masks[k] = (p.allowed(k, self.rule, self.near2_m2, need), need)
+        elif entry[1] is not None and tiles.spills(bits, entry[1]):
+            entry = self._masks[k] = (p.allowed_on(k, self.rule, self.near2_m2, p.all_tiles), None)
+        return bits & entry[0]
+
+    def after(self, bits: np.ndarray, k: int) -> np.ndarray:
+        """The cells reached from packed ``bits`` in one step and allowed at step k."""
+        return self.at(k, self.problem.grow(bits))
 
     def __len__(self) -> int:
         return self.problem.settled + 1
@@ -319,45 +361,3 @@ def earliest_arrival(problem: SpaceTimeProblem, layers: Layers, not_before: int)
     if problem.has(layers.head[-1], problem.goal) and max(not_before, last) <= problem.horizon:
         return max(not_before, last)
     return None
-
-
-def backtrack(problem: SpaceTimeProblem, layers: Layers, end: tuple[int, int], k_end: int,
-              k_start: int) -> list[tuple[int, int]]:
-    """Cells at steps k_start..k_end of a path in ``layers`` that ends at ``end``. Among the
-    possible predecessors it takes the one deepest inside the reachable set (most slack for a
-    vehicle that strays from the plan), then the nearest (a wait rather than a detour)."""
-    r = len(problem.model.moves)
-    ny, nx = problem.free.shape
-    cells = [end]
-    for k in range(k_end, k_start, -1):
-        cx, cy = cells[-1]
-        x0, x1, y0, y1 = max(cx - r, 0), min(cx + r + 1, nx), max(cy - r, 0), min(cy + r + 1, ny)
-        seed = np.zeros((y1 - y0, x1 - x0), dtype=bool)
-        seed[cy - y0, cx - x0] = True
-        r0 = max(y0 - 2, 0)  # the rows the candidates and their 5 x 5 neighbourhoods span, unpacked
-        prev = bitgrid.unpack(layers[k - 1][r0:min(y1 + 2, ny)], nx)
-        cand = _grow_bool(seed, problem.free[y0:y1, x0:x1], problem.model.moves) & prev[y0 - r0:y1 - r0, x0:x1]
-        ys, xs = np.nonzero(cand)
-        if not len(xs):  # cannot happen for a cell of layers[k]: report, don't guess
-            raise AssertionError(f"no predecessor of {cells[-1]} at step {k}")
-        best = max(zip(xs + x0, ys + y0),
-                   key=lambda c: (int(prev[max(c[1] - 2, 0) - r0:c[1] + 3 - r0, max(c[0] - 2, 0):c[0] + 3].sum()),
-                                  -((c[0] - cx) ** 2 + (c[1] - cy) ** 2)))
-        cells.append((int(best[0]), int(best[1])))
-    cells.reverse()
-    return cells
-
-
-def _grow_bool(mask: np.ndarray, free: np.ndarray, moves: tuple[int, ...]) -> np.ndarray:
-    """:func:`grow` on a small unpacked window (for backtracking)."""
-    m = mask
-    for kind in moves:
-        row = m.copy()
-        row[:, 1:] |= m[:, :-1]
-        row[:, :-1] |= m[:, 1:]
-        src = row if kind == 8 else m
-        out = row.copy()
-        out[1:, :] |= src[:-1, :]
-        out[:-1, :] |= src[1:, :]
-        m = out & free
-    return m
