@@ -208,6 +208,7 @@ class Pilot(Departure, Steering):
                                      vehicle=self.name)
             result = self._tick(pose)
             if result.arrived:
+                await self._hover()  # brake now: a lossy link may delay the HOLD below by seconds (docstring)
                 self.outcome.arrival_t_mission_s = t_mission
                 self.outcome.phase = "arrived"
                 self.ctx.arrived.add(self.name)
@@ -241,12 +242,8 @@ class Pilot(Departure, Steering):
     async def _on_stale(self, exc: TelemetryLost, first: bool, stale_wall_s: float) -> None:
         """Never fly on old data: hover, and give up when the silence lasts too long."""
         s = self.ctx.settings
-        self.setpoint = HOVER
         self.outcome.interventions["stale"] += 1
-        try:
-            await self.vehicle.send_setpoint(HOVER)
-        except CommandRefused:
-            pass
+        await self._hover()
         if first:
             self.ctx.report(f"{self.name}: telemetry stale ({exc.message}); hovering")
             self.ctx.log.row(t_sim_s=self.vehicle.clock_s(), vehicle=self.name, phase="offboard",
@@ -367,6 +364,8 @@ class Pilot(Departure, Steering):
             recorder.cancel()
 
     async def _hold_and_land(self) -> None:
+        if self.vehicle.status().mode is FlightMode.OFFBOARD:  # once more: the keep-alive has stopped
+            await self._hover()
         await self._retry("hold", self.vehicle.hold)
         await self.vehicle.wait_until(lambda s, p: s.mode is FlightMode.HOLD, wall_for_sim(self.vehicle, 5.0), "HOLD")
         self.outcome.phase = "held"
