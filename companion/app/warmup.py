@@ -52,11 +52,18 @@ def warm_up_headless(mission: Mission, variant: str | None = None, *,
     routes, first = (None, None) if inputs is None else inputs
     with contextlib.suppress(BudgetSpent, NoPath):  # NoPath: the flight itself says so
         simulate(mission, variant, routes=routes, first=first, budget=WorkBudget(_HEADLESS_WARM_TICKS))
-    # the sloped sightline critic (timed variants) once the other vehicle is near, which the first
-    # ticks do not see; the flight passes the rollouts' ends as strided views
-    ends = np.zeros((2, 2))[:, 0]
-    DWA_KERNELS.open_clearance(ends, ends, (5.0, 5.0), 1.0, ObstacleField.from_world(mission.world).at_time(0.0))
+    _warm_sloped_sightline(mission)
     return time.monotonic() - started
+
+
+def _warm_sloped_sightline(mission: Mission) -> None:
+    """The sloped sightline critic (timed variants) once the other vehicle is near, which the
+    first ticks do not see, with the rollouts' ends as strided views and as arrays of their own
+    (each another signature to the compiled code: left to the flight, one compiled 12 s of sim
+    after departure)."""
+    snapshot = ObstacleField.from_world(mission.world).at_time(0.0)
+    for ends in (np.zeros((2, 2))[:, 0], np.zeros(2)):
+        DWA_KERNELS.open_clearance(ends, ends, (5.0, 5.0), 1.0, snapshot)
 
 
 def warm_up_planners(plan: FlightPlan) -> float:
@@ -82,6 +89,7 @@ def warm_up_planners(plan: FlightPlan) -> float:
         planner.tick(Pose(x, y, spec.initial_heading_rad), reaction.other, snapshot, 0.0, 0.0,
                      separate_from=reaction.separate_from)
         clearance_here_m(x, y, snapshot)  # the flight log's clearance: the kernels with other argument types
+    _warm_sloped_sightline(mission)
     # the schedule clocks' queries (timed variants), which the flight's context asks every tick:
     # the reach, and a lower vehicle's progress along its plan (the re-plan's watch)
     warm = TimedRoute("warm", np.array([0.0, 1.0]), np.zeros((2, 2)))

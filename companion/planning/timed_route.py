@@ -15,7 +15,7 @@ positions), so a dynamic window can score a whole batch of rollouts against the 
 from __future__ import annotations
 
 from bisect import bisect_left, bisect_right
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -57,6 +57,13 @@ class TimedRoute:
         object.__setattr__(self, "_t_list", t.tolist())  # for scalar bisections (every tick)
         object.__setattr__(self, "_along_list", along.tolist())
         object.__setattr__(self, "_last_progress", {})  # (x, y, near_along_m) -> (along, off): a tick asks twice
+
+    def __reduce__(self):
+        # Rebuilt when unpickled (a plan made in a child process, companion.app.offload): its arrays
+        # read-only again. Unpickled as they were, they come back writeable, another type to the
+        # compiled queries, which compiled again at the flight's first tick: 1.4 s of wall time on a
+        # cold cache, and the vehicles departed on a pose 5-25 s of sim old.
+        return type(self), tuple(getattr(self, f.name) for f in fields(self))
 
     @property
     def path_xy(self) -> np.ndarray:

@@ -25,21 +25,28 @@ SCRIPT = textwrap.dedent("""
     from companion.app.steering import clearance_here_m
     from companion.app.warmup import warm_up_planners
     from numba.core.dispatcher import Dispatcher
+    import pickle
+    from companion.planning import timed_route_jit
     from companion.planning.dwa import (distance_jit, evaluate_jit, geometry_jit, heading_jit, recovery_jit,
                                         sightline_jit)
     from companion.planning.obstacle_field import ObstacleField
     from companion.planning.flight.headless import simulate
 
-    def loaded():  # the DWA's compiled kernels: signatures per dispatcher
+    def loaded():  # the DWA's and the timed routes' compiled kernels: signatures per dispatcher
         return {f"{m.__name__}.{k}": len(v.signatures)
-                for m in (distance_jit, evaluate_jit, geometry_jit, heading_jit, recovery_jit, sightline_jit)
+                for m in (distance_jit, evaluate_jit, geometry_jit, heading_jit, recovery_jit, sightline_jit,
+                          timed_route_jit)
                 for k, v in vars(m).items() if isinstance(v, Dispatcher)}
 
     mission = load_mission(sys.argv[1]).with_variant(sys.argv[2])
-    warm_up_planners(prepare(mission))
+    plan = prepare(mission)
+    warm_up_planners(plan)
     warm = loaded()
     assert sum(warm.values()) >= 3, warm
-    simulate(mission)  # every tick of a whole flight, moving and turning
+    # Every tick of a whole flight, moving and turning, on the plan as the live flight gets it:
+    # made again in a child process (companion.app.offload), pickled back.
+    coordinated = None if plan.coordinated is None else pickle.loads(pickle.dumps(plan.coordinated))
+    simulate(mission, timed_routes=None if coordinated is None else coordinated.timed)
     field = ObstacleField.from_world(mission.world)
     clearance_here_m(10.0, 10.0, field.from_tracks(field.tracks_at(30.0)))  # the flight log's column
     later = loaded()
