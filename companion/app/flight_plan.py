@@ -100,8 +100,7 @@ class FlightPlan:
         """Fresh planners for every vehicle and the timed routes' clocks, built as the headless
         runner builds them (:func:`companion.planning.flight.fleet_setup.build_fleet`), on the
         coordinated plan computed before (:attr:`coordinated`)."""
-        plan = self.coordinated
-        return build_fleet(self.mission, self.routes, self.variant, plan=plan)
+        return build_fleet(self.mission, self.routes, self.variant, plan=self.coordinated)
 
     def nodes_enu_m(self, vehicle: VehicleSpec) -> np.ndarray:
         """The local goals the vehicle's planner follows, start first (what gets uploaded)."""

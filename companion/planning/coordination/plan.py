@@ -62,8 +62,7 @@ class CoordinatedPlan:
 
     def paced(self, name: str) -> TimedRoute | None:
         """The plan vehicle ``name`` must not run ahead of, when it tracks another (the first: its forecast)."""
-        tracked = self.tracked(name)
-        return None if tracked is self.timed.get(name) else self.timed.get(name)
+        return self.timed.get(name) if self.first_tracks is not None and name == self.first_tracks.vehicle else None
 
 
 def departure_hold(mission: "Mission", first: TimedRoute, grid: OccupancyGrid, shadows: SightShadows,

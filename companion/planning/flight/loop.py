@@ -174,7 +174,6 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
             rows[-1],
             [_other(states[n], here[n], parked=n not in active) for n in names],
             names, hides, reach)
-        read = False  # the first vehicle's tick read from solo
         for name in list(active):
             own = states[name]
             planner = planners[name]
@@ -183,7 +182,7 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
                 if k >= len(solo.results) or not (solo.states[k] is own or solo.states[k] == own):
                     stop_replay(k)  # off its flight alone: it never gets back on it
                 elif view.alone(0):
-                    result, read, read_last = solo.results[k], True, k  # what it decided here alone: nobody can bind it
+                    result, read_last = solo.results[k], k  # what it decided here alone: nobody can bind it
                 else:
                     catch_up(k)  # within someone's reach, on its flight alone still: it decides
             if result is None:
@@ -212,7 +211,7 @@ def fly(mission: Mission, fleet: FleetSetup, routes: dict[str, Route], *,
         if not active:
             break
         for name, command in commands.items():
-            if name == top and read and k + 1 < len(solo.states):
+            if name == top and read_last == k and k + 1 < len(solo.states):
                 states[name] = solo.states[k + 1]  # where the same command took it alone
             else:
                 states[name] = step(states[name], command, limits[name], dt)
